@@ -1,0 +1,240 @@
+"""Bounding volume hierarchy over triangles, built top-down with the binned surface-area heuristic.
+
+Layout (depth-first): the left child of interior node i is i + 1; `node_index[i]` is the right child of an
+interior node or the first primitive of a leaf; `node_count[i]` is 0 for interior nodes and the number of
+primitives of a leaf; `node_axis[i]` is the split axis (used for front-to-back traversal).
+Triangle vertices are stored in BVH order in `tri_v`; `prim_ids` maps BVH order back to scene triangle ids.
+"""
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+N_BINS = 16
+MAX_LEAF = 8
+TRAVERSAL_COST = 1.0  # relative to one ray-triangle test
+
+
+@njit(cache=True, error_model="numpy")
+def _area(b):
+    dx, dy, dz = b[3] - b[0], b[4] - b[1], b[5] - b[2]
+    if dx < 0.0:
+        return 0.0
+    return 2.0 * (dx * dy + dy * dz + dz * dx)
+
+
+@njit(cache=True, error_model="numpy")
+def _build(tri_lo, tri_hi, cent, n_bins, max_leaf, trav_cost):
+    n = cent.shape[0]
+    idx = np.arange(n).astype(np.int32)
+    max_nodes = 2 * n
+    bounds = np.empty((max_nodes, 6))
+    node_index = np.zeros(max_nodes, np.int32)
+    node_count = np.zeros(max_nodes, np.int32)
+    node_axis = np.zeros(max_nodes, np.int8)
+    # pending ranges: start, end, parent (right-child links are patched when the node is created)
+    st_start = np.empty(n + 64, np.int64)
+    st_end = np.empty(n + 64, np.int64)
+    st_parent = np.empty(n + 64, np.int64)
+    sp = 0
+    st_start[0], st_end[0], st_parent[0] = 0, n, -1
+    sp = 1
+    n_nodes = 0
+    bin_cnt = np.zeros((3, n_bins), np.int64)
+    bin_box = np.empty((3, n_bins, 6))
+    right_area = np.empty(n_bins)
+    right_cnt = np.empty(n_bins, np.int64)
+    box = np.empty(6)
+    acc = np.empty(6)
+    while sp > 0:
+        sp -= 1
+        start, end, parent = st_start[sp], st_end[sp], st_parent[sp]
+        node = n_nodes
+        n_nodes += 1
+        if parent >= 0:
+            node_index[parent] = node
+        # node bounds and centroid bounds
+        for k in range(3):
+            bounds[node, k] = np.inf
+            bounds[node, k + 3] = -np.inf
+            box[k] = np.inf
+            box[k + 3] = -np.inf
+        for i in range(start, end):
+            t = idx[i]
+            for k in range(3):
+                bounds[node, k] = min(bounds[node, k], tri_lo[t, k])
+                bounds[node, k + 3] = max(bounds[node, k + 3], tri_hi[t, k])
+                box[k] = min(box[k], cent[t, k])
+                box[k + 3] = max(box[k + 3], cent[t, k])
+        count = end - start
+        if count <= 1:
+            node_index[node], node_count[node] = start, count
+            continue
+        # binning on all three axes
+        bin_cnt[:, :] = 0
+        for a in range(3):
+            for j in range(n_bins):
+                for k in range(3):
+                    bin_box[a, j, k] = np.inf
+                    bin_box[a, j, k + 3] = -np.inf
+        scale = np.zeros(3)
+        for a in range(3):
+            ext = box[a + 3] - box[a]
+            if ext > 0.0:
+                scale[a] = n_bins * (1.0 - 1e-9) / ext
+        for i in range(start, end):
+            t = idx[i]
+            for a in range(3):
+                if scale[a] == 0.0:
+                    continue
+                j = int((cent[t, a] - box[a]) * scale[a])
+                j = min(max(j, 0), n_bins - 1)
+                bin_cnt[a, j] += 1
+                for k in range(3):
+                    bin_box[a, j, k] = min(bin_box[a, j, k], tri_lo[t, k])
+                    bin_box[a, j, k + 3] = max(bin_box[a, j, k + 3], tri_hi[t, k])
+        best_cost = np.inf
+        best_axis = -1
+        best_split = -1
+        for a in range(3):
+            if scale[a] == 0.0:
+                continue
+            for k in range(3):
+                acc[k] = np.inf
+                acc[k + 3] = -np.inf
+            c = 0
+            for j in range(n_bins - 1, 0, -1):
+                c += bin_cnt[a, j]
+                for k in range(3):
+                    acc[k] = min(acc[k], bin_box[a, j, k])
+                    acc[k + 3] = max(acc[k + 3], bin_box[a, j, k + 3])
+                right_area[j] = _area(acc)
+                right_cnt[j] = c
+            for k in range(3):
+                acc[k] = np.inf
+                acc[k + 3] = -np.inf
+            c = 0
+            for j in range(n_bins - 1):
+                c += bin_cnt[a, j]
+                for k in range(3):
+                    acc[k] = min(acc[k], bin_box[a, j, k])
+                    acc[k + 3] = max(acc[k + 3], bin_box[a, j, k + 3])
+                if c == 0 or right_cnt[j + 1] == 0:
+                    continue
+                cost = c * _area(acc) + right_cnt[j + 1] * right_area[j + 1]
+                if cost < best_cost:
+                    best_cost, best_axis, best_split = cost, a, j
+        parent_area = _area(bounds[node])
+        split_cost = trav_cost + best_cost / parent_area if parent_area > 0.0 else np.inf
+        if count <= max_leaf and (best_axis < 0 or split_cost >= count):
+            node_index[node], node_count[node] = start, count
+            continue
+        if best_axis >= 0:
+            lo, hi = start, end - 1
+            while lo <= hi:
+                t = idx[lo]
+                j = min(max(int((cent[t, best_axis] - box[best_axis]) * scale[best_axis]), 0), n_bins - 1)
+                if j <= best_split:
+                    lo += 1
+                else:
+                    idx[lo], idx[hi] = idx[hi], idx[lo]
+                    hi -= 1
+            mid = lo
+            axis = best_axis
+        else:
+            mid = -1
+            axis = 0
+        if mid <= start or mid >= end:
+            mid = (start + end) // 2  # all centroids coincide: split by count
+        node_axis[node] = axis
+        node_count[node] = 0
+        st_start[sp], st_end[sp], st_parent[sp] = mid, end, node
+        sp += 1
+        st_start[sp], st_end[sp], st_parent[sp] = start, mid, -1
+        sp += 1
+    return bounds[:n_nodes].copy(), node_index[:n_nodes].copy(), node_count[:n_nodes].copy(), \
+        node_axis[:n_nodes].copy(), idx
+
+
+@njit(cache=True, error_model="numpy")
+def _depth_stats(node_index, node_count):
+    n = node_index.shape[0]
+    depth = np.zeros(n, np.int32)
+    max_depth = 0
+    for i in range(n):
+        if node_count[i] == 0 and i + 1 < n:
+            depth[i + 1] = depth[i] + 1
+            depth[node_index[i]] = depth[i] + 1
+        max_depth = max(max_depth, depth[i])
+    return max_depth
+
+
+@dataclass
+class BVH:
+    bounds: np.ndarray
+    node_index: np.ndarray
+    node_count: np.ndarray
+    node_axis: np.ndarray
+    tri_v: np.ndarray  # (n, 3, 3) vertices in BVH order
+    prim_ids: np.ndarray  # BVH order -> scene triangle id
+    max_depth: int
+    build_seconds: float
+
+    packed: np.ndarray = None  # (n, 16) float64 traversal records, see `_pack`
+
+    def __post_init__(self):
+        self.packed = _pack(self.bounds, self.node_index, self.node_count)
+
+    @property
+    def arrays(self):
+        """The tuple handed to the traversal kernels: float and int views of the same 64-byte node records."""
+        return (self.packed, self.packed.view(np.int64), self.bounds[0].copy(), self.tri_v, self.prim_ids,
+                self.max_depth + 2)
+
+    def stats(self):
+        leaves = self.node_count > 0
+        root_area = float(_area(self.bounds[0]))
+        areas = 2.0 * np.sum(np.stack([
+            (self.bounds[:, 3] - self.bounds[:, 0]) * (self.bounds[:, 4] - self.bounds[:, 1]),
+            (self.bounds[:, 4] - self.bounds[:, 1]) * (self.bounds[:, 5] - self.bounds[:, 2]),
+            (self.bounds[:, 5] - self.bounds[:, 2]) * (self.bounds[:, 3] - self.bounds[:, 0])]), axis=0)
+        sah = (TRAVERSAL_COST * areas[~leaves].sum() + (areas[leaves] * self.node_count[leaves]).sum()) / root_area
+        return {
+            "nodes": int(len(self.node_count)),
+            "leaves": int(leaves.sum()),
+            "max_depth": self.max_depth,
+            "mean_leaf_size": float(self.node_count[leaves].mean()),
+            "max_leaf_size": int(self.node_count.max()),
+            "sah_cost": float(sah),
+            "build_seconds": self.build_seconds,
+        }
+
+
+def _pack(bounds, node_index, node_count):
+    """Two cache lines per node: both children's boxes in float64 (columns 0-11, so one visit tests the two
+    children with the exact bounds), then as int64 the right child or first primitive (12) and the leaf
+    primitive count (13, 0 for interior nodes)."""
+    buf = np.zeros(len(bounds) * 16 + 8, np.float64)
+    start = (-buf.ctypes.data % 64) // 8  # align records to 64 bytes
+    rec = buf[start:start + len(bounds) * 16].reshape(-1, 16)
+    inner = np.flatnonzero(node_count == 0)
+    rec[inner, 0:6] = bounds[inner + 1]
+    rec[inner, 6:12] = bounds[node_index[inner]]
+    ints = rec.view(np.int64)
+    ints[:, 12] = node_index
+    ints[:, 13] = node_count
+    return rec
+
+
+def build_bvh(triangles, n_bins=N_BINS, max_leaf=MAX_LEAF):
+    """Build a BVH over `triangles` (n, 3, 3) float64."""
+    tris = np.ascontiguousarray(triangles, dtype=np.float64)
+    t0 = time.perf_counter()
+    lo = tris.min(axis=1)
+    hi = tris.max(axis=1)
+    cent = 0.5 * (lo + hi)
+    bounds, node_index, node_count, node_axis, idx = _build(lo, hi, cent, n_bins, max_leaf, TRAVERSAL_COST)
+    tri_v = np.ascontiguousarray(tris[idx])
+    depth = int(_depth_stats(node_index, node_count))
+    return BVH(bounds, node_index, node_count, node_axis, tri_v, idx, depth, time.perf_counter() - t0)

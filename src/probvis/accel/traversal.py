@@ -1,0 +1,199 @@
+"""Ray queries against a `BVH`, each counting its ray-node and ray-triangle tests.
+
+`bvh` is the tuple `BVH.arrays`. Rays are (origin, direction, tmin, tmax); a shadow segment from p to q is the
+ray (p, q - p) with tmax just below 1. The ray-triangle test is the watertight test of Woop, Benthin and
+Wald (JCGT 2013) in double precision: rays through shared edges and vertices never slip between triangles.
+"""
+import numpy as np
+from numba import njit, prange
+
+CHUNK = 64  # rays per stack allocation in the parallel loops
+_BOX_SLACK = 1.0 + 2.0 * 3.0 * 1.1102230246251565e-16  # 1 + 2 gamma(3): conservative slab exit
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def ray_setup(dx, dy, dz):
+    """Per-ray constants of the watertight test: permuted axes and shear."""
+    ax, ay, az = abs(dx), abs(dy), abs(dz)
+    if ax > ay and ax > az:
+        kz = 0
+    elif ay > az:
+        kz = 1
+    else:
+        kz = 2
+    kx = (kz + 1) % 3
+    ky = (kx + 1) % 3
+    d = (dx, dy, dz)
+    if d[kz] < 0.0:
+        kx, ky = ky, kx
+    sz = 1.0 / d[kz]
+    return kx, ky, kz, d[kx] * sz, d[ky] * sz, sz
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
+    """Watertight ray-triangle test of triangle `p` of `tv`; returns (t, b1, b2) with t = inf on a miss."""
+    ax = tv[p, 0, kx] - o[kx]
+    ay = tv[p, 0, ky] - o[ky]
+    az = tv[p, 0, kz] - o[kz]
+    bx = tv[p, 1, kx] - o[kx]
+    by = tv[p, 1, ky] - o[ky]
+    bz = tv[p, 1, kz] - o[kz]
+    cx = tv[p, 2, kx] - o[kx]
+    cy = tv[p, 2, ky] - o[ky]
+    cz = tv[p, 2, kz] - o[kz]
+    ax -= sx * az
+    ay -= sy * az
+    bx -= sx * bz
+    by -= sy * bz
+    cx -= sx * cz
+    cy -= sy * cz
+    u = cx * by - cy * bx
+    v = ax * cy - ay * cx
+    w = bx * ay - by * ax
+    if (u < 0.0 or v < 0.0 or w < 0.0) and (u > 0.0 or v > 0.0 or w > 0.0):
+        return np.inf, 0.0, 0.0
+    det = u + v + w
+    if det == 0.0:
+        return np.inf, 0.0, 0.0
+    tt = u * (sz * az) + v * (sz * bz) + w * (sz * cz)
+    if det < 0.0:
+        if tt >= tmin * det or tt <= tmax * det:
+            return np.inf, 0.0, 0.0
+    elif tt <= tmin * det or tt >= tmax * det:
+        return np.inf, 0.0, 0.0
+    inv = 1.0 / det
+    return tt * inv, v * inv, w * inv
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def hit_box(b, node, off, ox, oy, oz, ix, iy, iz, tmin, tmax):
+    """Slab test of the box b[node, off:off + 6]; returns the entry distance, or inf on a miss in [tmin, tmax].
+
+    A zero direction component gives inf * 0 = NaN, which the ordered comparisons ignore.
+    """
+    t0, t1 = tmin, tmax
+    tn = (b[node, off] - ox) * ix
+    tf = (b[node, off + 3] - ox) * ix
+    if tn > tf:
+        tn, tf = tf, tn
+    tf *= _BOX_SLACK
+    if tn > t0:
+        t0 = tn
+    if tf < t1:
+        t1 = tf
+    tn = (b[node, off + 1] - oy) * iy
+    tf = (b[node, off + 4] - oy) * iy
+    if tn > tf:
+        tn, tf = tf, tn
+    tf *= _BOX_SLACK
+    if tn > t0:
+        t0 = tn
+    if tf < t1:
+        t1 = tf
+    tn = (b[node, off + 2] - oz) * iz
+    tf = (b[node, off + 5] - oz) * iz
+    if tn > tf:
+        tn, tf = tf, tn
+    tf *= _BOX_SLACK
+    if tn > t0:
+        t0 = tn
+    if tf < t1:
+        t1 = tf
+    return t0 if t0 <= t1 else np.inf
+
+
+@njit(cache=True, error_model="numpy")
+def trace(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit, stack):
+    """Traverse one ray. With `any_hit` stop at the first hit found, else find the nearest.
+
+    Each interior node tests both children's boxes (two node tests) and descends into the nearer hit first.
+    Returns (bvh-order primitive or -1, t, b1, b2, node tests, triangle tests); `stack` is caller scratch.
+    """
+    o = (ox, oy, oz)
+    ix = 1.0 / dx if dx != 0.0 else np.inf
+    iy = 1.0 / dy if dy != 0.0 else np.inf
+    iz = 1.0 / dz if dz != 0.0 else np.inf
+    kx, ky, kz, sx, sy, sz = ray_setup(dx, dy, dz)
+    best, bt, b1, b2 = -1, tmax, 0.0, 0.0
+    n_node, n_tri = 1, 0
+    root_box = root.reshape(1, 6)
+    if hit_box(root_box, 0, 0, ox, oy, oz, ix, iy, iz, tmin, bt) == np.inf:
+        return best, bt, b1, b2, n_node, n_tri
+    sp = 0
+    node = 0
+    while True:
+        cnt = ci[node, 13]
+        if cnt == 0:
+            n_node += 2
+            tl = hit_box(cb, node, 0, ox, oy, oz, ix, iy, iz, tmin, bt)
+            tr = hit_box(cb, node, 6, ox, oy, oz, ix, iy, iz, tmin, bt)
+            if tl < np.inf:
+                if tr < np.inf:
+                    if tl <= tr:
+                        stack[sp] = ci[node, 12]
+                        node = node + 1
+                    else:
+                        stack[sp] = node + 1
+                        node = ci[node, 12]
+                    sp += 1
+                else:
+                    node = node + 1
+                continue
+            if tr < np.inf:
+                node = ci[node, 12]
+                continue
+        else:
+            first = ci[node, 12]
+            for p in range(first, first + cnt):
+                n_tri += 1
+                t, u, v = hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, tmin, bt)
+                if t < bt:
+                    best, bt, b1, b2 = p, t, u, v
+                    if any_hit:
+                        return best, bt, b1, b2, n_node, n_tri
+        if sp == 0:
+            break
+        sp -= 1
+        node = stack[sp]
+    return best, bt, b1, b2, n_node, n_tri
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def closest_hit(bvh, org, dirs, tmin, tmax):
+    """Batched nearest hits. Returns scene triangle id (-1 on a miss), t, b1, b2, node and triangle tests."""
+    cb, ci, root, tv, prim_ids, depth = bvh
+    n = org.shape[0]
+    prim = np.full(n, -1, np.int32)
+    t = np.full(n, np.inf)
+    b1 = np.zeros(n)
+    b2 = np.zeros(n)
+    n_node = np.zeros(n, np.int32)
+    n_tri = np.zeros(n, np.int32)
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        stack = np.empty(depth, np.int32)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            p, tt, u, v, a, b = trace(cb, ci, root, tv, org[i, 0], org[i, 1], org[i, 2],
+                                      dirs[i, 0], dirs[i, 1], dirs[i, 2], tmin[i], tmax[i], False, stack)
+            if p >= 0:
+                prim[i] = prim_ids[p]
+                t[i], b1[i], b2[i] = tt, u, v
+            n_node[i], n_tri[i] = a, b
+    return prim, t, b1, b2, n_node, n_tri
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def any_hit(bvh, org, dirs, tmin, tmax):
+    """Batched occlusion queries: occluded flag, node and triangle tests per ray."""
+    cb, ci, root, tv, prim_ids, depth = bvh
+    n = org.shape[0]
+    occ = np.zeros(n, np.bool_)
+    n_node = np.zeros(n, np.int32)
+    n_tri = np.zeros(n, np.int32)
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        stack = np.empty(depth, np.int32)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            p, _, _, _, a, b = trace(cb, ci, root, tv, org[i, 0], org[i, 1], org[i, 2],
+                                     dirs[i, 0], dirs[i, 1], dirs[i, 2], tmin[i], tmax[i], True, stack)
+            occ[i], n_node[i], n_tri[i] = p >= 0, a, b
+    return occ, n_node, n_tri

@@ -1,0 +1,172 @@
+"""Command line: `probvis render | info | scenes`."""
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+
+from . import __version__
+from .errors import ProbvisError
+
+
+def _defines(items):
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ProbvisError(f"-D expects name=value, got '{item}'")
+        k, v = item.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def _positive(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
+    return v
+
+
+def _non_negative(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be non-negative, got {v}")
+    return v
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog="probvis", description="Direct illumination with measurable visibility.")
+    p.add_argument("--version", action="version", version=f"probvis {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("render", help="render a scene to EXR/PFM/PNG and report its statistics")
+    r.add_argument("scene", help="Mitsuba XML file or built-in scene name (see `probvis scenes`)")
+    r.add_argument("-o", "--output", action="append", metavar="OUT",
+                   help="output image (.exr, .pfm, .png); repeat for several (default: SCENE.exr)")
+    r.add_argument("--spp", type=_positive, help="camera samples per pixel")
+    r.add_argument("--shadow-rays", type=_positive, help="emitter samples (shadow rays) per camera sample")
+    r.add_argument("-D", dest="defines", action="append", metavar="NAME=VALUE", help="override a <default>")
+    r.add_argument("--seed", type=_non_negative, help="random seed (default: the scene's sampler seed)")
+    r.add_argument("--visibility", default="exact", help="visibility estimator (default: exact)")
+    r.add_argument("--stats", metavar="OUT.json", help="write the statistics as JSON")
+    r.add_argument("--tests-image", metavar="OUT.exr", help="write per-pixel ray-triangle and ray-node test counts")
+    r.add_argument("--threads", type=_positive, help="worker threads (default: all cores)")
+    r.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops (default 0)")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+
+    i = sub.add_parser("info", help="triangles, emitters, bounds and BVH statistics of a scene")
+    i.add_argument("scene")
+    i.add_argument("-D", dest="defines", action="append", metavar="NAME=VALUE")
+    i.add_argument("--json", action="store_true", help="print JSON")
+
+    sub.add_parser("scenes", help="list the built-in scenes")
+    return p
+
+
+def _cmd_render(args):
+    from .integrator import render
+    from .io import check_writable, summary, write_exr, write_image, write_stats
+
+    outputs = args.output or [f"{Path(args.scene).stem}.exr"]
+    for path in outputs + [x for x in (args.stats, args.tests_image) if x]:
+        check_writable(path)
+    if args.tests_image and not args.tests_image.lower().endswith(".exr"):
+        raise ProbvisError("--tests-image must be an .exr file")
+    result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed,
+                    visibility=args.visibility, threads=args.threads,
+                    progress=not args.quiet and sys.stderr.isatty(), **_defines(args.defines))
+    for path in outputs:
+        write_image(path, result.image, args.exposure)
+    if args.tests_image:
+        write_exr(args.tests_image, None, channels={"triangle": result.aovs["triangle_tests"],
+                                                    "node": result.aovs["node_tests"]})
+    if args.stats:
+        write_stats(args.stats, result.stats)
+    if not args.quiet:
+        print(summary(result.stats))
+        print("wrote       " + ", ".join(outputs + [x for x in (args.tests_image, args.stats) if x]))
+    return 0
+
+
+def _cmd_info(args):
+    import numpy as np
+
+    from .accel import build_bvh
+    from .lights import build_emitter_sampler
+    from .scene import load_scene
+
+    scene = load_scene(args.scene, **_defines(args.defines))
+    bvh = build_bvh(scene.triangles)
+    es = build_emitter_sampler(scene)
+    lo, hi = scene.bounds()
+    cam = scene.camera
+    info = {
+        "scene": scene.name,
+        "source": scene.source,
+        "triangles": scene.n_triangles,
+        "dropped_degenerate_triangles": scene.dropped_degenerate,
+        "bounds": {"min": lo.tolist(), "max": hi.tolist()},
+        "shapes": [{"name": s.name, "type": s.kind, "triangles": s.n_triangles, "emitter": s.emitter}
+                   for s in scene.shapes],
+        "emitters": [{"radiance": scene.emitter_radiance[e].tolist(), "area": float(es.emitter_area[e]),
+                      "power": float(es.power[e]), "selection_probability": float(es.emitter_pmf[e])}
+                     for e in range(scene.n_emitters)],
+        "camera": {"width": cam.width, "height": cam.height, "fov_x": cam.fov_x,
+                   "origin": cam.to_world[:3, 3].tolist()},
+        "spp": scene.spp,
+        "shadow_rays_per_sample": scene.shadow_rays,
+        "bvh": bvh.stats(),
+    }
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    print(f"scene      {info['scene']} ({info['source']})")
+    print(f"triangles  {info['triangles']:,}" + (f" ({scene.dropped_degenerate} degenerate dropped)"
+                                                if scene.dropped_degenerate else ""))
+    print(f"bounds     {np.round(lo, 4).tolist()} .. {np.round(hi, 4).tolist()}")
+    print(f"camera     {cam.width}x{cam.height}, fov_x {cam.fov_x:.4g} deg, {scene.spp} spp x "
+          f"{scene.shadow_rays} shadow rays")
+    for e, em in enumerate(info["emitters"]):
+        print(f"emitter {e}  radiance {em['radiance']}, area {em['area']:.4g}, power {em['power']:.4g}, "
+              f"p {em['selection_probability']:.3f}")
+    b = info["bvh"]
+    print(f"bvh        {b['nodes']:,} nodes, {b['leaves']:,} leaves, depth {b['max_depth']}, "
+          f"mean leaf {b['mean_leaf_size']:.2f}, SAH cost {b['sah_cost']:.2f}, built in {b['build_seconds']:.3f} s")
+    for s in info["shapes"]:
+        print(f"shape      {s['name']:<16} {s['type']:<10} {s['triangles']:>8,} triangles"
+              + ("  (emitter)" if s["emitter"] >= 0 else ""))
+    return 0
+
+
+def _cmd_scenes(args):
+    from .scene import BUILTINS
+
+    for name, (_, text) in BUILTINS.items():
+        print(f"{name:<14} {text}")
+    return 0
+
+
+def _warning_line(message, category, filename, lineno, file=None, line=None):
+    print(f"probvis: warning: {message}", file=sys.stderr)
+
+
+def main(argv=None):
+    args = _parser().parse_args(argv)
+    warnings.showwarning = _warning_line
+    try:
+        return {"render": _cmd_render, "info": _cmd_info, "scenes": _cmd_scenes}[args.command](args)
+    except ProbvisError as exc:
+        print(f"probvis: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("probvis: interrupted, nothing written", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,342 @@
+"""Direct illumination, run stage by stage over batches of whole pixels (wavefront style):
+
+camera rays -> closest hits -> shading points and emitter samples -> visibility estimator -> film.
+
+Each camera sample emits `shadow_rays` emitter samples (emitter by power, triangle by area, uniform point)
+with a Lambertian BRDF; one-sided diffuse surfaces are black from behind and emitters emit from their
+front side only, as in Mitsuba 3.
+"""
+import math
+import time
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from . import __version__
+from .accel import build_bvh, closest_hit
+from .camera import camera_params, camera_rays
+from .errors import ProbvisError
+from .lights import build_emitter_sampler, sample_emitter
+from .rng import mix64, uniform
+from .scene import Scene, load_scene
+from .visibility import ShadingPoints, ShadowQuery, make_estimator
+
+SHADOW_EPSILON = 1e-6  # segments stop this fraction short of the emitter point
+TARGET_SLOTS = 1 << 20  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
+
+
+@dataclass
+class RenderResult:
+    """`image` is (height, width, 3) float64 radiance; `aovs` holds per-pixel images such as test counts."""
+
+    image: np.ndarray
+    stats: dict
+    aovs: dict = field(default_factory=dict)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _face_normal(triangles, t):
+    ax = triangles[t, 1, 0] - triangles[t, 0, 0]
+    ay = triangles[t, 1, 1] - triangles[t, 0, 1]
+    az = triangles[t, 1, 2] - triangles[t, 0, 2]
+    bx = triangles[t, 2, 0] - triangles[t, 0, 0]
+    by = triangles[t, 2, 1] - triangles[t, 0, 1]
+    bz = triangles[t, 2, 2] - triangles[t, 0, 2]
+    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+    return nx * inv, ny * inv, nz * inv
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def shade(geom, es, prim, b1, b2, dirs, keys, n_shadow):
+    """Shading points of the hits and one emitter sample per shadow slot (slot = sample * n_shadow + j).
+
+    Returns emitted radiance per sample, shading points, and per slot: segment origin, direction, the
+    unoccluded contribution (already divided by pdf and n_shadow), the emitter id and an active flag.
+    """
+    triangles, vnormals, tri_mat, tri_emit, refl, twosided, radiance = geom
+    cdf, pmf, area, offsets, etris, tri_cdf = es
+    n = prim.shape[0]
+    emitted = np.zeros((n, 3))
+    pos = np.zeros((n, 3))
+    nrm = np.zeros((n, 3))
+    m_slots = n * n_shadow
+    s_org = np.empty((m_slots, 3))
+    s_dir = np.empty((m_slots, 3))
+    contrib = np.zeros((m_slots, 3))
+    s_emit = np.empty(m_slots, np.int32)
+    active = np.zeros(m_slots, np.bool_)
+    inv_pi = 1.0 / math.pi
+    for i in prange(n):
+        tri = prim[i]
+        if tri < 0:
+            continue
+        c1, c2 = b1[i], b2[i]
+        c0 = 1.0 - c1 - c2
+        px = c0 * triangles[tri, 0, 0] + c1 * triangles[tri, 1, 0] + c2 * triangles[tri, 2, 0]
+        py = c0 * triangles[tri, 0, 1] + c1 * triangles[tri, 1, 1] + c2 * triangles[tri, 2, 1]
+        pz = c0 * triangles[tri, 0, 2] + c1 * triangles[tri, 1, 2] + c2 * triangles[tri, 2, 2]
+        sx = c0 * vnormals[tri, 0, 0] + c1 * vnormals[tri, 1, 0] + c2 * vnormals[tri, 2, 0]
+        sy = c0 * vnormals[tri, 0, 1] + c1 * vnormals[tri, 1, 1] + c2 * vnormals[tri, 2, 1]
+        sz = c0 * vnormals[tri, 0, 2] + c1 * vnormals[tri, 1, 2] + c2 * vnormals[tri, 2, 2]
+        inv = 1.0 / math.sqrt(sx * sx + sy * sy + sz * sz)
+        sx, sy, sz = sx * inv, sy * inv, sz * inv
+        gx, gy, gz = _face_normal(triangles, tri)
+        cos_i = -(sx * dirs[i, 0] + sy * dirs[i, 1] + sz * dirs[i, 2])
+        em = tri_emit[tri]
+        if em >= 0 and cos_i > 0.0:
+            for k in range(3):
+                emitted[i, k] = radiance[em, k]
+        mat = tri_mat[tri]
+        if cos_i <= 0.0:
+            if not twosided[mat]:
+                continue
+            sx, sy, sz = -sx, -sy, -sz
+        pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+        nrm[i, 0], nrm[i, 1], nrm[i, 2] = sx, sy, sz
+        eps = 1e-9 * (1.0 + max(abs(px), abs(py), abs(pz)))
+        key = keys[i]
+        for j in range(n_shadow):
+            slot = i * n_shadow + j
+            lt, le, yx, yy, yz, pdf = sample_emitter(cdf, pmf, area, offsets, etris, tri_cdf, triangles,
+                                                     uniform(key, 2 + 4 * j),
+                                                     uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j),
+                                                     uniform(key, 5 + 4 * j))
+            wx, wy, wz = yx - px, yy - py, yz - pz
+            d2 = wx * wx + wy * wy + wz * wz
+            if d2 == 0.0:
+                continue
+            inv = 1.0 / math.sqrt(d2)
+            cos_x = (sx * wx + sy * wy + sz * wz) * inv
+            if cos_x <= 0.0:
+                continue
+            lx, ly, lz = _face_normal(triangles, lt)
+            cos_y = -(lx * wx + ly * wy + lz * wz) * inv
+            if cos_y <= 0.0:
+                continue
+            g = cos_x * cos_y / (d2 * pdf * n_shadow) * inv_pi
+            off = eps if gx * wx + gy * wy + gz * wz > 0.0 else -eps
+            ox, oy, oz = px + off * gx, py + off * gy, pz + off * gz
+            for k in range(3):
+                contrib[slot, k] = refl[mat, k] * radiance[le, k] * g
+            s_org[slot, 0], s_org[slot, 1], s_org[slot, 2] = ox, oy, oz
+            s_dir[slot, 0], s_dir[slot, 1], s_dir[slot, 2] = yx - ox, yy - oy, yz - oz
+            s_emit[slot] = le
+            active[slot] = True
+    return emitted, pos, nrm, s_org, s_dir, contrib, s_emit, active
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def compact(active, s_org, s_dir, s_emit, keys, n_shadow):
+    """Gather the active shadow slots into dense arrays, in slot order.
+
+    `offsets[i]:offsets[i + 1]` is the dense range of camera sample i, so `accumulate` can walk it.
+    """
+    n = keys.shape[0]
+    counts = np.zeros(n + 1, np.int64)
+    for i in prange(n):
+        c = 0
+        for j in range(n_shadow):
+            c += active[i * n_shadow + j]
+        counts[i + 1] = c
+    offsets = np.cumsum(counts)
+    m = offsets[n]
+    org = np.empty((m, 3))
+    dirs = np.empty((m, 3))
+    point = np.empty(m, np.int64)
+    emit = np.empty(m, np.int32)
+    rkey = np.empty(m, np.uint64)
+    for i in prange(n):
+        k = offsets[i]
+        for j in range(n_shadow):
+            slot = i * n_shadow + j
+            if active[slot]:
+                for c in range(3):
+                    org[k, c] = s_org[slot, c]
+                    dirs[k, c] = s_dir[slot, c]
+                point[k] = i
+                emit[k] = s_emit[slot]
+                rkey[k] = mix64(keys[i] + np.uint64(j + 1))
+                k += 1
+    return offsets, org, dirs, point, emit, rkey
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def accumulate(emitted, contrib, active, offsets, value, cam_node, cam_tri, sh_node, sh_tri, spp, n_shadow, n_pix):
+    """Pixel means (box filter), per-pixel second moment of the sample radiance, and per-pixel test counts."""
+    img = np.zeros((n_pix, 3))
+    m2 = np.zeros((n_pix, 3))
+    tests = np.zeros((n_pix, 2), np.int64)  # triangle, node
+    for q in prange(n_pix):
+        for s in range(spp):
+            i = q * spp + s
+            tests[q, 0] += cam_tri[i]
+            tests[q, 1] += cam_node[i]
+            l0, l1, l2 = emitted[i, 0], emitted[i, 1], emitted[i, 2]
+            k = offsets[i]
+            for j in range(n_shadow):
+                slot = i * n_shadow + j
+                if active[slot]:
+                    v = value[k]
+                    l0 += contrib[slot, 0] * v
+                    l1 += contrib[slot, 1] * v
+                    l2 += contrib[slot, 2] * v
+                    tests[q, 0] += sh_tri[k]
+                    tests[q, 1] += sh_node[k]
+                    k += 1
+            img[q, 0] += l0
+            img[q, 1] += l1
+            img[q, 2] += l2
+            m2[q, 0] += l0 * l0
+            m2[q, 1] += l1 * l1
+            m2[q, 2] += l2 * l2
+        for c in range(3):
+            img[q, c] /= spp
+            m2[q, c] /= spp
+    return img, m2, tests
+
+
+def scene_arrays(scene):
+    return (scene.triangles, scene.vertex_normals, scene.tri_material, scene.tri_emitter, scene.reflectance,
+            scene.twosided, scene.emitter_radiance)
+
+
+_warmed = set()
+
+
+def _warm_up(estimator_name, options):
+    """Compile (or load from numba's cache) every kernel of the pipeline on a tiny scene; returns seconds."""
+    if estimator_name in _warmed:
+        return 0.0
+    from .scene.builtin import quad_shadow
+
+    t0 = time.perf_counter()
+    _render_prepared(quad_shadow(res=4, spp=1, shadow_rays=2), make_estimator(estimator_name, **options),
+                     progress=False, warmup=True)
+    _warmed.add(estimator_name)
+    return time.perf_counter() - t0
+
+
+def _render_prepared(scene, estimator, progress, warmup=False):
+    t_build = time.perf_counter()
+    bvh = build_bvh(scene.triangles)
+    emitters = build_emitter_sampler(scene)
+    estimator.prepare(scene, bvh, emitters)
+    t_render = time.perf_counter()
+    build_seconds = t_render - t_build
+
+    cam = camera_params(scene.camera)
+    geom = scene_arrays(scene)
+    es = emitters.arrays
+    width, height = scene.camera.width, scene.camera.height
+    n_pix_total = width * height
+    spp, n_shadow = scene.spp, scene.shadow_rays
+    per_batch = max(1, min(n_pix_total, TARGET_SLOTS // (spp * n_shadow)))
+    image = np.zeros((n_pix_total, 3))
+    moment2 = np.zeros((n_pix_total, 3))
+    tests = np.zeros((n_pix_total, 2), np.int64)
+    totals = dict(cam_tri=0, cam_node=0, sh_tri=0, sh_node=0, shadow_rays=0, camera_hits=0, negative=0)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=n_pix_total, unit="px", unit_scale=True, desc=f"render {scene.name}", leave=False)
+    try:
+        for p0 in range(0, n_pix_total, per_batch):
+            p1 = min(n_pix_total, p0 + per_batch)
+            org, dirs, tmin, tmax, keys = camera_rays(cam, spp, scene.seed, p0, p1)
+            prim, _, b1, b2, cam_node, cam_tri = closest_hit(bvh.arrays, org, dirs, tmin, tmax)
+            emitted, pos, nrm, s_org, s_dir, contrib, s_emit, active = shade(geom, es, prim, b1, b2, dirs, keys,
+                                                                             n_shadow)
+            offsets, q_org, q_dir, q_point, q_emit, q_key = compact(active, s_org, s_dir, s_emit, keys, n_shadow)
+            n_q = len(q_point)
+            query = ShadowQuery(origin=q_org, direction=q_dir, tmax=np.full(n_q, 1.0 - SHADOW_EPSILON),
+                                point=q_point, emitter=q_emit, key=q_key, points=ShadingPoints(pos, nrm, prim))
+            res = estimator.evaluate(query)
+            img, m2, tst = accumulate(emitted, contrib, active, offsets, res.value, cam_node, cam_tri,
+                                      res.node_tests, res.triangle_tests, spp, n_shadow, p1 - p0)
+            image[p0:p1], moment2[p0:p1], tests[p0:p1] = img, m2, tst
+            totals["cam_tri"] += int(cam_tri.sum())
+            totals["cam_node"] += int(cam_node.sum())
+            totals["sh_tri"] += int(res.triangle_tests.sum())
+            totals["sh_node"] += int(res.node_tests.sum())
+            totals["shadow_rays"] += n_q
+            totals["camera_hits"] += int((prim >= 0).sum())
+            totals["negative"] += int((res.value < 0).sum())
+            if bar is not None:
+                bar.update(p1 - p0)
+    finally:
+        if bar is not None:
+            bar.close()
+    render_seconds = time.perf_counter() - t_render
+    shape = (height, width)
+    aovs = {
+        "triangle_tests": tests[:, 0].reshape(shape),
+        "node_tests": tests[:, 1].reshape(shape),
+        "second_moment": moment2.reshape(shape + (3,)),
+    }
+    return image.reshape(shape + (3,)), aovs, totals, bvh, build_seconds, render_seconds
+
+
+def render(scene, *, spp=None, shadow_rays=None, seed=None, resolution=None, visibility="exact",
+           visibility_options=None, threads=None, progress=False, **defaults):
+    """Render `scene` (a `Scene`, a Mitsuba XML path or a built-in name) with direct illumination.
+
+    `spp`, `shadow_rays` (emitter samples per camera sample), `seed` and `resolution` (width, height)
+    override the scene's settings; extra keyword arguments are passed to `load_scene` as `<default>`
+    overrides. `visibility` names the estimator (see `probvis.visibility.ESTIMATORS`). Returns a
+    `RenderResult` whose `.image` is linear RGB radiance and whose `.stats` is JSON-serialisable.
+    """
+    t_start = time.perf_counter()
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene, **defaults)
+    elif defaults:
+        raise ProbvisError(f"scene parameters {sorted(defaults)} apply only when loading a scene from a file")
+    load_seconds = time.perf_counter() - t_start
+    w, h = resolution if resolution is not None else (None, None)
+    scene = scene.with_settings(spp=spp, shadow_rays=shadow_rays, seed=seed, width=w, height=h)
+    if threads is not None:
+        if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
+            raise ProbvisError(f"threads must be between 1 and {numba.config.NUMBA_NUM_THREADS}, got {threads}")
+        numba.set_num_threads(threads)
+    options = dict(visibility_options or {})
+    estimator = make_estimator(visibility, **options)
+    compile_seconds = _warm_up(estimator.name, options)
+    image, aovs, tot, bvh, build_s, render_s = _render_prepared(scene, estimator, progress)
+    total = time.perf_counter() - t_start
+    cam = scene.camera
+    n_cam = cam.width * cam.height * scene.spp
+    stats = {
+        "probvis_version": __version__,
+        "scene": scene.name,
+        "source": scene.source,
+        "width": cam.width,
+        "height": cam.height,
+        "spp": scene.spp,
+        "shadow_rays_per_sample": scene.shadow_rays,
+        "seed": scene.seed,
+        "threads": numba.get_num_threads(),
+        "visibility": {"name": estimator.name, **estimator.options()},
+        "seconds": {"total": total, "load": load_seconds, "compile": compile_seconds, "build": build_s,
+                    "render": render_s},
+        "triangles": scene.n_triangles,
+        "dropped_degenerate_triangles": scene.dropped_degenerate,
+        "emitters": scene.n_emitters,
+        "camera_rays": n_cam,
+        "camera_hits": tot["camera_hits"],
+        "shadow_rays": tot["shadow_rays"],
+        "negative_estimates": tot["negative"],
+        "intersection_tests": {
+            "triangle": tot["cam_tri"] + tot["sh_tri"],
+            "node": tot["cam_node"] + tot["sh_node"],
+            "camera": {"triangle": tot["cam_tri"], "node": tot["cam_node"]},
+            "shadow": {"triangle": tot["sh_tri"], "node": tot["sh_node"]},
+        },
+        "shadow_rays_per_second": tot["shadow_rays"] / render_s if render_s > 0 else None,
+        "image_mean": [float(x) for x in image.reshape(-1, 3).mean(axis=0)],
+        "bvh": bvh.stats(),
+        "estimator": estimator.stats(),
+    }
+    return RenderResult(image, stats, aovs)

@@ -1,0 +1,136 @@
+"""Image files: EXR (float32, signed values kept), PFM, and PNG (sRGB tonemap with exposure).
+
+Every writer goes through a temporary file in the destination folder and an atomic rename, so an
+interrupted or failed write never leaves a partial file under the requested name.
+"""
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ProbvisError
+
+FORMATS = (".exr", ".pfm", ".png")
+
+
+def check_writable(path):
+    """Fail early, before a long render, when `path` cannot be written or has an unknown format."""
+    path = Path(path)
+    if path.suffix.lower() not in FORMATS + (".json",):
+        raise ProbvisError(f"cannot write '{path}': unknown format (use {', '.join(FORMATS)})")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise ProbvisError(f"cannot write '{path}': folder '{parent}' does not exist")
+    if not os.access(parent, os.W_OK):
+        raise ProbvisError(f"cannot write '{path}': folder '{parent}' is not writable")
+    if path.is_dir():
+        raise ProbvisError(f"cannot write '{path}': it is a folder")
+
+
+@contextmanager
+def atomic_path(path):
+    """Yield a temporary path beside `path`; rename it over `path` only when the block succeeds."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent or ".")
+    os.close(fd)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise ProbvisError(f"cannot write '{path}': {exc.strerror or exc}") from None
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def _as_rgb(image):
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"expected an (h, w, 3) or (h, w) image, got shape {img.shape}")
+    return img
+
+
+def write_exr(path, image, channels=None):
+    """Write float32 channels; by default RGB. `channels` maps names to (h, w) arrays instead."""
+    import OpenEXR
+
+    if channels is None:
+        data = {"RGB": np.ascontiguousarray(_as_rgb(image), dtype=np.float32)}
+    else:
+        data = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with atomic_path(path) as tmp:
+        with OpenEXR.File(header, data) as f:
+            f.write(tmp)
+
+
+def read_exr(path):
+    """Read an RGB EXR as (h, w, 3) float32."""
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise ProbvisError(f"image not found: {path}")
+    try:
+        with OpenEXR.File(str(path)) as f:
+            ch = f.channels()
+            if "RGB" in ch:
+                return np.array(ch["RGB"].pixels, dtype=np.float32)
+            if all(c in ch for c in "RGB"):
+                return np.stack([np.array(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
+            raise ProbvisError(f"{path}: no RGB channels (found {', '.join(ch)})")
+    except ProbvisError:
+        raise
+    except Exception as exc:
+        raise ProbvisError(f"cannot read EXR {path}: {exc}") from None
+
+
+def write_pfm(path, image):
+    img = np.ascontiguousarray(_as_rgb(image)[::-1], dtype="<f4")
+    h, w = img.shape[:2]
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(f"PF\n{w} {h}\n-1.0\n".encode())
+            f.write(img.tobytes())
+
+
+def read_pfm(path):
+    with open(path, "rb") as f:
+        kind = f.readline().strip()
+        w, h = (int(x) for x in f.readline().split())
+        scale = float(f.readline())
+        dtype = "<f4" if scale < 0 else ">f4"
+        ch = 3 if kind == b"PF" else 1
+        data = np.frombuffer(f.read(), dtype=dtype).reshape(h, w, ch)
+    return data[::-1].astype(np.float32)
+
+
+def tonemap_srgb(image, exposure=0.0):
+    """Linear radiance -> 8-bit sRGB after scaling by 2**exposure; negative values clamp to black."""
+    x = np.clip(_as_rgb(image) * (2.0 ** exposure), 0.0, 1.0)
+    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+    return np.round(srgb * 255.0).astype(np.uint8)
+
+
+def write_png(path, image, exposure=0.0):
+    import imageio.v3 as iio
+
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, tonemap_srgb(image, exposure), extension=".png")
+
+
+def write_image(path, image, exposure=0.0):
+    """Write `image` in the format given by the file extension."""
+    ext = Path(path).suffix.lower()
+    if ext == ".exr":
+        write_exr(path, image)
+    elif ext == ".pfm":
+        write_pfm(path, image)
+    elif ext == ".png":
+        write_png(path, image, exposure)
+    else:
+        raise ProbvisError(f"cannot write '{path}': unknown format (use {', '.join(FORMATS)})")

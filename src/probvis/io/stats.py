@@ -1,0 +1,28 @@
+"""Render statistics: JSON files and the short summary the CLI prints."""
+import json
+
+from .image import atomic_path
+
+
+def write_stats(path, stats):
+    with atomic_path(path) as tmp:
+        with open(tmp, "w") as f:
+            json.dump(stats, f, indent=2)
+            f.write("\n")
+
+
+def summary(stats):
+    s = stats["seconds"]
+    it = stats["intersection_tests"]
+    lines = [
+        f"scene       {stats['scene']}  {stats['width']}x{stats['height']}, {stats['spp']} spp x "
+        f"{stats['shadow_rays_per_sample']} shadow rays, seed {stats['seed']}, visibility {stats['visibility']['name']}",
+        f"seconds     total {s['total']:.2f} = load {s['load']:.2f} + compile {s['compile']:.2f} + "
+        f"build {s['build']:.2f} + render {s['render']:.2f}",
+        f"rays        camera {stats['camera_rays']:,}  shadow {stats['shadow_rays']:,}"
+        + (f"  ({stats['shadow_rays_per_second'] / 1e6:.2f} M/s)" if stats["shadow_rays_per_second"] else ""),
+        f"tests       triangle {it['triangle']:,}  node {it['node']:,}  "
+        f"(shadow: triangle {it['shadow']['triangle']:,}, node {it['shadow']['node']:,})",
+        "image mean  " + ", ".join(f"{x:.5g}" for x in stats["image_mean"]),
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,23 @@
+"""Scenes: Mitsuba XML files or built-in procedural scenes, loaded into flat triangle arrays."""
+from pathlib import Path
+
+from ..errors import ProbvisError
+from .builtin import BUILTINS, builtin_scene
+from .mitsuba_xml import read_scene
+from .scene import Camera, Scene, SceneBuilder, ShapeInfo
+
+
+def load_scene(path, **defaults):
+    """Load a Mitsuba 3 XML file, or a built-in scene by name (`probvis scenes` lists them).
+
+    Keyword arguments override the scene's `<default>` parameters, like Mitsuba's `-D name=value`.
+    """
+    if isinstance(path, str) and path in BUILTINS:
+        return builtin_scene(path, **defaults)
+    p = Path(path)
+    if p.suffix.lower() != ".xml" and not p.exists():
+        raise ProbvisError(f"'{path}' is neither a scene file nor a built-in scene ({', '.join(BUILTINS)})")
+    return read_scene(p, **defaults)
+
+
+__all__ = ["BUILTINS", "Camera", "Scene", "SceneBuilder", "ShapeInfo", "load_scene"]

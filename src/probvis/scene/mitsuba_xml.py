@@ -1,0 +1,436 @@
+"""Reader for the subset of Mitsuba 3's XML scene format that probvis renders.
+
+Anything outside the subset raises `ProbvisError` naming the element, the file and the line.
+"""
+import re
+import warnings
+import xml.sax
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import defusedxml.sax
+import numpy as np
+
+from ..errors import ProbvisError
+from . import shapes as shp
+from . import transform as tf
+from .scene import Camera, SceneBuilder
+
+
+@dataclass
+class Node:
+    tag: str
+    attrs: dict
+    line: int
+    children: list = field(default_factory=list)
+
+
+class _TreeBuilder(xml.sax.ContentHandler):
+    def __init__(self):
+        super().__init__()
+        self.root = None
+        self.stack = []
+
+    def startElement(self, name, attrs):
+        node = Node(name, dict(attrs), self._locator.getLineNumber())
+        if self.stack:
+            self.stack[-1].children.append(node)
+        else:
+            self.root = node
+        self.stack.append(node)
+
+    def endElement(self, name):
+        self.stack.pop()
+
+
+def parse_tree(path):
+    path = Path(path)
+    if not path.exists():
+        raise ProbvisError(f"scene file not found: {path}")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ProbvisError(f"cannot read scene file {path}: {exc.strerror}") from None
+    handler = _TreeBuilder()
+    try:
+        defusedxml.sax.parseString(data, handler)
+    except xml.sax.SAXParseException as exc:
+        raise ProbvisError(f"{path}:{exc.getLineNumber()}: malformed XML: {exc.getMessage()}") from None
+    except defusedxml.DefusedXmlException as exc:
+        raise ProbvisError(f"{path}: forbidden XML construct: {exc}") from None
+    return handler.root
+
+
+_PROPERTY_TAGS = {"integer", "float", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform"}
+_SAMPLERS = {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"}
+_VAR = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
+
+
+class _Reader:
+    def __init__(self, path, overrides):
+        self.path = Path(path)
+        self.overrides = {k: str(v) for k, v in overrides.items()}
+        self.defaults = {}
+        self.ids = {}
+
+    # --- errors and values -------------------------------------------------------------------
+    def fail(self, node, msg):
+        raise ProbvisError(f"{self.path}:{node.line}: <{node.tag}>: {msg}")
+
+    def attr(self, node, key, default=None, required=True):
+        if key not in node.attrs:
+            if required and default is None:
+                self.fail(node, f"missing attribute '{key}'")
+            return default
+        raw = node.attrs[key]
+
+        def sub(m):
+            name = m.group(1)
+            if name in self.overrides:
+                return self.overrides[name]
+            if name in self.defaults:
+                return self.defaults[name]
+            self.fail(node, f"undefined parameter '${name}' (declare it with <default> or pass -D {name}=...)")
+
+        return _VAR.sub(sub, raw)
+
+    def check_attrs(self, node, allowed):
+        extra = set(node.attrs) - set(allowed)
+        if extra:
+            self.fail(node, f"unsupported attribute(s): {', '.join(sorted(extra))}")
+
+    def numbers(self, node, text, count=None):
+        try:
+            vals = [float(x) for x in re.split(r"[,\s]+", text.strip()) if x]
+        except ValueError:
+            self.fail(node, f"expected numbers, got '{text}'")
+        if count is not None and len(vals) not in count:
+            want = " or ".join(str(c) for c in count)
+            self.fail(node, f"expected {want} numbers, got '{text}'")
+        if not all(np.isfinite(vals)):
+            self.fail(node, f"non-finite number in '{text}'")
+        return vals
+
+    def value(self, node):
+        """Value of a property element (integer, float, boolean, string, rgb, spectrum, point, vector)."""
+        tag = node.tag
+        if tag in ("point", "vector"):
+            self.check_attrs(node, ("name", "x", "y", "z", "value"))
+            if "value" in node.attrs:
+                return np.array(self.numbers(node, self.attr(node, "value"), (1, 3))) * np.ones(3)
+            return np.array([float(self.attr(node, a, "0")) for a in "xyz"])
+        self.check_attrs(node, ("name", "value"))
+        raw = self.attr(node, "value")
+        try:
+            if tag == "integer":
+                return int(raw)
+            if tag == "float":
+                v = float(raw)
+                if not np.isfinite(v):
+                    self.fail(node, f"non-finite value '{raw}'")
+                return v
+        except ValueError:
+            self.fail(node, f"'{raw}' is not a valid {tag}")
+        if tag == "boolean":
+            if raw.lower() not in ("true", "false"):
+                self.fail(node, f"'{raw}' is not a boolean (true/false)")
+            return raw.lower() == "true"
+        if tag == "string":
+            return raw
+        if tag in ("rgb", "spectrum"):
+            vals = self.numbers(node, raw, (1, 3))
+            if tag == "spectrum" and len(vals) != 1:
+                self.fail(node, "only constant spectra (a single value) are supported")
+            if len(vals) not in (1, 3):
+                self.fail(node, f"expected 1 or 3 values, got '{raw}'")
+            return np.array(vals, dtype=np.float64) * np.ones(3)
+        self.fail(node, "unsupported property type")
+
+    def transform(self, node):
+        self.check_attrs(node, ("name",))
+        m = np.eye(4)
+        for op in node.children:
+            try:
+                m = self.transform_op(op) @ m
+            except ValueError as exc:
+                self.fail(op, str(exc))
+        return m
+
+    def transform_op(self, op):
+        t = op.tag
+
+        def vec(names=("x", "y", "z"), default="0"):
+            if "value" in op.attrs:
+                vals = self.numbers(op, self.attr(op, "value"), (1, 3))
+                return np.array(vals) * np.ones(3)
+            return np.array([float(self.attr(op, a, default)) for a in names])
+
+        if t == "translate":
+            self.check_attrs(op, ("x", "y", "z", "value"))
+            return tf.translate(vec())
+        if t == "scale":
+            self.check_attrs(op, ("x", "y", "z", "value"))
+            return tf.scale(vec(default="1"))
+        if t == "rotate":
+            self.check_attrs(op, ("x", "y", "z", "value", "angle"))
+            return tf.rotate(vec(), float(self.attr(op, "angle")))
+        if t == "lookat":
+            self.check_attrs(op, ("origin", "target", "up"))
+            o = self.numbers(op, self.attr(op, "origin"), (3,))
+            tg = self.numbers(op, self.attr(op, "target"), (3,))
+            up = self.numbers(op, self.attr(op, "up", "0, 1, 0", required=False), (3,))
+            return tf.look_at(o, tg, up)
+        if t == "matrix":
+            self.check_attrs(op, ("value",))
+            vals = self.numbers(op, self.attr(op, "value"), (9, 16))
+            if len(vals) == 9:
+                m = np.eye(4)
+                m[:3, :3] = np.reshape(vals, (3, 3))
+                return m
+            return np.reshape(vals, (4, 4))
+        self.fail(op, "unsupported transform operation (use translate, scale, rotate, lookat or matrix)")
+
+    def params(self, node, allowed_props, allowed_objects=()):
+        """Split children into a {name: value} dict and a list of nested objects, rejecting anything else."""
+        props, objects = {}, []
+        for ch in node.children:
+            if ch.tag in _PROPERTY_TAGS:
+                name = self.attr(ch, "name")
+                if name not in allowed_props:
+                    self.fail(ch, f"unsupported parameter '{name}' for {node.tag} '{node.attrs.get('type', '')}'")
+                props[name] = self.transform(ch) if ch.tag == "transform" else self.value(ch)
+                if allowed_props[name] is not None and ch.tag not in allowed_props[name]:
+                    self.fail(ch, f"parameter '{name}' must be given as <{'/'.join(allowed_props[name])}>")
+            elif ch.tag in allowed_objects:
+                objects.append(ch)
+            else:
+                self.fail(ch, f"unsupported element inside <{node.tag}>")
+        return props, objects
+
+    # --- plugins -----------------------------------------------------------------------------
+    def bsdf(self, node):
+        """Returns (reflectance, twosided)."""
+        if node.tag == "ref":
+            return self.resolve(node, "bsdf")
+        self.check_attrs(node, ("type", "id", "name"))
+        kind = self.attr(node, "type")
+        if kind == "diffuse":
+            props, _ = self.params(node, {"reflectance": ("rgb", "spectrum", "float")})
+            refl = props.get("reflectance", np.full(3, 0.5))
+            refl = refl * np.ones(3)
+            if np.any(refl < 0) or np.any(refl > 1):
+                self.fail(node, "reflectance must be within [0, 1]")
+            out = (refl, False)
+        elif kind == "twosided":
+            _, objs = self.params(node, {}, ("bsdf", "ref"))
+            if len(objs) != 1:
+                self.fail(node, "twosided needs exactly one nested bsdf")
+            inner, _ = self.bsdf(objs[0])
+            out = (inner, True)
+        else:
+            self.fail(node, f"unsupported bsdf type '{kind}' (supported: diffuse, twosided)")
+        if "id" in node.attrs:
+            self.ids[node.attrs["id"]] = ("bsdf", out)
+        return out
+
+    def resolve(self, node, kind):
+        self.check_attrs(node, ("id", "name"))
+        key = self.attr(node, "id")
+        if key not in self.ids:
+            self.fail(node, f"reference to unknown id '{key}'")
+        k, val = self.ids[key]
+        if k != kind:
+            self.fail(node, f"id '{key}' is a {k}, not a {kind}")
+        return val
+
+    def emitter_radiance(self, node):
+        self.check_attrs(node, ("type", "id"))
+        kind = self.attr(node, "type")
+        if kind != "area":
+            self.fail(node, f"unsupported emitter type '{kind}' (supported: area, attached to a shape)")
+        props, _ = self.params(node, {"radiance": ("rgb", "spectrum", "float")})
+        if "radiance" not in props:
+            self.fail(node, "area emitter needs a 'radiance'")
+        rad = props["radiance"] * np.ones(3)
+        if np.any(rad < 0):
+            self.fail(node, "radiance must be non-negative")
+        return rad
+
+    def shape(self, node, builder):
+        self.check_attrs(node, ("type", "id", "name"))
+        kind = self.attr(node, "type")
+        allowed = {"to_world": ("transform",), "flip_normals": ("boolean",)}
+        if kind in ("obj", "ply"):
+            allowed |= {"filename": ("string",), "face_normals": ("boolean",)}
+        elif kind == "sphere":
+            allowed |= {"center": ("point",), "radius": ("float",)}
+        elif kind not in ("rectangle", "cube"):
+            self.fail(node, f"unsupported shape type '{kind}' (supported: obj, ply, rectangle, cube, sphere)")
+        props, objs = self.params(node, allowed, ("bsdf", "ref", "emitter"))
+        material, radiance = None, None
+        for ch in objs:
+            if ch.tag == "emitter":
+                if radiance is not None:
+                    self.fail(ch, "a shape can carry only one emitter")
+                radiance = self.emitter_radiance(ch)
+            else:
+                if material is not None:
+                    self.fail(ch, "a shape can carry only one bsdf")
+                refl, two = self.bsdf(ch)
+                material = builder.material(refl, two)
+        m = props.get("to_world", np.eye(4))
+        flip = props.get("flip_normals", False)
+        face_normals, vnormals = True, None
+        if kind in ("obj", "ply"):
+            fname = props.get("filename")
+            if fname is None:
+                self.fail(node, "missing 'filename'")
+            mesh_path = (self.path.parent / fname) if not Path(fname).is_absolute() else Path(fname)
+            if not mesh_path.is_file():
+                self.fail(node, f"mesh file not found: {mesh_path}")
+            v, f, vnormals = shp.load_mesh(mesh_path)
+            face_normals = props.get("face_normals", False)
+        elif kind == "rectangle":
+            v, f = shp.rectangle()
+        elif kind == "cube":
+            v, f = shp.cube()
+        else:
+            v, f, vnormals = shp.uv_sphere()
+            r = props.get("radius", 1.0)
+            if r <= 0:
+                self.fail(node, "sphere radius must be positive")
+            m = m @ tf.translate(props.get("center", np.zeros(3))) @ tf.scale([r, r, r])
+            face_normals = False
+        if kind in ("rectangle", "sphere") and np.linalg.det(m[:3, :3]) < 0:
+            flip = not flip  # analytic shapes orient by the normal transform, not by the mirrored winding
+        name = node.attrs.get("id", f"{kind}@{node.line}")
+        try:
+            builder.add_mesh(name, kind, v, f, m, material, radiance, face_normals, vnormals, flip)
+        except ProbvisError as exc:
+            self.fail(node, str(exc))
+
+    def sensor(self, node):
+        self.check_attrs(node, ("type", "id", "name"))
+        kind = self.attr(node, "type")
+        if kind != "perspective":
+            self.fail(node, f"unsupported sensor type '{kind}' (supported: perspective)")
+        props, objs = self.params(
+            node,
+            {"fov": ("float",), "fov_axis": ("string",), "to_world": ("transform",),
+             "near_clip": ("float",), "far_clip": ("float",)},
+            ("sampler", "film"),
+        )
+        spp, seed, width, height = 4, 0, 768, 576  # Mitsuba's defaults
+        for ch in objs:
+            if ch.tag == "sampler":
+                self.check_attrs(ch, ("type", "id", "name"))
+                st = self.attr(ch, "type")
+                if st not in _SAMPLERS:
+                    self.fail(ch, f"unsupported sampler type '{st}'")
+                if st != "independent":
+                    warnings.warn(f"{self.path}:{ch.line}: sampler '{st}' rendered with probvis's independent "
+                                  "sampler (same expected image, different noise)", stacklevel=2)
+                sp, _ = self.params(ch, {"sample_count": ("integer",), "seed": ("integer",)})
+                spp, seed = sp.get("sample_count", spp), sp.get("seed", seed)
+            else:
+                width, height = self.film(ch)
+        if "fov" not in props:
+            self.fail(node, "perspective sensor needs 'fov'")
+        fov = props["fov"]
+        if not 0.0 < fov < 180.0:
+            self.fail(node, f"fov must be between 0 and 180 degrees, got {fov:g}")
+        axis = props.get("fov_axis", "x")
+        aspect = width / height
+        t = np.tan(np.radians(fov) / 2.0)
+        if axis == "smaller":
+            axis = "y" if aspect > 1 else "x"
+        elif axis == "larger":
+            axis = "x" if aspect > 1 else "y"
+        if axis == "y":
+            t *= aspect
+        elif axis == "diagonal":
+            t *= width / np.hypot(width, height)
+        elif axis != "x":
+            self.fail(node, f"unknown fov_axis '{axis}' (x, y, diagonal, smaller, larger)")
+        fov_x = float(np.degrees(2.0 * np.arctan(t)))
+        m = props.get("to_world", np.eye(4))
+        cam = Camera(m, fov_x, width, height, props.get("near_clip", 1e-2), props.get("far_clip", 1e4))
+        return cam, spp, seed
+
+    def film(self, node):
+        self.check_attrs(node, ("type", "id", "name"))
+        kind = self.attr(node, "type")
+        if kind != "hdrfilm":
+            self.fail(node, f"unsupported film type '{kind}' (supported: hdrfilm)")
+        props, objs = self.params(
+            node, {"width": ("integer",), "height": ("integer",), "pixel_format": ("string",),
+                   "component_format": ("string",), "file_format": ("string",)}, ("rfilter",))
+        if props.get("pixel_format", "rgb") not in ("rgb", "rgba"):
+            self.fail(node, "pixel_format must be rgb or rgba")
+        if not objs:
+            warnings.warn(f"{self.path}:{node.line}: no <rfilter>: probvis uses a box filter "
+                          "(Mitsuba's default is gaussian)", stacklevel=2)
+        for ch in objs:
+            self.check_attrs(ch, ("type", "name", "id"))
+            if self.attr(ch, "type") != "box":
+                self.fail(ch, f"unsupported rfilter '{ch.attrs['type']}' (supported: box)")
+            self.params(ch, {})
+        w, h = props.get("width", 768), props.get("height", 576)
+        if w < 1 or h < 1 or w > 1 << 15 or h > 1 << 15:
+            self.fail(node, f"film size {w}x{h} is out of range (1 to 32768)")
+        return w, h
+
+    def integrator(self, node):
+        self.check_attrs(node, ("type", "id", "name"))
+        kind = self.attr(node, "type")
+        if kind != "direct":
+            self.fail(node, f"unsupported integrator '{kind}' (supported: direct)")
+        props, _ = self.params(node, {"emitter_samples": ("integer",), "bsdf_samples": ("integer",),
+                                      "shading_samples": ("integer",), "hide_emitters": ("boolean",)})
+        if props.get("hide_emitters", False):
+            self.fail(node, "hide_emitters=true is not supported")
+        base = props.get("shading_samples", 1)
+        if props.get("bsdf_samples", base) != 0:
+            warnings.warn(f"{self.path}:{node.line}: bsdf_samples ignored: probvis samples emitters only "
+                          "(same expected image)", stacklevel=2)
+        sr = props.get("emitter_samples", base)
+        if sr < 1:
+            self.fail(node, f"emitter_samples must be at least 1, got {sr}")
+        return sr
+
+    def read(self):
+        root = parse_tree(self.path)
+        if root.tag != "scene":
+            self.fail(root, "the root element must be <scene>")
+        self.check_attrs(root, ("version",))
+        builder = SceneBuilder(self.path.stem, str(self.path))
+        camera, spp, seed, shadow_rays = None, 4, 0, 1
+        for ch in root.children:
+            if ch.tag == "default":
+                self.check_attrs(ch, ("name", "value"))
+                self.defaults[self.attr(ch, "name")] = ch.attrs.get("value", "")
+            elif ch.tag == "integrator":
+                shadow_rays = self.integrator(ch)
+            elif ch.tag == "sensor":
+                if camera is not None:
+                    self.fail(ch, "only one sensor is supported")
+                camera, spp, seed = self.sensor(ch)
+            elif ch.tag == "bsdf":
+                if "id" not in ch.attrs:
+                    self.fail(ch, "a top-level bsdf needs an 'id'")
+                self.bsdf(ch)
+            elif ch.tag == "shape":
+                self.shape(ch, builder)
+            elif ch.tag == "emitter":
+                self.fail(ch, f"unsupported emitter type '{ch.attrs.get('type', '')}' at top level "
+                              "(only area emitters attached to shapes are supported)")
+            else:
+                self.fail(ch, "unsupported element")
+        if camera is None:
+            raise ProbvisError(f"{self.path}: the scene has no <sensor>")
+        return builder.build(camera, spp, shadow_rays, seed)
+
+
+def read_scene(path, **overrides):
+    """Load a Mitsuba 3 XML scene; `overrides` replace `<default>` values as `-D name=value` does."""
+    return _Reader(path, overrides).read()

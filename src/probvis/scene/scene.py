@@ -1,0 +1,197 @@
+"""The scene as flat arrays: triangles, materials, emitters, a camera and the render settings."""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ProbvisError
+from . import transform as tf
+
+
+@dataclass
+class Camera:
+    """A Mitsuba perspective sensor: `to_world` maps camera space (+z forward, +x left, +y up) to the world."""
+
+    to_world: np.ndarray
+    fov_x: float
+    width: int
+    height: int
+    near_clip: float = 1e-2
+    far_clip: float = 1e4
+
+
+@dataclass
+class ShapeInfo:
+    name: str
+    kind: str
+    first_triangle: int
+    n_triangles: int
+    emitter: int  # -1 when the shape does not emit
+
+
+@dataclass
+class Scene:
+    """Triangles (n, 3, 3) with per-vertex shading normals, a material and an emitter id per triangle."""
+
+    triangles: np.ndarray
+    vertex_normals: np.ndarray
+    tri_material: np.ndarray
+    tri_emitter: np.ndarray
+    reflectance: np.ndarray  # (n_materials, 3)
+    twosided: np.ndarray  # (n_materials,) bool
+    emitter_radiance: np.ndarray  # (n_emitters, 3)
+    camera: Camera
+    spp: int
+    shadow_rays: int
+    seed: int = 0
+    name: str = "scene"
+    source: str = ""
+    shapes: list = field(default_factory=list)
+    dropped_degenerate: int = 0
+
+    @property
+    def n_triangles(self):
+        return len(self.triangles)
+
+    @property
+    def n_emitters(self):
+        return len(self.emitter_radiance)
+
+    def bounds(self):
+        flat = self.triangles.reshape(-1, 3)
+        return flat.min(axis=0), flat.max(axis=0)
+
+    def with_settings(self, spp=None, shadow_rays=None, seed=None, width=None, height=None):
+        """A copy with some render settings replaced (geometry arrays are shared, not copied)."""
+        import dataclasses
+
+        cam = self.camera
+        if width is not None or height is not None:
+            cam = dataclasses.replace(cam, width=width or cam.width, height=height or cam.height)
+        out = dataclasses.replace(
+            self,
+            camera=cam,
+            spp=self.spp if spp is None else spp,
+            shadow_rays=self.shadow_rays if shadow_rays is None else shadow_rays,
+            seed=self.seed if seed is None else seed,
+        )
+        out.validate_settings()
+        return out
+
+    def validate_settings(self):
+        c = self.camera
+        for what, val, hi in (("width", c.width, 1 << 15), ("height", c.height, 1 << 15),
+                              ("spp", self.spp, 1 << 20), ("shadow_rays", self.shadow_rays, 1 << 16)):
+            if int(val) != val or val < 1 or val > hi:
+                raise ProbvisError(f"{what} must be an integer between 1 and {hi}, got {val}")
+        if not 0.0 < c.fov_x < 180.0:
+            raise ProbvisError(f"field of view must be between 0 and 180 degrees, got {c.fov_x:g}")
+        if not 0.0 < c.near_clip < c.far_clip:
+            raise ProbvisError("near_clip must be positive and smaller than far_clip")
+        if self.seed < 0:
+            raise ProbvisError(f"seed must be non-negative, got {self.seed}")
+
+
+class SceneBuilder:
+    """Collects shapes with materials and emitters, then produces a validated `Scene`."""
+
+    def __init__(self, name="scene", source=""):
+        self.name, self.source = name, source
+        self._tris, self._normals, self._mat, self._emit = [], [], [], []
+        self._materials = {}  # (reflectance, twosided) -> id
+        self.emitter_radiance = []
+        self.shapes = []
+        self.dropped = 0
+        self._n = 0
+
+    def material(self, reflectance, twosided=False):
+        key = (tuple(float(x) for x in np.broadcast_to(reflectance, 3)), bool(twosided))
+        if key not in self._materials:
+            self._materials[key] = len(self._materials)
+        return self._materials[key]
+
+    def add_mesh(self, name, kind, vertices, faces, to_world=None, material=None, radiance=None,
+                 face_normals=True, vertex_normals=None, flip_normals=False):
+        """Add a triangle mesh in object space; `to_world` is applied here. Returns the number kept."""
+        v = np.asarray(vertices, dtype=np.float64)
+        f = np.asarray(faces, dtype=np.int64)
+        if not np.all(np.isfinite(v)):
+            raise ProbvisError(f"shape '{name}' has NaN or infinite vertex coordinates")
+        if f.size and (f.min() < 0 or f.max() >= len(v)):
+            raise ProbvisError(f"shape '{name}' has face indices out of range")
+        m = np.eye(4) if to_world is None else np.asarray(to_world, dtype=np.float64)
+        if not np.all(np.isfinite(m)):
+            raise ProbvisError(f"shape '{name}' has a non-finite to_world transform")
+        wv = tf.apply_points(m, v)
+        if flip_normals:
+            f = f[:, ::-1]
+        tris = wv[f]
+        cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        area2 = np.linalg.norm(cross, axis=1)
+        scale = max(float(np.abs(wv).max()), 1e-300) if len(wv) else 1.0
+        keep = area2 > 1e-14 * scale * scale
+        self.dropped += int((~keep).sum())
+        tris, f, cross, area2 = tris[keep], f[keep], cross[keep], area2[keep]
+        fn = cross / area2[:, None]
+        if face_normals or len(tris) == 0:
+            normals = np.repeat(fn[:, None, :], 3, axis=1)
+        else:
+            if vertex_normals is None:
+                vn = _angle_weighted_normals(wv, f, fn)
+            else:
+                vn = tf.apply_normals(m, np.asarray(vertex_normals, dtype=np.float64))
+                if flip_normals:
+                    vn = -vn
+            normals = vn[f]
+        if material is None:
+            material = self.material((0.5, 0.5, 0.5))  # Mitsuba's default BSDF
+        emitter = -1
+        if radiance is not None:
+            emitter = len(self.emitter_radiance)
+            self.emitter_radiance.append(np.asarray(radiance, dtype=np.float64) * np.ones(3))
+        self.shapes.append(ShapeInfo(name, kind, self._n, len(tris), emitter))
+        self._tris.append(tris)
+        self._normals.append(normals)
+        self._mat.append(np.full(len(tris), material, dtype=np.int32))
+        self._emit.append(np.full(len(tris), emitter, dtype=np.int32))
+        self._n += len(tris)
+        return len(tris)
+
+    def build(self, camera, spp, shadow_rays, seed=0):
+        if self._n == 0:
+            raise ProbvisError(f"scene '{self.name}' contains no (non-degenerate) triangles")
+        if not self.emitter_radiance:
+            raise ProbvisError(f"scene '{self.name}' has no emitter: add an area emitter to a shape")
+        mats = sorted(self._materials.items(), key=lambda kv: kv[1])
+        scene = Scene(
+            triangles=np.ascontiguousarray(np.concatenate(self._tris)),
+            vertex_normals=np.ascontiguousarray(np.concatenate(self._normals)),
+            tri_material=np.concatenate(self._mat),
+            tri_emitter=np.concatenate(self._emit),
+            reflectance=np.array([k[0] for k, _ in mats], dtype=np.float64).reshape(-1, 3),
+            twosided=np.array([k[1] for k, _ in mats], dtype=np.bool_),
+            emitter_radiance=np.array(self.emitter_radiance, dtype=np.float64).reshape(-1, 3),
+            camera=camera,
+            spp=int(spp),
+            shadow_rays=int(shadow_rays),
+            seed=int(seed),
+            name=self.name,
+            source=self.source,
+            shapes=self.shapes,
+            dropped_degenerate=self.dropped,
+        )
+        scene.validate_settings()
+        return scene
+
+
+def _angle_weighted_normals(v, f, fn):
+    """Vertex normals as the corner-angle-weighted mean of the adjacent face normals."""
+    tris = v[f]
+    out = np.zeros_like(v)
+    for k in range(3):
+        e1 = tris[:, (k + 1) % 3] - tris[:, k]
+        e2 = tris[:, (k + 2) % 3] - tris[:, k]
+        cosang = np.einsum("ij,ij->i", e1, e2) / (np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1))
+        ang = np.arccos(np.clip(cosang, -1.0, 1.0))
+        np.add.at(out, f[:, k], fn * ang[:, None])
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.where(norm > 0, out / np.maximum(norm, 1e-300), 0.0)

@@ -1,0 +1,75 @@
+"""Triangle meshes for the shapes probvis knows: Mitsuba's rectangle and cube, a tessellated sphere, mesh files."""
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ProbvisError
+
+
+def rectangle():
+    """Mitsuba's rectangle: [-1, 1]^2 in the z = 0 plane, front side +z."""
+    v = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    f = np.array([[0, 1, 2], [2, 3, 0]], dtype=np.int64)
+    return v, f
+
+
+def cube():
+    """Mitsuba's cube: [-1, 1]^3 with outward-facing triangles (two per face)."""
+    v, faces = [], []
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            u_ax, v_ax = (axis + 1) % 3, (axis + 2) % 3
+            base = len(v)
+            for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+                p = [0.0, 0.0, 0.0]
+                p[axis], p[u_ax], p[v_ax] = sign, a, b
+                v.append(p)
+            if sign > 0:
+                faces += [[base, base + 1, base + 2], [base + 2, base + 3, base]]
+            else:
+                faces += [[base, base + 2, base + 1], [base + 2, base, base + 3]]
+    return np.array(v), np.array(faces, dtype=np.int64)
+
+
+def uv_sphere(rings=32, segments=64):
+    """Unit sphere tessellated in latitude/longitude, outward winding, with its exact vertex normals."""
+    theta = np.linspace(0.0, np.pi, rings + 1)
+    phi = np.linspace(0.0, 2.0 * np.pi, segments, endpoint=False)
+    t, p = np.meshgrid(theta[1:-1], phi, indexing="ij")
+    body = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1).reshape(-1, 3)
+    v = np.vstack([[0.0, 0.0, 1.0], body, [0.0, 0.0, -1.0]])
+    south = len(v) - 1
+    faces = []
+
+    def ring(i, j):
+        return 1 + i * segments + (j % segments)
+
+    for j in range(segments):
+        faces.append([0, ring(0, j), ring(0, j + 1)])
+        faces.append([south, ring(rings - 2, j + 1), ring(rings - 2, j)])
+    for i in range(rings - 2):
+        for j in range(segments):
+            a, b, c, d = ring(i, j), ring(i + 1, j), ring(i + 1, j + 1), ring(i, j + 1)
+            faces += [[a, b, c], [a, c, d]]
+    return v, np.array(faces, dtype=np.int64), v.copy()
+
+
+def load_mesh(path):
+    """Read an OBJ or PLY file with trimesh: (vertices, faces, vertex normals or None), order preserved."""
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise ProbvisError(f"mesh file not found: {path}")
+    try:
+        mesh = trimesh.load(str(path), force="mesh", process=False, maintain_order=True)
+    except Exception as exc:  # trimesh raises many types for malformed files
+        raise ProbvisError(f"cannot read mesh {path}: {exc}") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ProbvisError(f"mesh {path} contains no triangles")
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    f = np.asarray(mesh.faces, dtype=np.int64)
+    n = None
+    if "vertex_normals" in mesh._cache.cache:  # normals stored in the file
+        n = np.asarray(mesh.vertex_normals, dtype=np.float64)
+    return v, f, n

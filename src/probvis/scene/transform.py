@@ -1,0 +1,58 @@
+"""4x4 affine transforms composed as Mitsuba composes them (each new operation multiplies from the left)."""
+import numpy as np
+
+
+def translate(v):
+    m = np.eye(4)
+    m[:3, 3] = v
+    return m
+
+
+def scale(v):
+    return np.diag([v[0], v[1], v[2], 1.0])
+
+
+def rotate(axis, angle_deg):
+    """Right-handed rotation about `axis` by `angle_deg` degrees (Rodrigues' formula)."""
+    a = np.asarray(axis, dtype=np.float64)
+    n = np.linalg.norm(a)
+    if n == 0.0:
+        raise ValueError("rotation axis is zero")
+    a = a / n
+    t = np.radians(angle_deg)
+    c, s = np.cos(t), np.sin(t)
+    k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    m = np.eye(4)
+    m[:3, :3] = c * np.eye(3) + s * k + (1.0 - c) * np.outer(a, a)
+    return m
+
+
+def look_at(origin, target, up):
+    """Camera-to-world matrix: local +z looks at `target`, +y is `up`, +x is left (Mitsuba's convention)."""
+    o = np.asarray(origin, dtype=np.float64)
+    d = np.asarray(target, dtype=np.float64) - o
+    if np.linalg.norm(d) == 0.0:
+        raise ValueError("lookat origin and target coincide")
+    d /= np.linalg.norm(d)
+    left = np.cross(np.asarray(up, dtype=np.float64), d)
+    if np.linalg.norm(left) < 1e-12:
+        raise ValueError("lookat 'up' is parallel to the viewing direction")
+    left /= np.linalg.norm(left)
+    new_up = np.cross(d, left)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = left, new_up, d, o
+    return m
+
+
+def apply_points(m, p):
+    return p @ m[:3, :3].T + m[:3, 3]
+
+
+def apply_vectors(m, v):
+    return v @ m[:3, :3].T
+
+
+def apply_normals(m, n):
+    """Normals transform with the inverse transpose; the result is normalised."""
+    out = n @ np.linalg.inv(m[:3, :3])
+    return out / np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-300)

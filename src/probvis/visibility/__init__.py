@@ -1,0 +1,21 @@
+"""Visibility estimators behind one interface; `make_estimator(name, **options)` builds one by name."""
+from ..errors import ProbvisError
+from .base import ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult
+from .exact import ExactVisibility
+
+ESTIMATORS = {cls.name: cls for cls in (ExactVisibility,)}
+
+
+def make_estimator(name, **options):
+    if isinstance(name, VisibilityEstimator):
+        return name
+    if name not in ESTIMATORS:
+        raise ProbvisError(f"unknown visibility '{name}' (available: {', '.join(ESTIMATORS)})")
+    try:
+        return ESTIMATORS[name](**options)
+    except TypeError as exc:
+        raise ProbvisError(f"bad options for visibility '{name}': {exc}") from None
+
+
+__all__ = ["ESTIMATORS", "ShadingPoints", "ShadowQuery", "VisibilityEstimator", "VisibilityResult",
+           "make_estimator"]
