@@ -66,7 +66,8 @@ class Scene:
 
         cam = self.camera
         if width is not None or height is not None:
-            cam = dataclasses.replace(cam, width=width or cam.width, height=height or cam.height)
+            cam = dataclasses.replace(cam, width=cam.width if width is None else width,
+                                      height=cam.height if height is None else height)
         out = dataclasses.replace(
             self,
             camera=cam,

@@ -13,12 +13,14 @@ def scale(v):
 
 
 def rotate(axis, angle_deg):
-    """Right-handed rotation about `axis` by `angle_deg` degrees (Rodrigues' formula)."""
+    """Right-handed rotation about `axis` by `angle_deg` degrees (Rodrigues' formula).
+
+    Like Mitsuba 3, the axis is used as given, not normalised: a non-unit axis gives the same (non-rigid)
+    matrix Mitsuba builds, so scenes render identically in both.
+    """
     a = np.asarray(axis, dtype=np.float64)
-    n = np.linalg.norm(a)
-    if n == 0.0:
+    if not np.any(a):
         raise ValueError("rotation axis is zero")
-    a = a / n
     t = np.radians(angle_deg)
     c, s = np.cos(t), np.sin(t)
     k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])

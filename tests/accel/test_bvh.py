@@ -1,0 +1,111 @@
+"""The BVH against brute force: closest hits, any-hit segments, test counts, watertightness."""
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from numba import njit, prange
+
+from probvis.accel import any_hit, build_bvh, closest_hit
+from probvis.accel.traversal import hit_triangle, ray_setup
+
+
+@njit(parallel=True)
+def brute_closest(tris, org, dirs, tmin, tmax):
+    n = org.shape[0]
+    best_t = tmax.copy()
+    best = np.full(n, -1)
+    for i in prange(n):
+        kx, ky, kz, sx, sy, sz = ray_setup(dirs[i, 0], dirs[i, 1], dirs[i, 2])
+        o = (org[i, 0], org[i, 1], org[i, 2])
+        for p in range(tris.shape[0]):
+            t, _, _ = hit_triangle(tris, p, o, kx, ky, kz, sx, sy, sz, tmin[i], best_t[i])
+            if t < best_t[i]:
+                best_t[i], best[i] = t, p
+    return best, best_t
+
+
+def random_soup(rng, n, spread=1.0, size=0.3):
+    centres = rng.uniform(-spread, spread, (n, 1, 3))
+    return centres + rng.normal(scale=size, size=(n, 3, 3))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), n_tris=st.integers(1, 400), size=st.floats(0.01, 1.0))
+def test_closest_and_any_hit_match_brute_force(seed, n_tris, size):
+    rng = np.random.default_rng(seed)
+    tris = random_soup(rng, n_tris, size=size)
+    bvh = build_bvh(tris)
+    n = 300
+    org = rng.uniform(-1.5, 1.5, (n, 3))
+    dirs = rng.normal(size=(n, 3))
+    tmin = np.zeros(n)
+    tmax = rng.choice([np.inf, 1.0, 0.3], size=n)
+    prim, t, _, _, n_node, n_tri = closest_hit(bvh.arrays, org, dirs, tmin, tmax)
+    bprim, bt = brute_closest(tris, org, dirs, tmin, tmax)
+    hit = bprim >= 0
+    np.testing.assert_array_equal(prim >= 0, hit)
+    np.testing.assert_allclose(t[hit], bt[hit], rtol=1e-12)
+    # the same triangle, unless two triangles are hit at the same distance
+    assert np.all((prim[hit] == bprim[hit]) | np.isclose(t[hit], bt[hit], rtol=1e-12))
+    occ, a_node, a_tri = any_hit(bvh.arrays, org, dirs, tmin, tmax)
+    np.testing.assert_array_equal(occ, hit)
+    assert np.all(n_node >= 1) and np.all(a_node >= 1)
+    assert np.all(n_tri <= n_tris) and np.all(a_tri <= n_tri)
+    assert np.all(n_tri[hit] >= 1)
+
+
+def test_bvh_partitions_all_triangles_and_stays_shallow():
+    rng = np.random.default_rng(3)
+    tris = random_soup(rng, 20000, spread=10.0, size=0.05)
+    bvh = build_bvh(tris)
+    assert sorted(bvh.prim_ids.tolist()) == list(range(len(tris)))
+    np.testing.assert_array_equal(bvh.tri_v, tris[bvh.prim_ids])
+    s = bvh.stats()
+    assert s["leaves"] * 1 <= len(tris) and s["max_leaf_size"] <= 8
+    assert s["max_depth"] < 40
+    leaves = bvh.node_count > 0
+    assert bvh.node_count[leaves].sum() == len(tris)
+
+
+def test_identical_triangles_do_not_break_the_build():
+    tri = np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
+    bvh = build_bvh(np.repeat(tri, 100, axis=0))
+    occ, _, n_tri = any_hit(bvh.arrays, np.array([[0.2, 0.2, 1.0]]), np.array([[0.0, 0.0, -2.0]]),
+                            np.zeros(1), np.ones(1))
+    assert occ[0] and n_tri[0] == 1  # early exit on the first hit
+
+
+def test_rays_through_shared_edges_and_vertices_never_leak():
+    """A fan of triangles around a vertex, hit exactly on its shared edges and at the centre."""
+    k = 12
+    ang = np.linspace(0, 2 * np.pi, k, endpoint=False)
+    ring = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(k)])
+    tris = np.stack([np.zeros((k, 3)), ring, np.roll(ring, -1, axis=0)], axis=1)
+    bvh = build_bvh(tris)
+    targets = np.vstack([[0.0, 0.0, 0.0], ring * 0.5, ring * 0.999])
+    org = targets + np.array([0.3, -0.2, 1.0])
+    dirs = targets - org
+    prim, t, _, _, _, _ = closest_hit(bvh.arrays, org, dirs, np.zeros(len(org)), np.full(len(org), np.inf))
+    assert np.all(prim >= 0)
+    np.testing.assert_allclose(t, 1.0, rtol=1e-12)
+
+
+def test_segment_stops_before_tmax():
+    tri = np.array([[[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]]])
+    bvh = build_bvh(tri)
+    org = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    dirs = np.array([[0.0, 0.0, -2.0], [0.0, 0.0, -2.0]])
+    occ, _, _ = any_hit(bvh.arrays, org, dirs, np.zeros(2), np.array([0.49, 0.51]))
+    assert occ.tolist() == [False, True]
+
+
+def test_sah_separates_clusters_that_a_median_split_would_cut():
+    """900 triangles near x = -5 and 100 near x = +5: the surface-area heuristic puts the split between the
+    clusters; a median-by-count split would cut the large cluster."""
+    rng = np.random.default_rng(0)
+    big = random_soup(rng, 900, spread=0.5, size=0.01) + np.array([-5.0, 0, 0])
+    small = random_soup(rng, 100, spread=0.5, size=0.01) + np.array([5.0, 0, 0])
+    bvh = build_bvh(np.concatenate([big, small]))
+    left = bvh.bounds[1]
+    right = bvh.bounds[bvh.node_index[0]]
+    lo, hi = sorted([left, right], key=lambda b: b[0])
+    assert lo[3] < -4 and hi[0] > 4  # each child holds exactly one cluster

@@ -1,0 +1,133 @@
+"""Reading Mitsuba XML: transforms as Mitsuba composes them, defaults, semantics, and clear errors."""
+import numpy as np
+import pytest
+
+import probvis
+from probvis import ProbvisError
+from probvis.scene import transform as tf
+from tests.conftest import sensor, write_scene
+
+LIGHT = """<shape type="rectangle"><transform name="to_world"><translate z="2"/></transform>
+    <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>"""
+
+
+def test_transforms_match_mitsuba():
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    T = mi.ScalarTransform4f
+    ours = tf.translate([1, 2, 3]) @ tf.rotate([0.3, -1, 0.2], 37) @ tf.scale([2, 0.5, 1.5])
+    theirs = T().translate([1, 2, 3]) @ T().rotate([0.3, -1, 0.2], 37) @ T().scale([2, 0.5, 1.5])
+    np.testing.assert_allclose(ours, np.array(theirs.matrix), atol=1e-6)
+    ours = tf.look_at([1, 2, 3], [0, 0.5, -1], [0, 1, 0])
+    theirs = T().look_at(origin=[1, 2, 3], target=[0, 0.5, -1], up=[0, 1, 0])
+    np.testing.assert_allclose(ours, np.array(theirs.matrix), atol=1e-6)
+
+
+def test_document_order_composition_and_defaults(tmp_path):
+    body = sensor(spp="$spp") + """
+    <bsdf type="diffuse" id="grey"><rgb name="reflectance" value="0.2, 0.4, 0.6"/></bsdf>
+    <shape type="rectangle" id="floor">
+        <transform name="to_world"><scale x="2" y="1" z="1"/><rotate x="1" angle="90"/><translate z="$z"/></transform>
+        <ref id="grey"/>
+    </shape>""" + LIGHT
+    path = write_scene(tmp_path / "s.xml", body, '<default name="spp" value="8"/><default name="z" value="-1"/>')
+    s = probvis.load_scene(path)
+    assert s.spp == 8 and s.shadow_rays == 4
+    floor = s.triangles[: s.shapes[0].n_triangles].reshape(-1, 3)
+    # scale, then rotate about x by 90 (y -> z), then translate z by -1
+    assert np.allclose(floor[:, 1], 0.0) and np.isclose(np.abs(floor[:, 0]).max(), 2.0)
+    assert np.allclose(np.abs(floor[:, 2] + 1.0), 1.0)
+    np.testing.assert_allclose(s.reflectance[s.tri_material[0]], [0.2, 0.4, 0.6])
+    s2 = probvis.load_scene(path, spp=3, z=5)
+    assert s2.spp == 3 and np.isclose(s2.triangles[: 2].reshape(-1, 3)[:, 2].mean(), 5.0)
+
+
+def test_rectangle_faces_plus_z_and_emitter_is_attached(tmp_path):
+    path = write_scene(tmp_path / "s.xml", sensor() + LIGHT)
+    s = probvis.load_scene(path)
+    n = np.cross(s.triangles[:, 1] - s.triangles[:, 0], s.triangles[:, 2] - s.triangles[:, 0])
+    assert np.all(n[:, 2] > 0)
+    assert s.n_emitters == 1 and np.all(s.tri_emitter == 0)
+    assert not s.twosided[s.tri_material[0]] and np.allclose(s.reflectance[s.tri_material[0]], 0.5)
+
+
+def test_mirroring_transform_keeps_rectangle_normal_like_mitsuba(tmp_path):
+    body = sensor() + """<shape type="rectangle"><transform name="to_world"><scale x="-1"/></transform>
+        <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>"""
+    s = probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+    n = np.cross(s.triangles[:, 1] - s.triangles[:, 0], s.triangles[:, 2] - s.triangles[:, 0])
+    assert np.all(n[:, 2] > 0)  # inverse-transpose of +z under a mirror in x is still +z
+
+
+def test_obj_mesh_relative_path_and_twosided(tmp_path):
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\nf 1 1 2\n")
+    body = sensor() + LIGHT + """<shape type="obj"><string name="filename" value="m/tri.obj"/>
+        <bsdf type="twosided"><bsdf type="diffuse"/></bsdf></shape>"""
+    s = probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+    assert s.shapes[1].n_triangles == 2 and s.dropped_degenerate == 1
+    assert s.twosided[s.tri_material[-1]]
+
+
+@pytest.mark.parametrize("body, message", [
+    ("<shape type='rectangle'><emitter type='point'/></shape>", "unsupported emitter type 'point'"),
+    ("<shape type='disk'/>", "unsupported shape type 'disk'"),
+    ("<bsdf type='conductor' id='x'/>", "unsupported bsdf type 'conductor'"),
+    ("<shape type='rectangle'><float name='radius' value='1'/></shape>", "unsupported parameter 'radius'"),
+    ("<shape type='obj'><string name='filename' value='nope.obj'/></shape>", "mesh file not found"),
+    ("<shape type='rectangle'><ref id='missing'/></shape>", "unknown id 'missing'"),
+    ("<shape type='rectangle'><transform name='to_world'><shear/></transform></shape>", "unsupported transform"),
+    ("<shape type='rectangle'><boolean name='flip_normals' value='$undefined'/></shape>",
+     "undefined parameter '$undefined'"),
+    ("<emitter type='envmap'/>", "unsupported emitter type 'envmap'"),
+    ("<texture type='bitmap'/>", "unsupported element"),
+])
+def test_unsupported_input_names_file_line_and_element(tmp_path, body, message):
+    path = write_scene(tmp_path / "bad.xml", sensor() + LIGHT + "\n" + body)
+    with pytest.raises(ProbvisError) as exc:
+        probvis.load_scene(path)
+    text = str(exc.value)
+    assert message in text
+    assert f"{path}:" in text
+    line = int(text.split(f"{path}:")[1].split(":")[0])
+    assert body.split()[0].strip("<") in path.read_text().splitlines()[line - 1]
+
+
+def test_malformed_xml_reports_the_line(tmp_path):
+    path = tmp_path / "bad.xml"
+    path.write_text('<scene version="3.0.0">\n<shape type="rectangle">\n</scene>\n')
+    with pytest.raises(ProbvisError, match=r"bad.xml:3: malformed XML"):
+        probvis.load_scene(path)
+
+
+def test_missing_file_no_emitter_nan_vertices(tmp_path):
+    with pytest.raises(ProbvisError, match="scene file not found"):
+        probvis.load_scene(tmp_path / "nope.xml")
+    with pytest.raises(ProbvisError, match="no emitter"):
+        probvis.load_scene(write_scene(tmp_path / "dark.xml", sensor() + "<shape type='cube'/>"))
+    (tmp_path / "nan.obj").write_text("v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n")
+    body = sensor() + LIGHT + "<shape type='obj'><string name='filename' value='nan.obj'/></shape>"
+    with pytest.raises(ProbvisError, match="NaN or infinite"):
+        probvis.load_scene(write_scene(tmp_path / "nan.xml", body))
+
+
+@pytest.mark.parametrize("w, h", [(0, 16), (16, -3), (100000, 16)])
+def test_silly_resolution(tmp_path, w, h):
+    with pytest.raises(ProbvisError, match="out of range"):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", sensor(w=w, h=h) + LIGHT))
+
+
+def test_builtin_scenes_are_generated_and_valid():
+    for name in probvis.BUILTINS:
+        s = probvis.load_scene(name, res=8, spp=1)
+        assert s.n_triangles > 0 and s.n_emitters >= 1 and s.camera.width == 8
+        assert np.all(np.isfinite(s.triangles))
+    with pytest.raises(ProbvisError, match="no parameter 'fov'"):
+        probvis.load_scene("cornell-box", fov=3)
+
+
+def test_shared_scenes_load(shared):
+    for name, tris in (("cornell-bunny", 69463), ("city", 30074), ("leaves", 4004)):
+        s = probvis.load_scene(shared / "scenes" / f"{name}.xml", res=32)
+        assert s.n_triangles + s.dropped_degenerate == tris
+        assert s.camera.width == 32 and s.spp == 16 and s.shadow_rays == 16

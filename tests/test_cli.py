@@ -1,0 +1,72 @@
+"""The command line: outputs, one-line errors with non-zero exit, nothing half-written."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from probvis.cli import main
+from probvis.io import read_exr
+from tests.conftest import sensor, write_scene
+
+
+def test_render_writes_images_stats_and_test_counts(tmp_path, capsys):
+    out = [tmp_path / "a.exr", tmp_path / "a.png", tmp_path / "a.pfm"]
+    code = main(["render", "quad-shadow", "-D", "res=16", "--spp", "2", "--shadow-rays", "2", "--seed", "4",
+                 "-o", str(out[0]), "-o", str(out[1]), "-o", str(out[2]), "--stats", str(tmp_path / "s.json"),
+                 "--tests-image", str(tmp_path / "t.exr"), "--threads", "1"])
+    assert code == 0
+    assert all(p.stat().st_size > 0 for p in out)
+    stats = json.loads((tmp_path / "s.json").read_text())
+    assert stats["width"] == 16 and stats["spp"] == 2 and stats["seed"] == 4 and stats["threads"] == 1
+    assert read_exr(out[0]).shape == (16, 16, 3)
+    assert "tests       triangle" in capsys.readouterr().out
+    assert not list(tmp_path.glob(".*"))
+
+
+def test_user_mistakes_give_one_line_and_exit_2(tmp_path, capsys):
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<scene version='3.0.0'>\n<shape type='sphere'\n</scene>")
+    cases = [
+        (["render", str(tmp_path / "missing.xml"), "-o", str(tmp_path / "x.exr")], "scene file not found"),
+        (["render", str(bad), "-o", str(tmp_path / "x.exr")], "bad.xml:3: malformed XML"),
+        (["render", "quad-shadow", "-o", str(tmp_path / "no" / "x.exr")], "does not exist"),
+        (["render", "quad-shadow", "-o", str(tmp_path / "x.jpg")], "unknown format"),
+        (["render", "quad-shadow", "-D", "res=0", "-o", str(tmp_path / "x.exr")], "width must be"),
+        (["render", "quad-shadow", "-D", "bogus", "-o", str(tmp_path / "x.exr")], "-D expects name=value"),
+        (["info", "nope"], "neither a scene file"),
+    ]
+    for argv, message in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("probvis: error:") and message in err[0], err
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_scene_without_emitter(tmp_path, capsys):
+    path = write_scene(tmp_path / "dark.xml", sensor() + "<shape type='cube'/>")
+    assert main(["render", str(path), "-o", str(tmp_path / "d.exr")]) == 2
+    assert "no emitter" in capsys.readouterr().err
+    assert not (tmp_path / "d.exr").exists()
+
+
+def test_info_and_scenes(capsys):
+    assert main(["scenes"]) == 0
+    assert "cornell-box" in capsys.readouterr().out
+    assert main(["info", "cornell-box", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["triangles"] > 1000 and info["bvh"]["nodes"] > 0 and len(info["emitters"]) == 1
+
+
+def test_console_script_bad_option_exits_non_zero_without_traceback():
+    r = subprocess.run([sys.executable, "-m", "probvis.cli", "render", "quad-shadow", "--spp", "-3"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "must be at least 1" in r.stderr
+
+
+def test_images_are_signed_float32(tmp_path):
+    from probvis.io import write_image
+
+    img = np.array([[[-0.5, 0.0, 2.0]]])
+    write_image(tmp_path / "n.exr", img)
+    np.testing.assert_array_equal(read_exr(tmp_path / "n.exr"), img.astype(np.float32))

@@ -1,0 +1,114 @@
+"""Direct illumination against closed forms, determinism, and the stats contract."""
+import numba
+import numpy as np
+import pytest
+
+import probvis
+from probvis import ProbvisError
+from tests.conftest import sensor, write_scene
+
+
+def corner_form_factor(x, y):
+    """Form factor from a point to a parallel rectangle [0, x] x [0, y] at unit height above its corner."""
+    a, b = np.sqrt(1 + x * x), np.sqrt(1 + y * y)
+    return (x / a * np.arctan(y / a) + y / b * np.arctan(x / b)) / (2 * np.pi)
+
+
+def light_over_floor(tmp_path, h=1.0, a=0.5, b=0.3, radiance=5.0, extra="", cam_z=None, spp=4, sr=4):
+    cam_z = h / 2 if cam_z is None else cam_z
+    body = sensor(origin=f"0, 0, {cam_z}", target="0, 0, 0", fov=0.5, spp=spp, sr=sr, w=32, h=32) + f"""
+    <shape type="rectangle"><transform name="to_world"><scale value="10"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.8, 0.5, 0.25"/></bsdf></shape>
+    <shape type="rectangle">
+        <transform name="to_world"><scale x="{a}" y="{b}"/><rotate x="1" angle="180"/><translate z="{h}"/></transform>
+        <emitter type="area"><rgb name="radiance" value="{radiance}"/></emitter></shape>
+    {extra}"""
+    return write_scene(tmp_path / "s.xml", body)
+
+
+def test_irradiance_from_an_unoccluded_rectangle(tmp_path):
+    """L_o = albedo * L_e * F, F = 4 corner form factors for the point under the centre of the light."""
+    h, a, b, le = 1.0, 0.5, 0.3, 5.0
+    r = probvis.render(light_over_floor(tmp_path, h, a, b, le), seed=3)
+    expected = np.array([0.8, 0.5, 0.25]) * le * 4 * corner_form_factor(a / h, b / h)
+    px = r.image.reshape(-1, 3)
+    se = px.std(axis=0) / np.sqrt(len(px))
+    assert np.all(se > 0)
+    assert np.all(np.abs(px.mean(axis=0) - expected) < 4 * se + 1e-4 * expected)
+
+
+def test_point_in_full_shadow_is_black(tmp_path):
+    blocker = """<shape type="rectangle"><transform name="to_world"><scale value="3"/><translate z="0.6"/>
+        </transform><bsdf type="twosided"><bsdf type="diffuse"/></bsdf></shape>"""
+    r = probvis.render(light_over_floor(tmp_path, extra=blocker, cam_z=0.3))
+    assert np.all(r.image == 0.0)
+    assert r.stats["shadow_rays"] > 0 and r.stats["intersection_tests"]["shadow"]["triangle"] > 0
+
+
+def test_emitter_seen_directly_front_and_back(tmp_path):
+    light = """<shape type="rectangle"><transform name="to_world"><scale value="2"/></transform>
+        <emitter type="area"><rgb name="radiance" value="1.5, 2, 3"/></emitter></shape>"""
+    front = probvis.render(write_scene(tmp_path / "f.xml", sensor(origin="0, 0, 1", fov=30) + light))
+    np.testing.assert_array_equal(front.image, np.broadcast_to([1.5, 2.0, 3.0], front.image.shape))
+    back = probvis.render(write_scene(tmp_path / "b.xml", sensor(origin="0, 0, -1", fov=30) + light))
+    assert np.all(back.image == 0.0)
+
+
+def test_one_sided_floor_is_black_from_below(tmp_path):
+    r = probvis.render(light_over_floor(tmp_path, cam_z=-1.0))
+    assert np.all(r.image == 0.0) and r.stats["shadow_rays"] == 0
+
+
+def test_same_image_whatever_the_thread_count_and_seed_matters():
+    scene = probvis.load_scene("cornell-box", res=24, spp=2, shadow_rays=3)
+    before = numba.get_num_threads()
+    try:
+        one = probvis.render(scene, threads=1, seed=5)
+        two = probvis.render(scene, threads=numba.config.NUMBA_NUM_THREADS, seed=5)
+    finally:
+        numba.set_num_threads(before)
+    np.testing.assert_array_equal(one.image, two.image)
+    np.testing.assert_array_equal(one.aovs["triangle_tests"], two.aovs["triangle_tests"])
+    other = probvis.render(scene, seed=6)
+    assert not np.array_equal(one.image, other.image)
+
+
+def test_stats_and_test_count_image_add_up():
+    r = probvis.render("quad-shadow", spp=2, shadow_rays=2, resolution=(12, 10))
+    s = r.stats
+    assert r.image.shape == (10, 12, 3)
+    for key in ("total", "load", "build", "compile", "render"):
+        assert s["seconds"][key] >= 0
+    assert s["camera_rays"] == 12 * 10 * 2
+    it = s["intersection_tests"]
+    assert it["triangle"] == r.aovs["triangle_tests"].sum() > 0
+    assert it["node"] == r.aovs["node_tests"].sum() > 0
+    assert it["triangle"] == it["camera"]["triangle"] + it["shadow"]["triangle"]
+    assert 0 < s["shadow_rays"] <= s["camera_rays"] * 2
+    assert s["visibility"]["name"] == "exact" and s["seed"] == 0 and s["spp"] == 2
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"spp": 0}, "spp must be"), ({"shadow_rays": -1}, "shadow_rays must be"),
+    ({"resolution": (0, 4)}, "width must be"), ({"visibility": "magic"}, "unknown visibility"),
+    ({"threads": 999}, "threads must be"),
+])
+def test_bad_render_settings(kwargs, message):
+    with pytest.raises(ProbvisError, match=message):
+        probvis.render("quad-shadow", **kwargs)
+
+
+def test_shared_scenes_within_noise_floor(shared):
+    """relMSE against the Mitsuba references at 128 px, 16 spp x 16 shadow rays, two seeds averaged, is
+    within 1.5x the floor of independent Mitsuba renders (floors.json)."""
+    import json
+
+    from probvis.io import read_exr
+    from tests.conftest import relmse
+
+    floors = json.loads((shared / "reference" / "floors.json").read_text())
+    for name in ("cornell-bunny", "city", "leaves"):
+        ref = read_exr(shared / "reference" / f"{name}-128.exr").astype(np.float64)
+        err = np.mean([relmse(probvis.render(shared / "scenes" / f"{name}.xml", res=128, spp=16,
+                                             shadow_rays=16, seed=s).image, ref) for s in (1, 2)])
+        assert err <= 1.5 * np.mean(floors[name]["relmse_16spp_16sr"]), name
