@@ -7,7 +7,10 @@ with a Lambertian BRDF; one-sided diffuse surfaces are black from behind and emi
 front side only, as in Mitsuba 3.
 """
 import math
+import signal
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numba
@@ -206,6 +209,27 @@ def scene_arrays(scene):
 _warmed = set()
 
 
+@contextmanager
+def _interrupt_between_batches():
+    """Hold Ctrl-C while a kernel runs and raise KeyboardInterrupt at the next batch boundary instead:
+    interrupting a Numba kernel mid-call leaves Python in an error state."""
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: None
+        return
+    pending = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: pending.append(signum))
+
+    def check():
+        if pending:
+            raise KeyboardInterrupt
+
+    try:
+        yield check
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    check()
+
+
 def _warm_up(estimator_name, options):
     """Compile (or load from numba's cache) every kernel of the pipeline on a tiny scene; returns seconds."""
     if estimator_name in _warmed:
@@ -243,33 +267,35 @@ def _render_prepared(scene, estimator, progress, warmup=False):
         from tqdm import tqdm
 
         bar = tqdm(total=n_pix_total, unit="px", unit_scale=True, desc=f"render {scene.name}", leave=False)
-    try:
-        for p0 in range(0, n_pix_total, per_batch):
-            p1 = min(n_pix_total, p0 + per_batch)
-            org, dirs, tmin, tmax, keys = camera_rays(cam, spp, scene.seed, p0, p1)
-            prim, _, b1, b2, cam_node, cam_tri = closest_hit(bvh.arrays, org, dirs, tmin, tmax)
-            emitted, pos, nrm, s_org, s_dir, contrib, s_emit, active = shade(geom, es, prim, b1, b2, dirs, keys,
-                                                                             n_shadow)
-            offsets, q_org, q_dir, q_point, q_emit, q_key = compact(active, s_org, s_dir, s_emit, keys, n_shadow)
-            n_q = len(q_point)
-            query = ShadowQuery(origin=q_org, direction=q_dir, tmax=np.full(n_q, 1.0 - SHADOW_EPSILON),
-                                point=q_point, emitter=q_emit, key=q_key, points=ShadingPoints(pos, nrm, prim))
-            res = estimator.evaluate(query)
-            img, m2, tst = accumulate(emitted, contrib, active, offsets, res.value, cam_node, cam_tri,
-                                      res.node_tests, res.triangle_tests, spp, n_shadow, p1 - p0)
-            image[p0:p1], moment2[p0:p1], tests[p0:p1] = img, m2, tst
-            totals["cam_tri"] += int(cam_tri.sum())
-            totals["cam_node"] += int(cam_node.sum())
-            totals["sh_tri"] += int(res.triangle_tests.sum())
-            totals["sh_node"] += int(res.node_tests.sum())
-            totals["shadow_rays"] += n_q
-            totals["camera_hits"] += int((prim >= 0).sum())
-            totals["negative"] += int((res.value < 0).sum())
+    with _interrupt_between_batches() as check_interrupt:
+        try:
+            for p0 in range(0, n_pix_total, per_batch):
+                check_interrupt()
+                p1 = min(n_pix_total, p0 + per_batch)
+                org, dirs, tmin, tmax, keys = camera_rays(cam, spp, scene.seed, p0, p1)
+                prim, _, b1, b2, cam_node, cam_tri = closest_hit(bvh.arrays, org, dirs, tmin, tmax)
+                emitted, pos, nrm, s_org, s_dir, contrib, s_emit, active = shade(geom, es, prim, b1, b2, dirs, keys,
+                                                                                 n_shadow)
+                offsets, q_org, q_dir, q_point, q_emit, q_key = compact(active, s_org, s_dir, s_emit, keys, n_shadow)
+                n_q = len(q_point)
+                query = ShadowQuery(origin=q_org, direction=q_dir, tmax=np.full(n_q, 1.0 - SHADOW_EPSILON),
+                                    point=q_point, emitter=q_emit, key=q_key, points=ShadingPoints(pos, nrm, prim))
+                res = estimator.evaluate(query)
+                img, m2, tst = accumulate(emitted, contrib, active, offsets, res.value, cam_node, cam_tri,
+                                          res.node_tests, res.triangle_tests, spp, n_shadow, p1 - p0)
+                image[p0:p1], moment2[p0:p1], tests[p0:p1] = img, m2, tst
+                totals["cam_tri"] += int(cam_tri.sum())
+                totals["cam_node"] += int(cam_node.sum())
+                totals["sh_tri"] += int(res.triangle_tests.sum())
+                totals["sh_node"] += int(res.node_tests.sum())
+                totals["shadow_rays"] += n_q
+                totals["camera_hits"] += int((prim >= 0).sum())
+                totals["negative"] += int((res.value < 0).sum())
+                if bar is not None:
+                    bar.update(p1 - p0)
+        finally:
             if bar is not None:
-                bar.update(p1 - p0)
-    finally:
-        if bar is not None:
-            bar.close()
+                bar.close()
     render_seconds = time.perf_counter() - t_render
     shape = (height, width)
     aovs = {
