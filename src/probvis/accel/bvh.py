@@ -2,7 +2,7 @@
 
 Layout (depth-first): the left child of interior node i is i + 1; `node_index[i]` is the right child of an
 interior node or the first primitive of a leaf; `node_count[i]` is 0 for interior nodes and the number of
-primitives of a leaf; `node_axis[i]` is the split axis (used for front-to-back traversal).
+primitives of a leaf.
 Triangle vertices are stored in BVH order in `tri_v`; `prim_ids` maps BVH order back to scene triangle ids.
 """
 import time
@@ -32,7 +32,6 @@ def _build(tri_lo, tri_hi, cent, n_bins, max_leaf, trav_cost):
     bounds = np.empty((max_nodes, 6))
     node_index = np.zeros(max_nodes, np.int32)
     node_count = np.zeros(max_nodes, np.int32)
-    node_axis = np.zeros(max_nodes, np.int8)
     # pending ranges: start, end, parent (right-child links are patched when the node is created)
     st_start = np.empty(n + 64, np.int64)
     st_end = np.empty(n + 64, np.int64)
@@ -141,20 +140,17 @@ def _build(tri_lo, tri_hi, cent, n_bins, max_leaf, trav_cost):
                     idx[lo], idx[hi] = idx[hi], idx[lo]
                     hi -= 1
             mid = lo
-            axis = best_axis
         else:
             mid = -1
-            axis = 0
         if mid <= start or mid >= end:
             mid = (start + end) // 2  # all centroids coincide: split by count
-        node_axis[node] = axis
         node_count[node] = 0
         st_start[sp], st_end[sp], st_parent[sp] = mid, end, node
         sp += 1
         st_start[sp], st_end[sp], st_parent[sp] = start, mid, -1
         sp += 1
     return bounds[:n_nodes].copy(), node_index[:n_nodes].copy(), node_count[:n_nodes].copy(), \
-        node_axis[:n_nodes].copy(), idx
+        idx
 
 
 @njit(cache=True, error_model="numpy")
@@ -175,7 +171,6 @@ class BVH:
     bounds: np.ndarray
     node_index: np.ndarray
     node_count: np.ndarray
-    node_axis: np.ndarray
     tri_v: np.ndarray  # (n, 3, 3) vertices in BVH order
     prim_ids: np.ndarray  # BVH order -> scene triangle id
     max_depth: int
@@ -234,7 +229,7 @@ def build_bvh(triangles, n_bins=N_BINS, max_leaf=MAX_LEAF):
     lo = tris.min(axis=1)
     hi = tris.max(axis=1)
     cent = 0.5 * (lo + hi)
-    bounds, node_index, node_count, node_axis, idx = _build(lo, hi, cent, n_bins, max_leaf, TRAVERSAL_COST)
+    bounds, node_index, node_count, idx = _build(lo, hi, cent, n_bins, max_leaf, TRAVERSAL_COST)
     tri_v = np.ascontiguousarray(tris[idx])
     depth = int(_depth_stats(node_index, node_count))
-    return BVH(bounds, node_index, node_count, node_axis, tri_v, idx, depth, time.perf_counter() - t0)
+    return BVH(bounds, node_index, node_count, tri_v, idx, depth, time.perf_counter() - t0)
