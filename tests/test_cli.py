@@ -70,3 +70,21 @@ def test_images_are_signed_float32(tmp_path):
     img = np.array([[[-0.5, 0.0, 2.0]]])
     write_image(tmp_path / "n.exr", img)
     np.testing.assert_array_equal(read_exr(tmp_path / "n.exr"), img.astype(np.float32))
+
+
+def test_occlusion_map_options_and_case_image(tmp_path, capsys):
+    out, cases, stats = tmp_path / "o.exr", tmp_path / "cases.png", tmp_path / "s.json"
+    code = main(["render", "quad-shadow", "-D", "res=16", "--spp", "2", "--shadow-rays", "2", "-o", str(out),
+                 "--visibility", "occlusion-map", "--photons", "20000", "--neighbours", "16", "--radius", "0.2",
+                 "--penumbra", "list", "--no-adaptive", "--case-image", str(cases), "--stats", str(stats)])
+    assert code == 0 and cases.stat().st_size > 0
+    s = json.loads(stats.read_text())
+    assert s["visibility"] == {"name": "occlusion-map", "photons": 20000, "neighbours": 16, "radius": 0.2,
+                               "penumbra": "list", "adaptive": False, "volumetric": True}
+    assert abs(sum(c["share"] for c in s["cases"].values()) - 1) < 1e-9
+    assert s["estimator"]["list_length"]["max"] >= 2
+    capsys.readouterr()
+    for argv, message in ((["--photons", "5"], "does not apply to --visibility exact"),
+                          (["--case-image", str(tmp_path / "c.png")], "--case-image needs")):
+        assert main(["render", "quad-shadow", "-o", str(out)] + argv) == 2
+        assert message in capsys.readouterr().err

@@ -34,6 +34,19 @@ def _int_at_least(lowest):
     return parse
 
 
+def _positive_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+    if not v > 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return v
+
+
+VISIBILITY_OPTIONS = ("photons", "neighbours", "radius", "penumbra", "adaptive", "volumetric")
+
+
 _positive = _int_at_least(1)
 _non_negative = _int_at_least(0)
 
@@ -51,7 +64,20 @@ def _parser():
     r.add_argument("--shadow-rays", type=_positive, help="emitter samples (shadow rays) per camera sample")
     r.add_argument("-D", dest="defines", action="append", metavar="NAME=VALUE", help="override a <default>")
     r.add_argument("--seed", type=_non_negative, help="random seed (default: the scene's sampler seed)")
-    r.add_argument("--visibility", default="exact", help="visibility estimator (default: exact)")
+    r.add_argument("--visibility", default="exact", help="visibility estimator: exact, occlusion-map (default: exact)")
+    om = r.add_argument_group("occlusion map (--visibility occlusion-map)")
+    om.add_argument("--photons", type=_positive, help="photon rays of the first pass (default: 0.5 per camera "
+                                                         "sample, at least 100,000)")
+    om.add_argument("--neighbours", type=_positive, help="photons looked up per shading point (default 32)")
+    om.add_argument("--radius", type=_positive_float, help="look-up radius (default: from the photon density)")
+    om.add_argument("--penumbra", choices=("list", "bvh"), help="test penumbra shadow rays against the candidate "
+                                                                 "blocker list or the whole BVH (default bvh)")
+    om.add_argument("--adaptive", action=argparse.BooleanOptionalAction, default=None,
+                    help="aim extra photons at uncertain regions (default off)")
+    om.add_argument("--volumetric", action=argparse.BooleanOptionalAction, default=None,
+                    help="cull closed meshes' triangles facing away from the light end (list mode; default on)")
+    om.add_argument("--case-image", metavar="OUT", help="write the per-pixel case shares (R penumbra, G lit, "
+                                                        "B shadowed, grey unknown), one image per emitter")
     r.add_argument("--stats", metavar="OUT.json", help="write the statistics as JSON")
     r.add_argument("--tests-image", metavar="OUT.exr", help="write per-pixel ray-triangle and ray-node test counts")
     r.add_argument("--threads", type=_positive, help="worker threads (default: all cores)")
@@ -69,26 +95,35 @@ def _parser():
 
 def _cmd_render(args):
     from .integrator import render
-    from .io import check_writable, summary, write_exr, write_image, write_stats
+    from .io import check_writable, summary, write_case_images, write_exr, write_image, write_stats
 
     outputs = args.output or [f"{Path(args.scene).stem}.exr"]
-    for path in outputs + [x for x in (args.stats, args.tests_image) if x]:
+    for path in outputs + [x for x in (args.stats, args.tests_image, args.case_image) if x]:
         check_writable(path)
     if args.tests_image and not args.tests_image.lower().endswith(".exr"):
         raise ProbvisError("--tests-image must be an .exr file")
+    options = {k: getattr(args, k) for k in VISIBILITY_OPTIONS if getattr(args, k) is not None}
+    if options and args.visibility == "exact":
+        raise ProbvisError(f"--{next(iter(options)).replace('_', '-')} does not apply to --visibility exact")
+    if args.case_image and args.visibility == "exact":
+        raise ProbvisError("--case-image needs a visibility that classifies points (e.g. occlusion-map)")
     result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed,
-                    visibility=args.visibility, threads=args.threads,
+                    visibility=args.visibility, visibility_options=options, threads=args.threads,
                     progress=not args.quiet and sys.stderr.isatty(), **_defines(args.defines))
     for path in outputs:
         write_image(path, result.image, args.exposure)
     if args.tests_image:
         write_exr(args.tests_image, None, channels={"triangle": result.aovs["triangle_tests"],
                                                     "node": result.aovs["node_tests"]})
+    written = outputs + [x for x in (args.tests_image,) if x]
+    if args.case_image:
+        written += write_case_images(args.case_image, result.aovs["cases"])
     if args.stats:
         write_stats(args.stats, result.stats)
+        written.append(args.stats)
     if not args.quiet:
         print(summary(result.stats))
-        print("wrote       " + ", ".join(outputs + [x for x in (args.tests_image, args.stats) if x]))
+        print("wrote       " + ", ".join(written))
     return 0
 
 

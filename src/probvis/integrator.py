@@ -21,10 +21,10 @@ from . import __version__
 from .accel import build_bvh, closest_hit
 from .camera import camera_params, camera_rays
 from .errors import ProbvisError
-from .lights import build_emitter_sampler, sample_emitter
+from .lights import build_emitter_sampler, choose_emitter, emitter_irradiance, sample_on_emitter
 from .rng import mix64, uniform
 from .scene import Scene, load_scene
-from .visibility import ShadingPoints, ShadowQuery, make_estimator
+from .visibility import CASE_LIT, CASE_PENUMBRA, CASE_NAMES, CASE_UNKNOWN, N_CASES, ShadingPoints, ShadowQuery, make_estimator
 
 SHADOW_EPSILON = 1e-6  # segments stop this fraction short of the emitter point
 TARGET_SLOTS = 1 << 20  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
@@ -53,18 +53,58 @@ def _face_normal(triangles, t):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def shade(geom, es, prim, b1, b2, dirs, keys, n_shadow):
-    """Shading points of the hits and one emitter sample per shadow slot (slot = sample * n_shadow + j).
-
-    Returns emitted radiance per sample, shading points, and per slot: segment origin, direction, the
-    unoccluded contribution (already divided by pdf and n_shadow), the emitter id and an active flag.
-    """
+def surface(geom, prim, b1, b2, dirs):
+    """Shading points of the camera hits: emitted radiance seen directly, position, shading normal turned
+    to the camera's side, and the material (-1 where nothing is reflected: a miss or a one-sided back face)."""
     triangles, vnormals, tri_mat, tri_emit, refl, twosided, radiance = geom
-    cdf, pmf, area, offsets, etris, tri_cdf = es
     n = prim.shape[0]
     emitted = np.zeros((n, 3))
     pos = np.zeros((n, 3))
     nrm = np.zeros((n, 3))
+    mat = np.full(n, -1, np.int32)
+    for i in prange(n):
+        tri = prim[i]
+        if tri < 0:
+            continue
+        c1, c2 = b1[i], b2[i]
+        c0 = 1.0 - c1 - c2
+        sx = c0 * vnormals[tri, 0, 0] + c1 * vnormals[tri, 1, 0] + c2 * vnormals[tri, 2, 0]
+        sy = c0 * vnormals[tri, 0, 1] + c1 * vnormals[tri, 1, 1] + c2 * vnormals[tri, 2, 1]
+        sz = c0 * vnormals[tri, 0, 2] + c1 * vnormals[tri, 1, 2] + c2 * vnormals[tri, 2, 2]
+        inv = 1.0 / math.sqrt(sx * sx + sy * sy + sz * sz)
+        sx, sy, sz = sx * inv, sy * inv, sz * inv
+        cos_i = -(sx * dirs[i, 0] + sy * dirs[i, 1] + sz * dirs[i, 2])
+        em = tri_emit[tri]
+        if em >= 0 and cos_i > 0.0:
+            for k in range(3):
+                emitted[i, k] = radiance[em, k]
+        m = tri_mat[tri]
+        if cos_i <= 0.0:
+            if not twosided[m]:
+                continue
+            sx, sy, sz = -sx, -sy, -sz
+        for k in range(3):
+            pos[i, k] = c0 * triangles[tri, 0, k] + c1 * triangles[tri, 1, k] + c2 * triangles[tri, 2, k]
+        nrm[i, 0], nrm[i, 1], nrm[i, 2] = sx, sy, sz
+        mat[i] = m
+    return emitted, pos, nrm, mat
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow):
+    """Direct light at the shading points, per emitter as the visibility estimator's `cases` say:
+
+    lit (case 1) emitters are integrated analytically (Lambert's polygon formula, no noise, no rays),
+    shadowed (case 2) ones contribute nothing, and the others are sampled: `n_shadow` emitter samples per
+    point (emitter by power among the sampled ones, point uniform by area), slot = point * n_shadow + j.
+    Returns the analytic radiance per point and, per slot, segment origin and direction, the unoccluded
+    contribution (already divided by pdf and n_shadow), the emitter id and an active flag.
+    """
+    triangles, vnormals, tri_mat, tri_emit, refl, twosided, radiance = geom
+    pmf, area, offsets, etris, tri_cdf = es
+    n = prim.shape[0]
+    n_emit = pmf.shape[0]
+    analytic = np.zeros((n, 3))
     m_slots = n * n_shadow
     s_org = np.empty((m_slots, 3))
     s_dir = np.empty((m_slots, 3))
@@ -73,40 +113,31 @@ def shade(geom, es, prim, b1, b2, dirs, keys, n_shadow):
     active = np.zeros(m_slots, np.bool_)
     inv_pi = 1.0 / math.pi
     for i in prange(n):
-        tri = prim[i]
-        if tri < 0:
+        mi = mat[i]
+        if mi < 0:
             continue
-        c1, c2 = b1[i], b2[i]
-        c0 = 1.0 - c1 - c2
-        px = c0 * triangles[tri, 0, 0] + c1 * triangles[tri, 1, 0] + c2 * triangles[tri, 2, 0]
-        py = c0 * triangles[tri, 0, 1] + c1 * triangles[tri, 1, 1] + c2 * triangles[tri, 2, 1]
-        pz = c0 * triangles[tri, 0, 2] + c1 * triangles[tri, 1, 2] + c2 * triangles[tri, 2, 2]
-        sx = c0 * vnormals[tri, 0, 0] + c1 * vnormals[tri, 1, 0] + c2 * vnormals[tri, 2, 0]
-        sy = c0 * vnormals[tri, 0, 1] + c1 * vnormals[tri, 1, 1] + c2 * vnormals[tri, 2, 1]
-        sz = c0 * vnormals[tri, 0, 2] + c1 * vnormals[tri, 1, 2] + c2 * vnormals[tri, 2, 2]
-        inv = 1.0 / math.sqrt(sx * sx + sy * sy + sz * sz)
-        sx, sy, sz = sx * inv, sy * inv, sz * inv
+        tri = prim[i]
+        px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
+        sx, sy, sz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
+        sampled = np.empty(n_emit, np.bool_)
+        for e in range(n_emit):
+            c = cases[i, e]
+            sampled[e] = c == CASE_UNKNOWN or c == CASE_PENUMBRA
+            if c == CASE_LIT:
+                f = emitter_irradiance(e, offsets, etris, triangles, px, py, pz, sx, sy, sz) * inv_pi
+                for k in range(3):
+                    analytic[i, k] += refl[mi, k] * radiance[e, k] * f
         gx, gy, gz = _face_normal(triangles, tri)
-        cos_i = -(sx * dirs[i, 0] + sy * dirs[i, 1] + sz * dirs[i, 2])
-        em = tri_emit[tri]
-        if em >= 0 and cos_i > 0.0:
-            for k in range(3):
-                emitted[i, k] = radiance[em, k]
-        mat = tri_mat[tri]
-        if cos_i <= 0.0:
-            if not twosided[mat]:
-                continue
-            sx, sy, sz = -sx, -sy, -sz
-        pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
-        nrm[i, 0], nrm[i, 1], nrm[i, 2] = sx, sy, sz
         eps = 1e-9 * (1.0 + max(abs(px), abs(py), abs(pz)))
         key = keys[i]
         for j in range(n_shadow):
             slot = i * n_shadow + j
-            lt, le, yx, yy, yz, pdf = sample_emitter(cdf, pmf, area, offsets, etris, tri_cdf, triangles,
-                                                     uniform(key, 2 + 4 * j),
-                                                     uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j),
-                                                     uniform(key, 5 + 4 * j))
+            le, p_e = choose_emitter(pmf, sampled, uniform(key, 2 + 4 * j))
+            if le < 0:
+                break
+            lt, yx, yy, yz = sample_on_emitter(le, offsets, etris, tri_cdf, triangles, uniform(key, 3 + 4 * j),
+                                               uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
+            pdf = p_e / area[le]
             wx, wy, wz = yx - px, yy - py, yz - pz
             d2 = wx * wx + wy * wy + wz * wz
             if d2 == 0.0:
@@ -123,12 +154,12 @@ def shade(geom, es, prim, b1, b2, dirs, keys, n_shadow):
             off = eps if gx * wx + gy * wy + gz * wz > 0.0 else -eps
             ox, oy, oz = px + off * gx, py + off * gy, pz + off * gz
             for k in range(3):
-                contrib[slot, k] = refl[mat, k] * radiance[le, k] * g
+                contrib[slot, k] = refl[mi, k] * radiance[le, k] * g
             s_org[slot, 0], s_org[slot, 1], s_org[slot, 2] = ox, oy, oz
             s_dir[slot, 0], s_dir[slot, 1], s_dir[slot, 2] = yx - ox, yy - oy, yz - oz
             s_emit[slot] = le
             active[slot] = True
-    return emitted, pos, nrm, s_org, s_dir, contrib, s_emit, active
+    return analytic, s_org, s_dir, contrib, s_emit, active
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -232,14 +263,15 @@ def _interrupt_between_batches():
 
 def _warm_up(estimator_name, options):
     """Compile (or load from numba's cache) every kernel of the pipeline on a tiny scene; returns seconds."""
-    if estimator_name in _warmed:
+    key = (estimator_name, repr(sorted(options.items())))
+    if key in _warmed:
         return 0.0
     from .scene.builtin import quad_shadow
 
     t0 = time.perf_counter()
     _render_prepared(quad_shadow(res=4, spp=1, shadow_rays=2), make_estimator(estimator_name, **options),
                      progress=False, warmup=True)
-    _warmed.add(estimator_name)
+    _warmed.add(key)
     return time.perf_counter() - t0
 
 
@@ -261,7 +293,9 @@ def _render_prepared(scene, estimator, progress, warmup=False):
     image = np.zeros((n_pix_total, 3))
     moment2 = np.zeros((n_pix_total, 3))
     tests = np.zeros((n_pix_total, 2), np.int64)
-    totals = dict(cam_tri=0, cam_node=0, sh_tri=0, sh_node=0, shadow_rays=0, camera_hits=0, negative=0)
+    totals = dict(cam_tri=0, cam_node=0, sh_tri=0, sh_node=0, shadow_rays=0, camera_hits=0, negative=0,
+                  cases=[0] * N_CASES)
+    case_counts = None
     bar = None
     if progress:
         from tqdm import tqdm
@@ -274,12 +308,26 @@ def _render_prepared(scene, estimator, progress, warmup=False):
                 p1 = min(n_pix_total, p0 + per_batch)
                 org, dirs, tmin, tmax, keys = camera_rays(cam, spp, scene.seed, p0, p1)
                 prim, _, b1, b2, cam_node, cam_tri = closest_hit(bvh.arrays, org, dirs, tmin, tmax)
-                emitted, pos, nrm, s_org, s_dir, contrib, s_emit, active = shade(geom, es, prim, b1, b2, dirs, keys,
-                                                                                 n_shadow)
+                emitted, pos, nrm, mat = surface(geom, prim, b1, b2, dirs)
+                points = ShadingPoints(pos, nrm, np.where(mat >= 0, prim, -1))
+                cases = estimator.classify(points)
+                if cases is None:
+                    cases = np.full((len(prim), scene.n_emitters), CASE_UNKNOWN, np.int8)
+                else:
+                    if case_counts is None:
+                        case_counts = np.zeros((n_pix_total, scene.n_emitters, N_CASES), np.int32)
+                    shaded = mat >= 0
+                    per_px = cases.reshape(p1 - p0, spp, -1)
+                    for c in range(N_CASES):
+                        case_counts[p0:p1, :, c] = (per_px == c).sum(axis=1)
+                        totals["cases"][c] += int((cases[shaded] == c).sum())
+                analytic, s_org, s_dir, contrib, s_emit, active = sample_lights(geom, es, prim, pos, nrm, mat, cases,
+                                                                                keys, n_shadow)
+                emitted += analytic
                 offsets, q_org, q_dir, q_point, q_emit, q_key = compact(active, s_org, s_dir, s_emit, keys, n_shadow)
                 n_q = len(q_point)
                 query = ShadowQuery(origin=q_org, direction=q_dir, tmax=np.full(n_q, 1.0 - SHADOW_EPSILON),
-                                    point=q_point, emitter=q_emit, key=q_key, points=ShadingPoints(pos, nrm, prim))
+                                    point=q_point, emitter=q_emit, key=q_key, points=points)
                 res = estimator.evaluate(query)
                 img, m2, tst = accumulate(emitted, contrib, active, offsets, res.value, cam_node, cam_tri,
                                           res.node_tests, res.triangle_tests, spp, n_shadow, p1 - p0)
@@ -303,7 +351,15 @@ def _render_prepared(scene, estimator, progress, warmup=False):
         "node_tests": tests[:, 1].reshape(shape),
         "second_moment": moment2.reshape(shape + (3,)),
     }
+    if case_counts is not None:
+        aovs["cases"] = (case_counts / spp).reshape(shape + case_counts.shape[1:])
     return image.reshape(shape + (3,)), aovs, totals, bvh, build_seconds, render_seconds
+
+
+def _case_stats(counts):
+    """Shading point x emitter pairs per occlusion case, for estimators that classify."""
+    total = max(1, sum(counts))
+    return {name: {"count": c, "share": c / total} for name, c in zip(CASE_NAMES, counts)}
 
 
 def render(scene, *, spp=None, shadow_rays=None, seed=None, resolution=None, visibility="exact",
@@ -354,6 +410,7 @@ def render(scene, *, spp=None, shadow_rays=None, seed=None, resolution=None, vis
         "camera_hits": tot["camera_hits"],
         "shadow_rays": tot["shadow_rays"],
         "negative_estimates": tot["negative"],
+        "cases": _case_stats(tot["cases"]) if "cases" in aovs else None,
         "intersection_tests": {
             "triangle": tot["cam_tri"] + tot["sh_tri"],
             "node": tot["cam_node"] + tot["sh_node"],

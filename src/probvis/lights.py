@@ -11,7 +11,6 @@ _LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 
 @dataclass
 class EmitterSampler:
-    emitter_cdf: np.ndarray  # (e,) inclusive cumulative selection probability
     emitter_pmf: np.ndarray  # (e,)
     emitter_area: np.ndarray  # (e,)
     offsets: np.ndarray  # (e + 1,) range of each emitter in `tris`
@@ -21,7 +20,7 @@ class EmitterSampler:
 
     @property
     def arrays(self):
-        return self.emitter_cdf, self.emitter_pmf, self.emitter_area, self.offsets, self.tris, self.tri_cdf
+        return self.emitter_pmf, self.emitter_area, self.offsets, self.tris, self.tri_cdf
 
 
 def build_emitter_sampler(scene):
@@ -42,9 +41,7 @@ def build_emitter_sampler(scene):
     if not np.any(power > 0):
         raise ProbvisError(f"scene '{scene.name}' has emitters, but all of them have zero power")
     pmf = power / power.sum()
-    cdf = np.cumsum(pmf)
-    cdf[-1] = 1.0  # u < 1 then never selects past the last emitter of non-zero power
-    return EmitterSampler(cdf, pmf, area, offsets, order.astype(np.int64), tri_cdf, power)
+    return EmitterSampler(pmf, area, offsets, order.astype(np.int64), tri_cdf, power)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -60,13 +57,30 @@ def _search(cdf, lo, hi, u):
     return a
 
 
-@njit(cache=True, error_model="numpy")
-def sample_emitter(cdf, pmf, area, offsets, tris, tri_cdf, triangles, u0, u1, u2, u3):
-    """A point on an emitter: (scene triangle id, emitter id, x, y, z, pdf per unit area).
+@njit(cache=True, error_model="numpy", inline="always")
+def choose_emitter(pmf, sampled, u):
+    """An emitter among those with `sampled[e]`, by power: (emitter id, its selection probability)."""
+    total = 0.0
+    for e in range(pmf.shape[0]):
+        if sampled[e]:
+            total += pmf[e]
+    if total <= 0.0:
+        return -1, 0.0
+    target = u * total
+    last = -1
+    acc = 0.0
+    for e in range(pmf.shape[0]):
+        if sampled[e]:
+            last = e
+            acc += pmf[e]
+            if acc > target:
+                return e, pmf[e] / total
+    return last, pmf[last] / total  # only reached through rounding when u is within an ulp of 1
 
-    The first six arguments are `EmitterSampler.arrays`, passed one by one (cheaper than a tuple per call).
-    """
-    e = _search(cdf, 0, cdf.shape[0], u0)
+
+@njit(cache=True, error_model="numpy")
+def sample_on_emitter(e, offsets, tris, tri_cdf, triangles, u1, u2, u3):
+    """A point uniform on emitter `e`: (scene triangle id, x, y, z); its pdf per unit area is 1 / area[e]."""
     t = tris[_search(tri_cdf, offsets[e], offsets[e + 1], u1)]
     su = np.sqrt(u2)
     b0 = 1.0 - su
@@ -75,4 +89,69 @@ def sample_emitter(cdf, pmf, area, offsets, tris, tri_cdf, triangles, u0, u1, u2
     x = b0 * triangles[t, 0, 0] + b1 * triangles[t, 1, 0] + b2 * triangles[t, 2, 0]
     y = b0 * triangles[t, 0, 1] + b1 * triangles[t, 1, 1] + b2 * triangles[t, 2, 1]
     z = b0 * triangles[t, 0, 2] + b1 * triangles[t, 1, 2] + b2 * triangles[t, 2, 2]
-    return t, e, x, y, z, pmf[e] / area[e]
+    return t, x, y, z
+
+
+@njit(cache=True, error_model="numpy")
+def triangle_irradiance(triangles, t, px, py, pz, nx, ny, nz):
+    """Cosine-weighted solid angle (the integral of max(0, n.w) dw) of triangle `t` seen from p with normal n,
+    counting only its front side and only the part above p's horizon (Lambert's polygon formula after
+    clipping the triangle to the half-space n.(x - p) >= 0). Radiance L of the triangle gives irradiance L x
+    this; a Lambertian surface of albedo rho reflects rho / pi times that."""
+    ex = (triangles[t, 1, 0] - triangles[t, 0, 0], triangles[t, 1, 1] - triangles[t, 0, 1],
+          triangles[t, 1, 2] - triangles[t, 0, 2])
+    fx = (triangles[t, 2, 0] - triangles[t, 0, 0], triangles[t, 2, 1] - triangles[t, 0, 1],
+          triangles[t, 2, 2] - triangles[t, 0, 2])
+    lx = ex[1] * fx[2] - ex[2] * fx[1]
+    ly = ex[2] * fx[0] - ex[0] * fx[2]
+    lz = ex[0] * fx[1] - ex[1] * fx[0]
+    if lx * (px - triangles[t, 0, 0]) + ly * (py - triangles[t, 0, 1]) + lz * (pz - triangles[t, 0, 2]) <= 0.0:
+        return 0.0  # p is behind the emitting side
+    # clip the triangle (relative to p) against the receiver's horizon plane: at most 4 vertices
+    vx = np.empty(4)
+    vy = np.empty(4)
+    vz = np.empty(4)
+    m = 0
+    for i in range(3):
+        j = (i + 1) % 3
+        ax, ay, az = triangles[t, i, 0] - px, triangles[t, i, 1] - py, triangles[t, i, 2] - pz
+        bx, by, bz = triangles[t, j, 0] - px, triangles[t, j, 1] - py, triangles[t, j, 2] - pz
+        da = ax * nx + ay * ny + az * nz
+        db = bx * nx + by * ny + bz * nz
+        if da >= 0.0:
+            vx[m], vy[m], vz[m] = ax, ay, az
+            m += 1
+        if (da >= 0.0) != (db >= 0.0):
+            s = da / (da - db)
+            vx[m], vy[m], vz[m] = ax + s * (bx - ax), ay + s * (by - ay), az + s * (bz - az)
+            m += 1
+    if m < 3:
+        return 0.0
+    for i in range(m):
+        r = np.sqrt(vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i])
+        if r == 0.0:
+            return 0.0
+        vx[i] /= r
+        vy[i] /= r
+        vz[i] /= r
+    total = 0.0
+    for i in range(m):
+        j = (i + 1) % m
+        cx = vy[i] * vz[j] - vz[i] * vy[j]
+        cy = vz[i] * vx[j] - vx[i] * vz[j]
+        cz = vx[i] * vy[j] - vy[i] * vx[j]
+        sn = np.sqrt(cx * cx + cy * cy + cz * cz)
+        if sn == 0.0:
+            continue
+        cs = vx[i] * vx[j] + vy[i] * vy[j] + vz[i] * vz[j]
+        total += np.arctan2(sn, cs) * (cx * nx + cy * ny + cz * nz) / sn
+    return 0.5 * abs(total)
+
+
+@njit(cache=True, error_model="numpy")
+def emitter_irradiance(e, offsets, tris, triangles, px, py, pz, nx, ny, nz):
+    """Cosine-weighted solid angle of all of emitter `e`'s front-facing triangles above p's horizon."""
+    total = 0.0
+    for k in range(offsets[e], offsets[e + 1]):
+        total += triangle_irradiance(triangles, tris[k], px, py, pz, nx, ny, nz)
+    return total

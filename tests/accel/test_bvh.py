@@ -4,7 +4,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numba import njit, prange
 
-from probvis.accel import any_hit, build_bvh, closest_hit
+from probvis.accel import all_hits, any_hit, build_bvh, closest_hit
 from probvis.accel.traversal import hit_triangle, ray_setup
 
 
@@ -51,6 +51,39 @@ def test_closest_and_any_hit_match_brute_force(seed, n_tris, size):
     assert np.all(n_node >= 1) and np.all(a_node >= 1)
     assert np.all(n_tri <= n_tris) and np.all(a_tri <= n_tri)
     assert np.all(n_tri[hit] >= 1)
+
+
+@njit
+def brute_all(tris, o, d):
+    kx, ky, kz, sx, sy, sz = ray_setup(d[0], d[1], d[2])
+    ts = []
+    for p in range(tris.shape[0]):
+        t, _, _ = hit_triangle(tris, p, (o[0], o[1], o[2]), kx, ky, kz, sx, sy, sz, 0.0, np.inf)
+        if t < np.inf:
+            ts.append(t)
+    return np.sort(np.array(ts + [0.0])[:-1])
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**31), n_tris=st.integers(1, 300), cap=st.integers(1, 12))
+def test_all_hits_match_brute_force(seed, n_tris, cap):
+    rng = np.random.default_rng(seed)
+    tris = random_soup(rng, n_tris, size=0.5)
+    bvh = build_bvh(tris)
+    n = 100
+    org = rng.uniform(-1.5, 1.5, (n, 3))
+    dirs = rng.normal(size=(n, 3))
+    count, tri, dist, _, n_tri = all_hits(bvh.arrays, org, dirs, np.zeros(n), cap)
+    for i in range(n):
+        expect = brute_all(tris, org[i], dirs[i])[:cap]
+        assert count[i] == len(expect)
+        np.testing.assert_allclose(dist[i, :count[i]], expect, rtol=1e-12)
+        assert np.all(tri[i, count[i]:] == -1)
+        for j in range(count[i]):  # each reported triangle is really hit at the reported distance
+            kx, ky, kz, sx, sy, sz = ray_setup(*dirs[i])
+            t, _, _ = hit_triangle(tris, tri[i, j], tuple(org[i]), kx, ky, kz, sx, sy, sz, 0.0, np.inf)
+            assert t == dist[i, j]
+    assert np.all(n_tri <= n_tris)
 
 
 def test_bvh_partitions_all_triangles_and_stays_shallow():

@@ -1,5 +1,5 @@
 """Acceleration: a SAH BVH over the scene's triangles and counted ray queries against it."""
 from .bvh import BVH, build_bvh
-from .traversal import any_hit, closest_hit
+from .traversal import all_hits, any_hit, closest_hit
 
-__all__ = ["BVH", "any_hit", "build_bvh", "closest_hit"]
+__all__ = ["BVH", "all_hits", "any_hit", "build_bvh", "closest_hit"]

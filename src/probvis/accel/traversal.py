@@ -197,3 +197,88 @@ def any_hit(bvh, org, dirs, tmin, tmax):
                                      dirs[i, 0], dirs[i, 1], dirs[i, 2], tmin[i], tmax[i], True, stack)
             occ[i], n_node[i], n_tri[i] = p >= 0, a, b
     return occ, n_node, n_tri
+
+
+@njit(cache=True, error_model="numpy")
+def trace_all(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, cap, out_t, out_p, stack):
+    """Every hit of one ray beyond `tmin`, nearest first, up to `cap` of them (the nearest `cap`).
+
+    Fills `out_t[:count]` and `out_p[:count]` (bvh-order primitives) sorted by distance; returns
+    (count, node tests, triangle tests). Once `cap` hits are held, subtrees beyond the farthest are pruned.
+    """
+    o = (ox, oy, oz)
+    ix = 1.0 / dx if dx != 0.0 else np.inf
+    iy = 1.0 / dy if dy != 0.0 else np.inf
+    iz = 1.0 / dz if dz != 0.0 else np.inf
+    kx, ky, kz, sx, sy, sz = ray_setup(dx, dy, dz)
+    count, n_node, n_tri = 0, 1, 0
+    far = np.inf
+    root_box = root.reshape(1, 6)
+    if hit_box(root_box, 0, 0, ox, oy, oz, ix, iy, iz, tmin, far) == np.inf:
+        return count, n_node, n_tri
+    sp = 0
+    node = 0
+    while True:
+        cnt = ci[node, 13]
+        if cnt == 0:
+            n_node += 2
+            tl = hit_box(cb, node, 0, ox, oy, oz, ix, iy, iz, tmin, far)
+            tr = hit_box(cb, node, 6, ox, oy, oz, ix, iy, iz, tmin, far)
+            if tl < np.inf:
+                if tr < np.inf:
+                    stack[sp] = ci[node, 12]
+                    sp += 1
+                node = node + 1
+                continue
+            if tr < np.inf:
+                node = ci[node, 12]
+                continue
+        else:
+            first = ci[node, 12]
+            for p in range(first, first + cnt):
+                n_tri += 1
+                t, _, _ = hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, tmin, far)
+                if t < far:
+                    # insertion into the sorted hit list, dropping the farthest when full
+                    j = count if count < cap else cap - 1
+                    while j > 0 and out_t[j - 1] > t:
+                        if j < cap:
+                            out_t[j] = out_t[j - 1]
+                            out_p[j] = out_p[j - 1]
+                        j -= 1
+                    out_t[j] = t
+                    out_p[j] = p
+                    if count < cap:
+                        count += 1
+                    if count == cap:
+                        far = out_t[cap - 1]
+        if sp == 0:
+            break
+        sp -= 1
+        node = stack[sp]
+    return count, n_node, n_tri
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def all_hits(bvh, org, dirs, tmin, cap):
+    """Batched all-hits queries: per ray the number of hits kept (<= cap), their scene triangle ids and
+    distances sorted nearest first, and the node and triangle tests made."""
+    cb, ci, root, tv, prim_ids, depth = bvh
+    n = org.shape[0]
+    count = np.zeros(n, np.int32)
+    tri = np.full((n, cap), -1, np.int32)
+    dist = np.full((n, cap), np.inf)
+    n_node = np.zeros(n, np.int32)
+    n_tri = np.zeros(n, np.int32)
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        stack = np.empty(depth, np.int32)
+        ot = np.empty(cap)
+        op = np.empty(cap, np.int32)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            k, a, b = trace_all(cb, ci, root, tv, org[i, 0], org[i, 1], org[i, 2], dirs[i, 0], dirs[i, 1],
+                                dirs[i, 2], tmin[i], cap, ot, op, stack)
+            count[i], n_node[i], n_tri[i] = k, a, b
+            for j in range(k):
+                tri[i, j] = prim_ids[op[j]]
+                dist[i, j] = ot[j]
+    return count, tri, dist, n_node, n_tri

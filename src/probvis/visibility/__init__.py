@@ -1,9 +1,11 @@
 """Visibility estimators behind one interface; `make_estimator(name, **options)` builds one by name."""
 from ..errors import ProbvisError
-from .base import ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult
+from .base import (CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES, ShadingPoints,
+                   ShadowQuery, VisibilityEstimator, VisibilityResult)
 from .exact import ExactVisibility
+from .occlusion_map import OcclusionMapVisibility
 
-ESTIMATORS = {cls.name: cls for cls in (ExactVisibility,)}
+ESTIMATORS = {cls.name: cls for cls in (ExactVisibility, OcclusionMapVisibility)}
 
 
 def make_estimator(name, **options):
@@ -17,5 +19,5 @@ def make_estimator(name, **options):
         raise ProbvisError(f"bad options for visibility '{name}': {exc}") from None
 
 
-__all__ = ["ESTIMATORS", "ShadingPoints", "ShadowQuery", "VisibilityEstimator", "VisibilityResult",
+__all__ = ["CASE_LIT", "CASE_NAMES", "CASE_PENUMBRA", "CASE_SHADOWED", "CASE_UNKNOWN", "ESTIMATORS", "N_CASES", "ShadingPoints", "ShadowQuery", "VisibilityEstimator", "VisibilityResult",
            "make_estimator"]

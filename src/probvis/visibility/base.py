@@ -9,6 +9,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..cases import CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES  # noqa: F401
+
+
 
 @dataclass
 class ShadingPoints:
@@ -47,6 +50,11 @@ class VisibilityEstimator(abc.ABC):
     def prepare(self, scene, bvh, emitters):
         """Build whatever per-scene structure the estimator needs (timed as part of 'build')."""
         self.scene, self.bvh, self.emitters = scene, bvh, emitters
+
+    def classify(self, points: ShadingPoints):
+        """Optionally an (m, n_emitters) int8 array of CASE_* per shading point and emitter, computed before
+        the batch's shadow segments are made; `evaluate` of the same batch follows. None samples everything."""
+        return None
 
     @abc.abstractmethod
     def evaluate(self, query: ShadowQuery) -> VisibilityResult:

@@ -1,0 +1,105 @@
+"""Classification of shading points from their neighbouring photons, and their candidate blocker lists.
+
+For one emitter, the photons near a shading point whose normals agree with its own decide its case: only light
+photons - lit; only shadow photons - shadowed; both - penumbra, whose candidate list is the union of the
+neighbouring shadow photons' blockers, most frequently recorded first. Fewer than `min_photons` agreeing
+photons leaves the point unknown (sampled and tested against the whole scene: unbiased, just not faster).
+
+Blockers are gathered as *groups*: `group[t]` names the set of triangles a recorded triangle t stands for
+(its whole small connected component, or t alone) and `group_tris[group_off[g]:group_off[g + 1]]` lists it.
+"""
+import numpy as np
+from numba import njit, prange
+
+from ..cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN
+
+
+@njit(cache=True, error_model="numpy")
+def _gather(nbr, i, pn, nb, start, ray_tris, group, nx, ny, nz, normal_cos, buf):
+    """Blocker groups of point i's agreeing shadow photons into `buf`; returns (light, shadow, gathered)."""
+    n_light, n_shadow, m = 0, 0, 0
+    for q in range(nbr.shape[1]):
+        j = nbr[i, q]
+        if j < 0 or pn[j, 0] * nx + pn[j, 1] * ny + pn[j, 2] * nz < normal_cos:
+            continue
+        if nb[j] == 0:
+            n_light += 1
+        else:
+            n_shadow += 1
+            for h in range(nb[j]):
+                buf[m] = group[ray_tris[start[j] + h]]
+                m += 1
+    return n_light, n_shadow, m
+
+
+@njit(cache=True, error_model="numpy")
+def _unique_by_frequency(buf, m):
+    """Distinct values of buf[:m] and how often each occurs, most frequent first (ties: lower id first)."""
+    s = np.sort(buf[:m])
+    uniq = np.empty(m, np.int32)
+    cnt = np.empty(m, np.int32)
+    u = 0
+    for a in range(m):
+        if a == 0 or s[a] != s[a - 1]:
+            uniq[u] = s[a]
+            cnt[u] = 1
+            u += 1
+        else:
+            cnt[u - 1] += 1
+    order = np.argsort(-cnt[:u], kind="mergesort")
+    return uniq[:u][order], cnt[:u][order]
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_tris, normal_cos, min_photons,
+                    max_hits, with_lists):
+    """Case, agreeing (light, shadow) photon counts and candidate lists (CSR of triangles, with the number of
+    neighbouring shadow photons that recorded each one's group) per point.
+
+    `nbr` (m, k) holds photon ids of one emitter's photons near each point (-1 for none); `nrm` the points'
+    normals (a zero normal marks a point that is not shaded). Without `with_lists` the lists are left empty.
+    """
+    m, k = nbr.shape
+    case = np.full(m, CASE_UNKNOWN, np.int8)
+    counts = np.zeros((m, 2), np.int32)
+    length = np.zeros(m + 1, np.int64)
+    for c in prange((m + 63) // 64):
+        buf = np.empty(k * max_hits, np.int32)
+        for i in range(c * 64, min(m, c * 64 + 64)):
+            nx, ny, nz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
+            if nx == 0.0 and ny == 0.0 and nz == 0.0:
+                continue
+            n_light, n_shadow, g = _gather(nbr, i, pn, nb, start, ray_tris, group, nx, ny, nz, normal_cos, buf)
+            counts[i, 0], counts[i, 1] = n_light, n_shadow
+            if n_light + n_shadow < min_photons:
+                continue
+            if n_shadow == 0:
+                case[i] = CASE_LIT
+            elif n_light == 0:
+                case[i] = CASE_SHADOWED
+            else:
+                case[i] = CASE_PENUMBRA
+                if not with_lists:
+                    continue
+                groups, _ = _unique_by_frequency(buf, g)
+                for gr in groups:
+                    length[i + 1] += group_off[gr + 1] - group_off[gr]
+    offsets = np.cumsum(length)
+    tris = np.empty(offsets[m], np.int32)
+    freq = np.empty(offsets[m], np.int32)
+    for c in prange((m + 63) // 64 if with_lists else 0):
+        buf = np.empty(k * max_hits, np.int32)
+        for i in range(c * 64, min(m, c * 64 + 64)):
+            if case[i] != CASE_PENUMBRA:
+                continue
+            _, _, g = _gather(nbr, i, pn, nb, start, ray_tris, group, nrm[i, 0], nrm[i, 1], nrm[i, 2], normal_cos,
+                              buf)
+            groups, cnt = _unique_by_frequency(buf, g)
+            w = offsets[i]
+            for a in range(groups.shape[0]):
+                gr = groups[a]
+                for q in range(group_off[gr], group_off[gr + 1]):
+                    tris[w] = group_tris[q]
+                    freq[w] = cnt[a]
+                    w += 1
+    return case, counts, offsets, tris, freq

@@ -1,0 +1,119 @@
+"""The occlusion map: photons of each emitter in a kd-tree, looked up in batches to classify shading points."""
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .lookup import classify_points
+from .photons import MAX_HITS, Photons
+
+NORMAL_COS = 0.7  # a photon counts for a shading point when their normals are within ~45 degrees
+MIN_PHOTONS = 4  # fewer agreeing photons than this leave a point unknown (tested against the whole scene)
+RADIUS_SCALE = 2.0  # automatic radius: this times the median distance from a photon to its k-th neighbour
+CELL_FRACTION = 0.25  # shading points in one cell of this fraction of the radius, with one normal, share a look-up
+
+
+@dataclass
+class Lookup:
+    """Classification of m shading points against each emitter's photons.
+
+    Points are looked up through representatives: point i uses look-up `rep[i]` of the `n_rep` made.
+    `case[i, e]` is a CASE_*; the candidate list of (i, e) is `tris[lo:hi]` with (lo, hi) = `range(i, e)`,
+    and `freq` the number of neighbouring shadow photons that recorded each triangle; `counts[i, e]` the
+    agreeing (light, shadow) photons; `neighbours[e]` the (n_rep, k) photon ids found (-1 for none).
+    """
+
+    case: np.ndarray
+    counts: np.ndarray
+    rep: np.ndarray
+    n_rep: int
+    offsets: np.ndarray
+    tris: np.ndarray
+    freq: np.ndarray
+    neighbours: list
+
+    def range(self, i, e):
+        pair = np.asarray(e, np.int64) * self.n_rep + self.rep[i]
+        return self.offsets[pair], self.offsets[pair + 1]
+
+    def candidates(self, i, e):
+        lo, hi = self.range(i, e)
+        return self.tris[lo:hi]
+
+
+class OcclusionMap:
+    """Photons of each emitter in a `scipy.spatial.cKDTree`; `radius=None` picks one from the photon density.
+
+    `groups` (group per triangle, CSR offsets per group, triangle ids) says what a recorded blocker stands for
+    in a candidate list (see `volumetric.blocker_groups`)."""
+
+    def __init__(self, photons: Photons, n_emitters, neighbours, groups, radius=None):
+        t0 = time.perf_counter()
+        self.photons = photons
+        self.groups = groups
+        self.n_emitters = n_emitters
+        self.k = int(neighbours)
+        self.ids = [np.flatnonzero(photons.emitter == e) for e in range(n_emitters)]
+        self.trees = [cKDTree(photons.position[ids]) if len(ids) else None for ids in self.ids]
+        self.radius = float(radius) if radius is not None else self._auto_radius()
+        self.build_seconds = time.perf_counter() - t0
+
+    def _auto_radius(self):
+        dists = []
+        rng = np.random.default_rng(0)
+        for ids, tree in zip(self.ids, self.trees):
+            if tree is None or len(ids) <= 1:
+                continue
+            probe = self.photons.position[ids[rng.choice(len(ids), min(len(ids), 4096), replace=False)]]
+            d, _ = tree.query(probe, k=min(self.k, len(ids)), workers=-1)
+            dists.append(d.reshape(len(probe), -1)[:, -1])
+        if not dists:
+            return 1.0
+        return RADIUS_SCALE * float(np.median(np.concatenate(dists)))
+
+    def neighbours(self, pos, e, k=None):
+        """(m, k) ids of emitter e's photons nearest to each position within the radius, -1 where none."""
+        k = self.k if k is None else k
+        tree = self.trees[e]
+        if tree is None or len(pos) == 0:
+            return np.full((len(pos), k), -1, np.int64)
+        _, idx = tree.query(pos, k=k, distance_upper_bound=self.radius, workers=-1)
+        idx = idx.reshape(len(pos), k)
+        lookup = np.append(self.ids[e], -1)
+        return lookup[np.minimum(idx, len(self.ids[e]))]
+
+    def representatives(self, pos, nrm, cell):
+        """Points sharing a cell of side `cell` and a normal rounded to a 5 x 5 x 5 lattice share one look-up:
+        (index of each point's representative, indices of the representatives)."""
+        key = np.column_stack([np.floor(pos / cell), np.round(nrm * 2.0)]).astype(np.int64)
+        key = np.ascontiguousarray(key)
+        _, first, rep = np.unique(key.view(np.dtype((np.void, key.shape[1] * 8))).ravel(), return_index=True,
+                                  return_inverse=True)
+        return rep.ravel(), first
+
+    def lookup(self, pos, nrm, share=True, with_lists=True):
+        """Classify points with positions `pos` and normals `nrm` (zero for points not shaded); with `share`,
+        nearby points with like normals share a look-up (see `representatives`); `with_lists=False` skips the
+        candidate lists."""
+        if share and len(pos):
+            rep, first = self.representatives(pos, nrm, CELL_FRACTION * self.radius)
+        else:
+            rep, first = np.arange(len(pos)), np.arange(len(pos))
+        pos, nrm = pos[first], nrm[first]
+        m = len(pos)
+        p = self.photons
+        case = np.empty((m, self.n_emitters), np.int8)
+        counts = np.empty((m, self.n_emitters, 2), np.int32)
+        offs, tris, freqs, nbrs = [np.zeros(1, np.int64)], [], [], []
+        for e in range(self.n_emitters):
+            nbr = self.neighbours(pos, e)
+            c, cnt, o, t, f = classify_points(nbr, nrm, p.normal, p.n_blockers, p.start, p.ray_tris, *self.groups,
+                                              NORMAL_COS, MIN_PHOTONS, MAX_HITS, with_lists)
+            case[:, e], counts[:, e] = c, cnt
+            offs.append(o[1:] + offs[-1][-1])
+            tris.append(t)
+            freqs.append(f)
+            nbrs.append(nbr)
+        return Lookup(case[rep], counts[rep], rep, m, np.concatenate(offs), np.concatenate(tris),
+                      np.concatenate(freqs), nbrs)

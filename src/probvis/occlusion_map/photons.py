@@ -1,0 +1,168 @@
+"""Photon pass: rays shot from the emitters, every surface crossing along each ray recorded.
+
+The first hit of a photon ray is a light photon; each later hit is a shadow photon whose blockers are the
+triangles hit before it on the same ray (visibility is geometric: every triangle blocks, whatever its
+material or side). Rays are traced with an all-hits BVH query keeping the nearest `MAX_HITS` crossings;
+crossings beyond that lie behind 15 blockers and are dropped.
+"""
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from ..accel import all_hits
+from ..lights import sample_on_emitter
+from ..rng import make_key, uniform
+
+MAX_HITS = 16
+PHOTON_STREAM = 0x5048  # rng stream of photon rays, apart from the camera's
+BATCH = 1 << 18  # photon rays per all-hits batch (bounds the (rays, MAX_HITS) scratch arrays)
+
+
+@dataclass
+class Photons:
+    """Flat photon arrays. Shadow photon i's blockers are `ray_tris[start[i]:start[i] + n_blockers[i]]`."""
+
+    position: np.ndarray  # (p, 3)
+    normal: np.ndarray  # (p, 3) face normal of the hit, turned towards where the photon came from
+    emitter: np.ndarray  # (p,) int32
+    n_blockers: np.ndarray  # (p,) int32, 0 for light photons
+    start: np.ndarray  # (p,) int64 into ray_tris
+    ray_tris: np.ndarray  # (rays * MAX_HITS,) int32, the hit triangles of each ray in order
+    rays: int
+    node_tests: int
+    triangle_tests: int
+
+    @property
+    def shadow(self):
+        return self.n_blockers > 0
+
+    def __len__(self):
+        return len(self.emitter)
+
+    @staticmethod
+    def concatenate(parts):
+        """One photon set from several passes (blocker ranges re-based onto the joint `ray_tris`)."""
+        shift = np.cumsum([0] + [len(p.ray_tris) for p in parts[:-1]])
+        return Photons(
+            position=np.concatenate([p.position for p in parts]),
+            normal=np.concatenate([p.normal for p in parts]),
+            emitter=np.concatenate([p.emitter for p in parts]),
+            n_blockers=np.concatenate([p.n_blockers for p in parts]),
+            start=np.concatenate([p.start + s for p, s in zip(parts, shift)]),
+            ray_tris=np.concatenate([p.ray_tris for p in parts]),
+            rays=sum(p.rays for p in parts),
+            node_tests=sum(p.node_tests for p in parts),
+            triangle_tests=sum(p.triangle_tests for p in parts),
+        )
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def emit_rays(emitter, offsets, etris, tri_cdf, triangles, seed, first):
+    """Photon rays numbered `first ..` (for the rng) from the given emitters: point uniform by area,
+    direction cosine-distributed about the emitting triangle's normal (its front side)."""
+    n = emitter.shape[0]
+    org = np.empty((n, 3))
+    dirs = np.empty((n, 3))
+    for i in prange(n):
+        key = make_key(seed, PHOTON_STREAM, first + i)
+        e = emitter[i]
+        t, x, y, z = sample_on_emitter(e, offsets, etris, tri_cdf, triangles, uniform(key, 1), uniform(key, 2),
+                                       uniform(key, 3))
+        nx, ny, nz = _unit_normal(triangles, t)
+        dx, dy, dz = cosine_direction(nx, ny, nz, uniform(key, 4), uniform(key, 5))
+        eps = 1e-9 * (1.0 + max(abs(x), abs(y), abs(z)))
+        org[i, 0], org[i, 1], org[i, 2] = x + eps * nx, y + eps * ny, z + eps * nz
+        dirs[i, 0], dirs[i, 1], dirs[i, 2] = dx, dy, dz
+    return org, dirs
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _unit_normal(triangles, t):
+    ax = triangles[t, 1, 0] - triangles[t, 0, 0]
+    ay = triangles[t, 1, 1] - triangles[t, 0, 1]
+    az = triangles[t, 1, 2] - triangles[t, 0, 2]
+    bx = triangles[t, 2, 0] - triangles[t, 0, 0]
+    by = triangles[t, 2, 1] - triangles[t, 0, 1]
+    bz = triangles[t, 2, 2] - triangles[t, 0, 2]
+    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+    return nx * inv, ny * inv, nz * inv
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def cosine_direction(nx, ny, nz, u1, u2):
+    """A direction about the unit normal n with density cos(theta) / pi (Malley's method)."""
+    r = math.sqrt(u1)
+    phi = 2.0 * math.pi * u2
+    lx, ly = r * math.cos(phi), r * math.sin(phi)
+    lz = math.sqrt(max(0.0, 1.0 - u1))
+    # orthonormal basis of Duff et al. 2017
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    tx, ty, tz = 1.0 + sign * nx * nx * a, sign * b, -sign * nx
+    bx, by, bz = b, sign + ny * ny * a, -ny
+    return lx * tx + ly * bx + lz * nx, lx * ty + ly * by + lz * ny, lx * tz + ly * bz + lz * nz
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _photon_records(triangles, org, dirs, emitter, count, tri, dist):
+    """Flatten the hits of a batch of photon rays into photons (see `Photons`)."""
+    n, cap = tri.shape
+    first = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        first[i + 1] = first[i] + count[i]
+    p = first[n]
+    pos = np.empty((p, 3))
+    nrm = np.empty((p, 3))
+    emit = np.empty(p, np.int32)
+    nb = np.empty(p, np.int32)
+    start = np.empty(p, np.int64)
+    for i in prange(n):
+        for h in range(count[i]):
+            k = first[i] + h
+            t = tri[i, h]
+            for c in range(3):
+                pos[k, c] = org[i, c] + dist[i, h] * dirs[i, c]
+            nx, ny, nz = _unit_normal(triangles, t)
+            if nx * dirs[i, 0] + ny * dirs[i, 1] + nz * dirs[i, 2] > 0.0:
+                nx, ny, nz = -nx, -ny, -nz
+            nrm[k, 0], nrm[k, 1], nrm[k, 2] = nx, ny, nz
+            emit[k] = emitter[i]
+            nb[k] = h
+            start[k] = i * cap
+    return pos, nrm, emit, nb, start
+
+
+def trace_photons(scene, bvh, org, dirs, emitter):
+    """All-hits trace of given photon rays (in batches), turned into a `Photons` set."""
+    parts = []
+    for b0 in range(0, len(org), BATCH):
+        b1 = min(len(org), b0 + BATCH)
+        count, tri, dist, n_node, n_tri = all_hits(bvh.arrays, org[b0:b1], dirs[b0:b1], np.zeros(b1 - b0),
+                                                  MAX_HITS)
+        pos, nrm, emit, nb, start = _photon_records(scene.triangles, org[b0:b1], dirs[b0:b1], emitter[b0:b1],
+                                                    count, tri, dist)
+        parts.append(Photons(pos, nrm, emit, nb, start, tri.reshape(-1), b1 - b0, int(n_node.sum()),
+                             int(n_tri.sum())))
+    if not parts:
+        return Photons(np.empty((0, 3)), np.empty((0, 3)), np.empty(0, np.int32), np.empty(0, np.int32),
+                       np.empty(0, np.int64), np.empty(0, np.int32), 0, 0, 0)
+    return Photons.concatenate(parts)
+
+
+def split_by_power(n, pmf):
+    """Photon rays per emitter: `n` split in proportion to emitted power (largest remainders)."""
+    share = n * pmf
+    out = np.floor(share).astype(np.int64)
+    out[np.argsort(out - share, kind="stable")[:n - out.sum()]] += 1
+    return out
+
+
+def shoot_photons(scene, bvh, emitters, n, seed):
+    """`n` photon rays from the emitters, split by power."""
+    emitter = np.repeat(np.arange(scene.n_emitters, dtype=np.int32), split_by_power(n, emitters.emitter_pmf))
+    org, dirs = emit_rays(emitter, emitters.offsets, emitters.tris, emitters.tri_cdf, scene.triangles, seed, 0)
+    return trace_photons(scene, bvh, org, dirs, emitter)

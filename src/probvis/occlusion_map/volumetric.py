@@ -1,0 +1,69 @@
+"""Volumetric occluders: closed, consistently wound components of the scene's meshes.
+
+A segment whose ends both lie outside a closed surface crosses it an even number of times, and if it
+crosses at all it leaves the solid through a triangle whose outward side faces the segment's far end. So,
+for visibility towards the light end, a closed component's triangles that face away from the light end never
+need a ray-triangle test: only those facing it can be the first blocker found on an occluded segment.
+"""
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+
+def components(scene):
+    """Connected components of the scene's meshes: (label per triangle, merged vertex ids (n, 3), count).
+
+    Vertices are merged where they coincide exactly within a shape (never across shapes); triangles are
+    connected through shared vertices."""
+    n = scene.n_triangles
+    shape_of = np.zeros(n, np.float64)
+    for k, shape in enumerate(scene.shapes):
+        shape_of[shape.first_triangle:shape.first_triangle + shape.n_triangles] = k
+    keys = np.ascontiguousarray(np.column_stack([np.repeat(shape_of, 3), scene.triangles.reshape(-1, 3)]) + 0.0)
+    _, vid = np.unique(keys.view(np.dtype((np.void, 32))).ravel(), return_inverse=True)  # + 0.0: no -0.0
+    faces = vid.reshape(n, 3).astype(np.int64)
+    n_v = int(vid.max()) + 1
+    graph = coo_matrix((np.ones(2 * n), (np.concatenate([faces[:, 0], faces[:, 1]]),
+                                         np.concatenate([faces[:, 1], faces[:, 2]]))), shape=(n_v, n_v))
+    n_comp, vlabel = connected_components(graph, directed=False)
+    return vlabel[faces[:, 0]], faces, n_comp
+
+
+def closed_orientation(scene, comps=None):
+    """Per scene triangle: +1 if it belongs to a closed component whose winding normals point outwards,
+    -1 if they point inwards, 0 if its component is open or not consistently wound.
+
+    Closed and consistent means every directed edge (a, b) of the component occurs exactly once and its
+    reverse (b, a) exactly once; the sign of the enclosed volume gives the orientation.
+    """
+    label, faces, n_comp = components(scene) if comps is None else comps
+    n_v = int(faces.max()) + 1
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    code = directed[:, 0] * n_v + directed[:, 1]
+    reverse = directed[:, 1] * n_v + directed[:, 0]
+    uniq, counts = np.unique(code, return_counts=True)
+    once = counts == 1
+    pos_r = np.minimum(np.searchsorted(uniq, reverse), len(uniq) - 1)
+    good = once[np.searchsorted(uniq, code)] & (uniq[pos_r] == reverse) & once[pos_r]
+    bad = np.bincount(np.tile(label, 3)[~good], minlength=n_comp) > 0
+    small = np.bincount(label, minlength=n_comp) < 4
+    v = scene.triangles
+    volume = np.bincount(label, weights=np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])),
+                         minlength=n_comp)
+    sign = np.where(bad | small | (volume == 0.0), 0, np.sign(volume)).astype(np.int8)
+    return sign[label]
+
+
+def blocker_groups(label, n_comp, max_size):
+    """What a recorded blocker stands for in a candidate list: its whole connected component when that has at
+    most `max_size` triangles (a box of a city, say), else itself. Returns (group per triangle, CSR offsets
+    per group, triangle ids)."""
+    n = len(label)
+    size = np.bincount(label, minlength=n_comp)
+    small = size[label] <= max_size
+    # groups: small components keep their label; every other triangle gets a group of its own
+    group = np.where(small, label, n_comp + np.arange(n)).astype(np.int64)
+    used, group = np.unique(group, return_inverse=True)
+    order = np.argsort(group, kind="stable").astype(np.int32)
+    off = np.concatenate([[0], np.cumsum(np.bincount(group, minlength=len(used)))]).astype(np.int64)
+    return group.astype(np.int32), off, order

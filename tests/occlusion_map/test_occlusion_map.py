@@ -1,0 +1,179 @@
+"""The occlusion map: cases on a quad over a plane, analytic polygon light, volumetric culling, determinism,
+bad input and the no-photon fallback."""
+import numba
+import numpy as np
+import pytest
+
+import probvis
+from probvis import ProbvisError
+from probvis.accel import build_bvh, closest_hit
+from probvis.cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED
+from probvis.lights import build_emitter_sampler, triangle_irradiance
+from probvis.occlusion_map import closed_orientation
+from probvis.scene import SceneBuilder, load_scene
+from probvis.scene import shapes as shp
+from probvis.visibility import ShadingPoints, make_estimator
+from probvis.visibility.occlusion_map import face_normals, visibility_from_lists
+from tests.conftest import sensor, write_scene
+
+
+def prepared(scene, **options):
+    est = make_estimator("occlusion-map", **options)
+    est.prepare(scene, build_bvh(scene.triangles), build_emitter_sampler(scene))
+    return est
+
+
+def floor_points(scene, xy):
+    """Shading points on quad-shadow's floor (z = 0) below the given (x, y)."""
+    org = np.column_stack([xy, np.full(len(xy), 0.5)])
+    bvh = build_bvh(scene.triangles)
+    prim, t, _, _, _, _ = closest_hit(bvh.arrays, org, np.tile([0.0, 0.0, -1.0], (len(xy), 1)),
+                                      np.zeros(len(xy)), np.full(len(xy), np.inf))
+    assert np.all(prim >= 0) and np.allclose(t, 0.5)
+    return ShadingPoints(org - [0, 0, 0.5], np.tile([0.0, 0.0, 1.0], (len(xy), 1)), prim)
+
+
+@pytest.mark.parametrize("penumbra", ["list", "bvh"])
+def test_quad_over_plane_cases_and_candidate_lists(penumbra):
+    """Blocker [-0.5, 0.5]^2 at z = 1, light [-0.25, 0.25]^2 at z = 2: umbra |x|, |y| < 0.75, lit beyond 1.25."""
+    scene = load_scene("quad-shadow")
+    est = prepared(scene, photons=200_000, penumbra=penumbra)
+    umbra, lit, pen = [[0.0, 0.0], [0.3, -0.2]], [[2.0, 0.0], [0.0, -2.5], [1.8, 1.8]], [[1.0, 0.0], [0.0, -1.0]]
+    points = floor_points(scene, np.array(umbra + lit + pen))
+    case = est.classify(points)[:, 0]
+    assert case.tolist() == [CASE_SHADOWED] * 2 + [CASE_LIT] * 3 + [CASE_PENUMBRA] * 2
+    blocker = set(range(scene.shapes[1].first_triangle, scene.shapes[1].first_triangle + 2))
+    if penumbra == "list":
+        for i in (5, 6):
+            assert set(est.lookup.candidates(i, 0).tolist()) == blocker
+
+
+def mc_irradiance(tri, p, n, samples, rng):
+    """Monte Carlo of the integral of max(0, n.w) over the triangle's front side, sampling its area."""
+    u, v = rng.random(samples), rng.random(samples)
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    y = tri[0] + u[:, None] * (tri[1] - tri[0]) + v[:, None] * (tri[2] - tri[0])
+    cross = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+    area, ln = np.linalg.norm(cross) / 2, cross / np.linalg.norm(cross)
+    w = y - p
+    d2 = np.einsum("ij,ij->i", w, w)
+    w /= np.sqrt(d2)[:, None]
+    f = np.maximum(0, w @ n) * np.maximum(0, -(w @ ln)) / d2 * area
+    return f.mean(), f.std() / np.sqrt(samples)
+
+
+@pytest.mark.parametrize("tri, n, what", [
+    ([[-0.3, -0.2, 1.0], [0.4, -0.1, 1.0], [0.0, 0.5, 1.0]], [0, 0, 1], "above, facing down"),
+    ([[-0.3, -0.2, 1.0], [0.0, 0.5, 1.0], [0.4, -0.1, 1.0]], [0, 0, 1], "back side: zero"),
+    ([[1.0, -0.5, -0.4], [1.0, 0.5, -0.4], [1.0, 0.0, 0.8]], [0, 0, 1], "crossing the horizon"),
+    ([[0.5, -0.5, -0.9], [0.6, 0.5, 0.3], [0.4, 0.1, 1.2]], [0.2, 0.3, 0.93], "tilted receiver, crossing"),
+])
+def test_analytic_polygon_irradiance_matches_monte_carlo(tri, n, what):
+    tri = np.array(tri, dtype=float)
+    n = np.array(n, dtype=float) / np.linalg.norm(n)
+    facing = np.cross(tri[1] - tri[0], tri[2] - tri[0]) @ (np.zeros(3) - tri[0]) > 0
+    if facing != (what != "back side: zero"):  # wind the emitting side towards the receiver, or away
+        tri = tri[[0, 2, 1]]
+    exact = triangle_irradiance(tri[None], 0, 0.0, 0.0, 0.0, *n)
+    mc, se = mc_irradiance(tri, np.zeros(3), n, 2_000_000, np.random.default_rng(1))
+    if what == "back side: zero":
+        assert exact == 0.0 and mc == 0.0
+    else:
+        assert exact > 0 and abs(exact - mc) < 4 * se, what
+
+
+def closed_scene():
+    b = SceneBuilder("closed")
+    v, f, _ = shp.uv_sphere(12, 24)
+    b.add_mesh("ball", "sphere", v, f, None, b.material(0.5))
+    v, f = shp.cube()
+    b.add_mesh("box", "cube", v, f, np.diag([0.7, 0.3, 0.5, 1.0]) + np.array(
+        [[0, 0, 0, 2.0], [0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]]), b.material(0.5))
+    b.add_mesh("light", "rectangle", *shp.rectangle(), None, None, radiance=1.0)
+    return b.build(load_scene("quad-shadow").camera, 1, 1)
+
+
+def test_closed_components_are_found_and_culling_keeps_visibility_identical():
+    scene = closed_scene()
+    orient = closed_orientation(scene)
+    ball, box, light = scene.shapes
+    assert np.all(orient[:ball.n_triangles + box.n_triangles] == 1)
+    assert np.all(orient[light.first_triangle:] == 0)  # an open rectangle
+    rng = np.random.default_rng(5)
+    n = 20000
+    a = rng.normal(size=(n, 3))
+    b = rng.normal(size=(n, 3))
+    org = 2.5 * a / np.linalg.norm(a, axis=1, keepdims=True) + [1, 0, 0]
+    end = 2.5 * b / np.linalg.norm(b, axis=1, keepdims=True) + [1, 0, 0]
+    everything = np.arange(scene.n_triangles, dtype=np.int32)
+    lo, hi = np.zeros(n, np.int64), np.full(n, scene.n_triangles, np.int64)
+    fn = face_normals(scene.triangles)
+    args = (org, end - org, np.ones(n), lo, hi, everything)
+    vis_all, tests_all, cull_none = visibility_from_lists(scene.triangles, np.zeros_like(orient), fn, *args)
+    vis_cull, tests_cull, culled = visibility_from_lists(scene.triangles, orient, fn, *args)
+    np.testing.assert_array_equal(vis_cull, vis_all)
+    assert 0.1 < (vis_all == 0).mean() < 0.9
+    assert cull_none.sum() == 0 and culled.sum() > 0
+    assert tests_cull.sum() < 0.75 * tests_all.sum()
+
+
+def test_volumetric_culling_does_not_change_the_image():
+    kw = dict(visibility="occlusion-map", resolution=(24, 24), spp=2, shadow_rays=4)
+    a = probvis.render("cornell-box", visibility_options=dict(penumbra="list", volumetric=True), **kw)
+    b = probvis.render("cornell-box", visibility_options=dict(penumbra="list", volumetric=False), **kw)
+    np.testing.assert_array_equal(a.image, b.image)
+    assert a.stats["estimator"]["culled_candidates"] > 0 == b.stats["estimator"]["culled_candidates"]
+    assert a.stats["intersection_tests"]["triangle"] < b.stats["intersection_tests"]["triangle"]
+
+
+def test_deterministic_for_a_seed_whatever_the_thread_count():
+    kw = dict(visibility="occlusion-map", resolution=(24, 24), spp=2, shadow_rays=4, seed=7,
+              visibility_options=dict(penumbra="list", adaptive=True))
+    prev = numba.get_num_threads()
+    try:
+        a = probvis.render("quad-shadow", threads=1, **kw)
+        b = probvis.render("quad-shadow", threads=min(2, numba.config.NUMBA_NUM_THREADS), **kw)
+    finally:
+        numba.set_num_threads(prev)
+    np.testing.assert_array_equal(a.image, b.image)
+    assert a.stats["estimator"]["photons"] == b.stats["estimator"]["photons"]
+    assert a.stats["estimator"]["adaptive_rounds"][0]["photons_added"] > 0
+
+
+def test_matches_exact_visibility_within_the_noise():
+    """With the whole BVH in the penumbra, only misclassified lit/shadowed points could bias the image."""
+    kw = dict(resolution=(32, 32), spp=16, shadow_rays=8, seed=1)
+    om = probvis.render("quad-shadow", visibility="occlusion-map", **kw)
+    ex = probvis.render("quad-shadow", visibility="exact", **kw)
+    assert om.stats["shadow_rays"] < 0.5 * ex.stats["shadow_rays"]
+    var = (om.aovs["second_moment"] - om.image ** 2) / kw["spp"] + (ex.aovs["second_moment"] - ex.image ** 2) / kw["spp"]
+    diff = (om.image - ex.image).mean()
+    se = np.sqrt(np.maximum(var, 0).sum()) / var.size
+    assert abs(diff) < 4 * se
+
+
+@pytest.mark.parametrize("options, message", [
+    (dict(photons=0), "photons must be a positive integer"),
+    (dict(neighbours=-3), "neighbours must be a positive integer"),
+    (dict(radius=-1.0), "radius must be a positive number"),
+    (dict(radius=float("nan")), "radius must be a positive number"),
+    (dict(penumbra="grid"), "penumbra must be 'list' or 'bvh'"),
+])
+def test_bad_options_are_clear_errors(options, message):
+    with pytest.raises(ProbvisError, match=message):
+        make_estimator("occlusion-map", **options)
+
+
+def test_no_photon_hits_anything_falls_back_to_exact(tmp_path):
+    """A light facing up into empty space lights nothing: every point is unknown, the image is exact's."""
+    body = sensor(origin="0, 0, 3", spp=2, sr=2) + """
+    <shape type="rectangle"><transform name="to_world"><scale value="3"/></transform></shape>
+    <shape type="rectangle"><transform name="to_world"><translate z="1"/></transform>
+        <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>"""
+    path = write_scene(tmp_path / "up.xml", body)
+    with pytest.warns(UserWarning, match="no photon"):
+        om = probvis.render(path, visibility="occlusion-map")
+    ex = probvis.render(path, visibility="exact")
+    np.testing.assert_array_equal(om.image, ex.image)
+    assert om.stats["cases"]["unknown"]["share"] == 1.0
