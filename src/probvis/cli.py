@@ -44,7 +44,18 @@ def _positive_float(text):
     return v
 
 
-VISIBILITY_OPTIONS = ("photons", "neighbours", "radius", "penumbra", "adaptive", "volumetric")
+def _triple(text):
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers, got '{text}'") from None
+    if len(v) != 3:
+        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers, got '{text}'")
+    return v
+
+
+VISIBILITY_OPTIONS = ("photons", "neighbours", "radius", "penumbra", "adaptive", "volumetric", "estimator",
+                      "probabilities", "shifts", "power", "grouping", "levels", "cells")
 
 
 _positive = _int_at_least(1)
@@ -64,7 +75,8 @@ def _parser():
     r.add_argument("--shadow-rays", type=_positive, help="emitter samples (shadow rays) per camera sample")
     r.add_argument("-D", dest="defines", action="append", metavar="NAME=VALUE", help="override a <default>")
     r.add_argument("--seed", type=_non_negative, help="random seed (default: the scene's sampler seed)")
-    r.add_argument("--visibility", default="exact", help="visibility estimator: exact, occlusion-map (default: exact)")
+    r.add_argument("--visibility", default="exact",
+                   help="visibility estimator: exact, occlusion-map, probvis (default: exact)")
     om = r.add_argument_group("occlusion map (--visibility occlusion-map)")
     om.add_argument("--photons", type=_positive, help="photon rays of the first pass (default: 0.5 per camera "
                                                          "sample, at least 100,000)")
@@ -78,6 +90,17 @@ def _parser():
                     help="cull closed meshes' triangles facing away from the light end (list mode; default on)")
     om.add_argument("--case-image", metavar="OUT", help="write the per-pixel case shares (R penumbra, G lit, "
                                                         "B shadowed, grey unknown), one image per emitter")
+    pv = r.add_argument_group("probabilistic visibility (--visibility probvis; also takes the occlusion-map options)")
+    pv.add_argument("--estimator", choices=("standard", "shifted", "power", "adaptive"),
+                    help="decomposition of V = V_A V_B (default standard)")
+    pv.add_argument("--probabilities", type=_triple, metavar="P1,P2,P3", help="term probabilities (default 1/3 each)")
+    pv.add_argument("--shifts", type=_triple, metavar="A,B,G", help="shifts of the shifted estimator (sum 1)")
+    pv.add_argument("--power", type=_positive, help="exponent of the power estimator (default 8)")
+    pv.add_argument("--grouping", choices=("solid-angle", "count", "random"), help="A/B split (default solid-angle)")
+    pv.add_argument("--levels", type=_positive, help="recursive subdivision depth (default 1: one A/B split)")
+    pv.add_argument("--cells", type=_positive, help="groups along the ray whose estimates multiply (default 1)")
+    r.add_argument("--clamp-negative", action="store_true",
+                   help="clamp negative pixels to zero (biased: too bright on average; the bias is reported)")
     r.add_argument("--stats", metavar="OUT.json", help="write the statistics as JSON")
     r.add_argument("--tests-image", metavar="OUT.exr", help="write per-pixel ray-triangle and ray-node test counts")
     r.add_argument("--threads", type=_positive, help="worker threads (default: all cores)")
@@ -90,6 +113,12 @@ def _parser():
     i.add_argument("--json", action="store_true", help="print JSON")
 
     sub.add_parser("scenes", help="list the built-in scenes")
+
+    t = sub.add_parser("tables", help="per decomposition: term values and variance in the four configurations")
+    t.add_argument("--json", action="store_true", help="print JSON")
+    t.add_argument("--probabilities", type=_triple, metavar="P1,P2,P3", help="term probabilities (default 1/3)")
+    t.add_argument("--shifts", type=_triple, metavar="A,B,G", help="shifts of the shifted decomposition")
+    t.add_argument("--power", type=_positive, default=8, help="exponent of the power decomposition (default 8)")
     return p
 
 
@@ -109,6 +138,7 @@ def _cmd_render(args):
         raise ProbvisError("--case-image needs a visibility that classifies points (e.g. occlusion-map)")
     result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed,
                     visibility=args.visibility, visibility_options=options, threads=args.threads,
+                    clamp_negative=args.clamp_negative,
                     progress=not args.quiet and sys.stderr.isatty(), **_defines(args.defines))
     for path in outputs:
         write_image(path, result.image, args.exposure)
@@ -185,6 +215,30 @@ def _cmd_scenes(args):
     return 0
 
 
+def _cmd_tables(args):
+    from .visibility.probvis import power, shifted, standard
+
+    p = args.probabilities or (1 / 3, 1 / 3, 1 / 3)
+    try:
+        decs = [standard(p), shifted(p, args.shifts or (1 / 3, 1 / 3, 1 / 3)), power(args.power, p)]
+    except ValueError as exc:
+        raise ProbvisError(str(exc)) from None
+    out = [{"decomposition": d.name, "probabilities": d.p.tolist(), "terms": list(d.labels), "rows": d.rows()}
+           for d in decs]
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return 0
+    for d in out:
+        print(f"{d['decomposition']}  (p = {', '.join(f'{x:.4g}' for x in d['probabilities'])})")
+        print(f"  {'V_A':>3} {'V_B':>3} {'V_A V_B':>7}  " + "".join(f"{t:>24}" for t in d["terms"])
+              + f"{'variance':>12}")
+        for r in d["rows"]:
+            print(f"  {r['VA']:>3} {r['VB']:>3} {r['product']:>7}  " + "".join(f"{v:>24.6g}" for v in r["values"])
+                  + f"{r['variance']:>12.6g}")
+        print()
+    return 0
+
+
 def _warning_line(message, category, filename, lineno, file=None, line=None):
     print(f"probvis: warning: {message}", file=sys.stderr)
 
@@ -193,7 +247,8 @@ def main(argv=None):
     args = _parser().parse_args(argv)
     warnings.showwarning = _warning_line
     try:
-        return {"render": _cmd_render, "info": _cmd_info, "scenes": _cmd_scenes}[args.command](args)
+        return {"render": _cmd_render, "info": _cmd_info, "scenes": _cmd_scenes,
+                "tables": _cmd_tables}[args.command](args)
     except ProbvisError as exc:
         print(f"probvis: error: {exc}", file=sys.stderr)
         return 2

@@ -363,12 +363,13 @@ def _case_stats(counts):
 
 
 def render(scene, *, spp=None, shadow_rays=None, seed=None, resolution=None, visibility="exact",
-           visibility_options=None, threads=None, progress=False, **defaults):
+           visibility_options=None, threads=None, progress=False, clamp_negative=False, **defaults):
     """Render `scene` (a `Scene`, a Mitsuba XML path or a built-in name) with direct illumination.
 
     `spp`, `shadow_rays` (emitter samples per camera sample), `seed` and `resolution` (width, height)
     override the scene's settings; extra keyword arguments are passed to `load_scene` as `<default>`
-    overrides. `visibility` names the estimator (see `probvis.visibility.ESTIMATORS`). Returns a
+    overrides. `clamp_negative` sets negative pixels (from probabilistic visibility) to zero: biased, the
+    image gets too bright on average; the stats report by how much. `visibility` names the estimator (see `probvis.visibility.ESTIMATORS`). Returns a
     `RenderResult` whose `.image` is linear RGB radiance and whose `.stats` is JSON-serialisable.
     """
     t_start = time.perf_counter()
@@ -387,6 +388,13 @@ def render(scene, *, spp=None, shadow_rays=None, seed=None, resolution=None, vis
     estimator = make_estimator(visibility, **options)
     compile_seconds = _warm_up(estimator.name, options)
     image, aovs, tot, bvh, build_s, render_s = _render_prepared(scene, estimator, progress)
+    negative = image < 0
+    clamp = {"negative_pixel_share": float(negative.any(axis=-1).mean()),
+             "negative_value_share": float(negative.mean()), "clamped": bool(clamp_negative)}
+    if clamp_negative:
+        clamped = np.maximum(image, 0.0)
+        clamp["mean_bias"] = [float(x) for x in (clamped - image).reshape(-1, 3).mean(axis=0)]
+        image = clamped
     total = time.perf_counter() - t_start
     cam = scene.camera
     n_cam = cam.width * cam.height * scene.spp
@@ -410,6 +418,8 @@ def render(scene, *, spp=None, shadow_rays=None, seed=None, resolution=None, vis
         "camera_hits": tot["camera_hits"],
         "shadow_rays": tot["shadow_rays"],
         "negative_estimates": tot["negative"],
+        "negative_estimate_share": tot["negative"] / max(1, tot["shadow_rays"]),
+        "negative_pixels": clamp,
         "cases": _case_stats(tot["cases"]) if "cases" in aovs else None,
         "intersection_tests": {
             "triangle": tot["cam_tri"] + tot["sh_tri"],

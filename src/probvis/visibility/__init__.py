@@ -4,8 +4,9 @@ from .base import (CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKN
                    ShadowQuery, VisibilityEstimator, VisibilityResult)
 from .exact import ExactVisibility
 from .occlusion_map import OcclusionMapVisibility
+from .probvis import ProbvisVisibility
 
-ESTIMATORS = {cls.name: cls for cls in (ExactVisibility, OcclusionMapVisibility)}
+ESTIMATORS = {cls.name: cls for cls in (ExactVisibility, OcclusionMapVisibility, ProbvisVisibility)}
 
 
 def make_estimator(name, **options):

@@ -1,0 +1,220 @@
+"""Numba kernels of probabilistic visibility: grouping of candidate lists and stochastic evaluation.
+
+A penumbra pair's candidate list is reordered into `cells * 2**levels` consecutive leaves: `cells` groups
+along the ray (by distance from the point), each split recursively `levels` times into A and B. With
+cells = levels = 1 that is the seed's single split into A and B.
+"""
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from ...accel.traversal import hit_triangle, ray_setup
+from ...rng import mix64, uniform
+from ..occlusion_map import culled
+from .decomposition import MODE_A, MODE_AB_BLOCKED, MODE_B, MODE_BOTH, MODE_EXACT
+
+GROUP_SOLID_ANGLE, GROUP_COUNT, GROUP_RANDOM = 0, 1, 2
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def solid_angle(triangles, t, px, py, pz):
+    """Solid angle of triangle t seen from p (Van Oosterom and Strackee 1983)."""
+    ax, ay, az = triangles[t, 0, 0] - px, triangles[t, 0, 1] - py, triangles[t, 0, 2] - pz
+    bx, by, bz = triangles[t, 1, 0] - px, triangles[t, 1, 1] - py, triangles[t, 1, 2] - pz
+    cx, cy, cz = triangles[t, 2, 0] - px, triangles[t, 2, 1] - py, triangles[t, 2, 2] - pz
+    la = math.sqrt(ax * ax + ay * ay + az * az)
+    lb = math.sqrt(bx * bx + by * by + bz * bz)
+    lc = math.sqrt(cx * cx + cy * cy + cz * cz)
+    num = ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+    den = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc + (ax * cx + ay * cy + az * cz) * lb
+           + (bx * cx + by * cy + bz * cz) * la)
+    return 2.0 * abs(math.atan2(num, den))
+
+
+@njit(cache=True, error_model="numpy")
+def _split(order, weight, leaf, lo, hi, method, key, level):
+    """Split elements order[lo:hi] of one group in two: leaf id bit 0 for A, 1 for B."""
+    n = hi - lo
+    if method == GROUP_SOLID_ANGLE:  # largest first, each to the group with less solid angle so far
+        w = np.empty(n)
+        for a in range(n):
+            w[a] = -weight[order[lo + a]]
+        srt = np.argsort(w, kind="mergesort")
+        sa, sb = 0.0, 0.0
+        for a in range(n):
+            e = order[lo + srt[a]]
+            if sa <= sb:
+                leaf[e] = leaf[e] * 2
+                sa += weight[e]
+            else:
+                leaf[e] = leaf[e] * 2 + 1
+                sb += weight[e]
+    elif method == GROUP_COUNT:  # alternate in list (frequency) order
+        for a in range(n):
+            e = order[lo + a]
+            leaf[e] = leaf[e] * 2 + (a % 2)
+    else:
+        for a in range(n):
+            e = order[lo + a]
+            coin = mix64(key + np.uint64(e * 64 + level)) >> np.uint64(63)
+            leaf[e] = leaf[e] * 2 + np.int64(coin)
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def group_lists(triangles, pos, offsets, tris, n_rep, method, levels, cells, seed):
+    """Reorder each pair's candidates into leaves (see module docstring); returns the reordered triangle ids,
+    leaf boundaries (pairs, leaves + 1) as absolute positions, and each pair's solid angle in A and B."""
+    n_pairs = offsets.shape[0] - 1
+    n_leaves = cells * (1 << levels)
+    out = np.empty_like(tris)
+    bounds = np.empty((n_pairs, n_leaves + 1), np.int64)
+    balance = np.zeros((n_pairs, 2))
+    for q in prange(n_pairs):
+        lo, hi = offsets[q], offsets[q + 1]
+        n = hi - lo
+        i = q % n_rep
+        px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
+        weight = np.empty(n)
+        dist = np.empty(n)
+        for a in range(n):
+            t = tris[lo + a]
+            weight[a] = solid_angle(triangles, t, px, py, pz)
+            cx = (triangles[t, 0, 0] + triangles[t, 1, 0] + triangles[t, 2, 0]) / 3.0 - px
+            cy = (triangles[t, 0, 1] + triangles[t, 1, 1] + triangles[t, 2, 1]) / 3.0 - py
+            cz = (triangles[t, 0, 2] + triangles[t, 1, 2] + triangles[t, 2, 2]) / 3.0 - pz
+            dist[a] = cx * cx + cy * cy + cz * cz
+        leaf = np.zeros(n, np.int64)
+        # cells: equal counts by distance from the point
+        by_dist = np.argsort(dist, kind="mergesort")
+        for a in range(n):
+            leaf[by_dist[a]] = (a * cells) // max(n, 1)
+        key = mix64(np.uint64(seed) + np.uint64(q) * np.uint64(0x9E3779B97F4A7C15))
+        for level in range(levels):
+            order = np.argsort(leaf, kind="mergesort")
+            a = 0
+            while a < n:
+                b = a
+                while b < n and leaf[order[b]] == leaf[order[a]]:
+                    b += 1
+                _split(order, weight, leaf, a, b, method, key, level)
+                a = b
+            if level == 0 and levels >= 1:
+                for e in range(n):
+                    balance[q, leaf[e] % 2] += weight[e]
+        # stable sort by leaf keeps the frequency order inside each leaf
+        order = np.argsort(leaf, kind="mergesort")
+        counts = np.zeros(n_leaves, np.int64)
+        for a in range(n):
+            out[lo + a] = tris[lo + order[a]]
+            counts[leaf[a]] += 1
+        bounds[q, 0] = lo
+        for g in range(n_leaves):
+            bounds[q, g + 1] = bounds[q, g] + counts[g]
+    return out, bounds, balance
+
+
+@njit(cache=True, error_model="numpy")
+def _leaf_visible(triangles, orientation, fnormal, o, d, rs, tmax, tris, lo, hi, tests):
+    kx, ky, kz, sx, sy, sz = rs
+    for c in range(lo, hi):
+        t = tris[c]
+        if culled(orientation, fnormal, t, d[0], d[1], d[2]):
+            tests[1] += 1
+            continue
+        tests[0] += 1
+        if hit_triangle(triangles, t, o, kx, ky, kz, sx, sy, sz, 0.0, tmax)[0] < np.inf:
+            return 0.0
+    return 1.0
+
+
+@njit(cache=True, error_model="numpy")
+def _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, q, g0, g1, depth, cdf, coef, mode,
+              key, dim, tests, chosen):
+    """Unbiased estimate of the visibility of leaves g0..g1-1 of pair q, a subtree of the given depth."""
+    if depth == 0:
+        return _leaf_visible(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds[q, g0], bounds[q, g1],
+                             tests)
+    mid = (g0 + g1) // 2
+    u = uniform(key, dim[0])
+    dim[0] += 1
+    t = 0
+    while t < 2 and u >= cdf[q, t]:
+        t += 1
+    if chosen[0] < 0:
+        chosen[0] = t
+    m = mode[q, t]
+    va, vb = 0.0, 0.0
+    if m == MODE_A or m == MODE_AB_BLOCKED or m == MODE_BOTH or m == MODE_EXACT:
+        va = _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, q, g0, mid, depth - 1, cdf,
+                       coef, mode, key, dim, tests, chosen)
+    need_b = m == MODE_B or m == MODE_BOTH
+    if m == MODE_AB_BLOCKED:
+        need_b = not (depth == 1 and va == 1.0)  # A visible: the complement product is 0 whatever B is
+    if m == MODE_EXACT:
+        need_b = not (depth == 1 and va == 0.0)  # A blocks: visibility is 0 whatever B is
+    if need_b:
+        vb = _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, q, mid, g1, depth - 1, cdf,
+                       coef, mode, key, dim, tests, chosen)
+    return coef[q, t, 0] + coef[q, t, 1] * va + coef[q, t, 2] * vb + coef[q, t, 3] * va * vb
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def evaluate_segments(triangles, orientation, fnormal, org, dirs, tmax, pair, keys, tris, bounds, levels, cells, cdf,
+                      coef, mode):
+    """Probabilistic visibility of each segment over its pair's grouped candidates: the product over cells of
+    each cell's recursive estimate. Returns values, triangle tests, culled candidates and the top-level term
+    chosen (first cell)."""
+    n = org.shape[0]
+    value = np.empty(n)
+    n_tri = np.zeros(n, np.int32)
+    n_cull = np.zeros(n, np.int32)
+    term = np.full(n, -1, np.int8)
+    per_cell = 1 << levels
+    for s in prange(n):
+        o = (org[s, 0], org[s, 1], org[s, 2])
+        d = (dirs[s, 0], dirs[s, 1], dirs[s, 2])
+        rs = ray_setup(d[0], d[1], d[2])
+        tests = np.zeros(2, np.int64)
+        dim = np.zeros(1, np.int64)
+        chosen = np.full(1, -1, np.int64)
+        q = pair[s]
+        v = 1.0
+        for c in range(cells):
+            v *= _estimate(triangles, orientation, fnormal, o, d, rs, tmax[s], tris, bounds, q, c * per_cell,
+                           (c + 1) * per_cell, levels, cdf, coef, mode, keys[s], dim, tests, chosen)
+        value[s] = v
+        n_tri[s], n_cull[s], term[s] = tests[0], tests[1], chosen[0]
+    return value, n_tri, n_cull, term
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def configuration_counts(nbr, nrm, pn, nb, start, ray_tris, tris, bounds, n_rep, normal_cos):
+    """Per pair, how many agreeing neighbour photons saw each configuration (V_A, V_B) of its top-level
+    split (leaves of the first half are A): a light photon sees (1, 1), a shadow photon is blocked by A or B
+    when one of its recorded blockers lies in that group."""
+    n_pairs = bounds.shape[0]
+    half = (bounds.shape[1] - 1) // 2
+    out = np.zeros((n_pairs, 4))
+    for q in prange(n_pairs):
+        lo, mid, hi = bounds[q, 0], bounds[q, half], bounds[q, bounds.shape[1] - 1]
+        if hi == lo:
+            continue
+        i = q % n_rep
+        a_sorted = np.sort(tris[lo:mid])
+        b_sorted = np.sort(tris[mid:hi])
+        for k in range(nbr.shape[1]):
+            j = nbr[i, k]
+            if j < 0 or pn[j, 0] * nrm[i, 0] + pn[j, 1] * nrm[i, 1] + pn[j, 2] * nrm[i, 2] < normal_cos:
+                continue
+            va, vb = 1, 1
+            for h in range(nb[j]):
+                b = ray_tris[start[j] + h]
+                p = np.searchsorted(a_sorted, b)
+                if p < a_sorted.shape[0] and a_sorted[p] == b:
+                    va = 0
+                p = np.searchsorted(b_sorted, b)
+                if p < b_sorted.shape[0] and b_sorted[p] == b:
+                    vb = 0
+            out[q, 2 * va + vb] += 1.0
+    return out

@@ -1,0 +1,17 @@
+"""Shifted decomposition: (V_A - α) + (V_B - β) + (V̄_A V̄_B - γ) with α + β + γ = 1. With α = β = γ = 1/3 and
+p = 1/3 each this is the seed's "alternative decomposition", of variance 2 in every configuration."""
+import numpy as np
+
+from .decomposition import MODE_A, MODE_AB_BLOCKED, MODE_B, Decomposition, probabilities, table
+
+
+def shifted(p=(1 / 3, 1 / 3, 1 / 3), shifts=(1 / 3, 1 / 3, 1 / 3)):
+    a, b, g = (float(x) for x in shifts)
+    if len(shifts) != 3 or not np.isclose(a + b + g, 1.0):
+        raise ValueError(f"shifts must be three numbers summing to 1, got {list(shifts)}")
+    d = Decomposition("shifted", np.stack([table(lambda x, y: x - a), table(lambda x, y: y - b),
+                                           table(lambda x, y: (1 - x) * (1 - y) - g)]),
+                      probabilities(p), np.array([MODE_A, MODE_B, MODE_AB_BLOCKED], np.int8),
+                      ("(V_A-α)/p1", "(V_B-β)/p2", "(V̄_A V̄_B-γ)/p3"))
+    d.check()
+    return d

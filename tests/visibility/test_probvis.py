@@ -1,0 +1,165 @@
+"""Probabilistic visibility: exact expectations by enumeration, sampled expectations of the kernel, the
+tables against hand-derived variances, grouping balance, and convergence to the occlusion map's image."""
+import json
+
+import numpy as np
+import pytest
+
+import probvis
+from probvis import ProbvisError
+from probvis.cli import main
+from probvis.rng import make_key
+from probvis.visibility import make_estimator
+from probvis.visibility.probvis import power, shifted, standard
+from probvis.visibility.probvis.adaptive import choose
+from probvis.visibility.probvis.decomposition import CONFIGS
+from probvis.visibility.probvis.kernels import (GROUP_COUNT, GROUP_SOLID_ANGLE, evaluate_segments, group_lists,
+                                               solid_angle)
+
+
+def decompositions(rng):
+    p = rng.dirichlet([1, 1, 1]) * 0.97 + 0.01
+    p /= p.sum()
+    s = rng.normal(size=3)
+    s[2] = 1 - s[0] - s[1]
+    return [standard(p), shifted(p, s), power(int(rng.integers(2, 12)), p)]
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_expectation_over_term_choices_is_the_product_in_all_configurations(seed):
+    for d in decompositions(np.random.default_rng(seed)):
+        coef = d.coefficients()
+        for va, vb in CONFIGS:
+            assert d.expectation(va, vb) == pytest.approx(va * vb, abs=1e-9), (d.name, va, vb)
+            bilinear = coef[:, 0] + coef[:, 1] * va + coef[:, 2] * vb + coef[:, 3] * va * vb
+            assert np.dot(d.p, bilinear) == pytest.approx(va * vb, abs=1e-9)
+
+
+def test_adaptive_mixtures_are_unbiased_for_any_photon_statistics():
+    rng = np.random.default_rng(3)
+    counts = rng.integers(0, 30, size=(500, 4)).astype(float)
+    counts[::2] = [0, 0, 0, 60]  # photons say: visible - a cheap single-group term has little variance there
+    cdf, coef, mode, best = choose(counts, rng.integers(1, 40, 500), rng.integers(1, 40, 500))
+    p = np.diff(np.concatenate([np.zeros((500, 1)), cdf], axis=1), axis=1)
+    for va, vb in CONFIGS:
+        e = np.einsum("nk,nk->n", p, coef[:, :, 0] + coef[:, :, 1] * va + coef[:, :, 2] * vb + coef[:, :, 3] * va * vb)
+        np.testing.assert_allclose(e, va * vb, atol=1e-9)
+    assert np.all(mode[best == 0, 0] == 4) and np.all(cdf[best == 0, 0] == 1.0)  # exact: one term, both groups
+
+
+def test_tables_match_hand_derived_variances():
+    """Hand-derived with p = 1/3: standard values (3V_A, 3V_B, 3(V̄_A V̄_B - 1)) have variance 0, 6, 6, 8;
+    the shifted (alternative) one 2 everywhere; power 8: values -3V_A/254, -3V_B/254, 3(V_A+V_B)^8/254."""
+    var = {d.name: [r["variance"] for r in d.rows()] for d in (standard(), shifted(), power(8))}
+    np.testing.assert_allclose(var["standard"], [0, 6, 6, 8], atol=1e-12)
+    np.testing.assert_allclose(var["shifted"], [2, 2, 2, 2], atol=1e-12)
+    k = 254.0
+    one = (2 * 9 / k ** 2) / 3  # E[x^2] with values 0, -3/254, 3/254 and mean 0
+    both = (2 * 9 + 768 ** 2) / (3 * k ** 2) - 1
+    np.testing.assert_allclose(var["power-8"], [0, one, one, both], rtol=1e-12)
+
+
+def test_tables_cli_json(capsys):
+    assert main(["tables", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [d["decomposition"] for d in out] == ["standard", "shifted", "power-8"]
+    assert out[1]["rows"][0] == {"VA": 0, "VB": 0, "product": 0, "values": pytest.approx([-1, -1, 2]),
+                                 "variance": pytest.approx(2)}
+    assert main(["tables", "--shifts", "1,1,1"]) == 2
+    assert "summing to 1" in capsys.readouterr().err
+
+
+def blockers(n_a, n_b, covered):
+    """n_a + n_b small triangles around the segment from (0,0,0) to (0,0,1); `covered` says which cross it."""
+    tris = []
+    for k in range(n_a + n_b):
+        z = 0.2 + 0.6 * k / max(1, n_a + n_b - 1)
+        off = 0.0 if covered[k] else 5.0
+        tris.append([[off - 1, -1, z], [off + 1, -1, z], [off, 1, z]])
+    return np.array(tris, dtype=float)
+
+
+@pytest.mark.parametrize("levels, cells", [(1, 1), (2, 1), (1, 2)])
+@pytest.mark.parametrize("covered", [(0, 0, 0, 0), (1, 0, 0, 0), (0, 0, 1, 0), (1, 0, 0, 1), (1, 1, 1, 1)])
+def test_kernel_estimates_are_unbiased_by_sampling(levels, cells, covered):
+    """Sampled over many segment keys, the mean estimate equals the true visibility within 4 standard errors,
+    for the standard, shifted and power decompositions, with recursive subdivision and cells along the ray."""
+    tris = blockers(2, 2, covered)
+    truth = 0.0 if any(covered) else 1.0
+    n = 40000
+    org, dirs = np.zeros((n, 3)), np.tile([0.0, 0.0, 1.0], (n, 1))
+    offsets, ids = np.array([0, 4]), np.arange(4, dtype=np.int32)
+    grouped, bounds, _ = group_lists(tris, np.zeros((1, 3)), offsets, ids, 1, GROUP_COUNT, levels, cells, 0)
+    keys = np.array([make_key(11, 1, i) for i in range(n)], dtype=np.uint64)
+    for d in (standard((0.5, 0.3, 0.2)), shifted(), power(4)):
+        value, tests, _, term = evaluate_segments(
+            tris, np.zeros(4, np.int8), np.zeros((4, 3)), org, dirs, np.ones(n), np.zeros(n, np.int64), keys,
+            grouped, bounds, levels, cells, np.cumsum(d.p)[None], d.coefficients()[None], d.mode[None])
+        se = value.std() / np.sqrt(n)
+        assert abs(value.mean() - truth) < 4 * se + 1e-12, (d.name, value.mean(), truth, se)
+        assert tests.max() <= 4 and set(np.unique(term)) <= {0, 1, 2}
+
+
+def test_solid_angle_grouping_balances_the_accumulated_solid_angle():
+    rng = np.random.default_rng(2)
+    tris = rng.normal(size=(60, 1, 3)) * 0.1 + rng.normal(size=(60, 3, 3)) * 0.03 + [0, 0, 1]
+    grouped, bounds, balance = group_lists(tris, np.zeros((1, 3)), np.array([0, 60]), np.arange(60, dtype=np.int32),
+                                           1, GROUP_SOLID_ANGLE, 1, 1, 0)
+    w = np.array([solid_angle(tris, t, 0.0, 0.0, 0.0) for t in range(60)])
+    a, b = grouped[:bounds[0, 1]], grouped[bounds[0, 1]:]
+    assert sorted(grouped.tolist()) == list(range(60))
+    assert abs(w[a].sum() - w[b].sum()) <= w.max() + 1e-12
+    np.testing.assert_allclose(balance[0], [w[a].sum(), w[b].sum()])
+    _, cb, _ = group_lists(tris, np.zeros((1, 3)), np.array([0, 60]), np.arange(60, dtype=np.int32), 1, GROUP_COUNT,
+                           1, 1, 0)
+    assert cb[0, 1] - cb[0, 0] == 30
+
+
+def test_solid_angle_of_an_octant_triangle():
+    tri = np.array([[[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]])
+    assert solid_angle(tri, 0, 0.0, 0.0, 0.0) == pytest.approx(np.pi / 2)
+
+
+def test_rendered_probvis_converges_to_the_occlusion_map_image():
+    """Same candidate lists, different estimators: the image means agree within 4 standard errors."""
+    kw = dict(resolution=(24, 24), spp=16, shadow_rays=8, seed=5, visibility_options=None)
+    base = dict(photons=100_000)
+    om = probvis.render("canopy", visibility="occlusion-map", **{**kw, "visibility_options": {**base, "penumbra": "list"}})
+    for est in ("standard", "shifted", "adaptive"):
+        pv = probvis.render("canopy", visibility="probvis", **{**kw, "visibility_options": {**base, "estimator": est}})
+        n = kw["spp"]
+        var = (pv.aovs["second_moment"] - pv.image ** 2 + om.aovs["second_moment"] - om.image ** 2) / n
+        se = np.sqrt(np.maximum(var, 0).sum()) / var.size
+        assert abs((pv.image - om.image).mean()) < 4 * se, est
+        if est != "adaptive":
+            assert pv.stats["negative_estimates"] > 0
+            assert pv.stats["intersection_tests"]["shadow"]["triangle"] < om.stats["intersection_tests"]["shadow"][
+                "triangle"]
+
+
+def test_clamping_negative_pixels_is_reported_as_a_bias():
+    kw = dict(resolution=(16, 16), spp=1, shadow_rays=1, seed=2, visibility="probvis",
+              visibility_options={"estimator": "standard", "photons": 50_000})
+    raw = probvis.render("canopy", **kw)
+    clamped = probvis.render("canopy", clamp_negative=True, **kw)
+    neg = raw.stats["negative_pixels"]
+    assert neg["negative_pixel_share"] > 0 and not neg["clamped"]
+    assert clamped.image.min() >= 0
+    bias = clamped.stats["negative_pixels"]["mean_bias"]
+    np.testing.assert_allclose(bias, (clamped.image - raw.image).reshape(-1, 3).mean(axis=0))
+    assert min(bias) > 0
+
+
+@pytest.mark.parametrize("options, message", [
+    (dict(estimator="magic"), "unknown probvis estimator"),
+    (dict(grouping="colour"), "grouping must be"),
+    (dict(probabilities=(0.5, 0.5, 0.5)), "summing to 1"),
+    (dict(estimator="shifted", shifts=(1, 1, 1)), "summing to 1"),
+    (dict(shifts=(0.2, 0.3, 0.5)), "shifted estimator only"),
+    (dict(levels=0), "levels must be"),
+    (dict(estimator="adaptive", levels=2), "adaptive estimator"),
+    (dict(penumbra="bvh"), "drop --penumbra"),
+])
+def test_bad_probvis_options(options, message):
+    with pytest.raises(ProbvisError, match=message):
+        make_estimator("probvis", **options)
