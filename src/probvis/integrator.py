@@ -21,6 +21,7 @@ from . import __version__
 from .accel import build_bvh, closest_hit
 from .camera import camera_params, camera_rays
 from .errors import ProbvisError
+from .geometry import unit_normal
 from .lights import build_emitter_sampler, choose_emitter, emitter_irradiance, sample_on_emitter
 from .rng import mix64, uniform
 from .scene import Scene, load_scene
@@ -37,19 +38,6 @@ class RenderResult:
     image: np.ndarray
     stats: dict
     aovs: dict = field(default_factory=dict)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _face_normal(triangles, t):
-    ax = triangles[t, 1, 0] - triangles[t, 0, 0]
-    ay = triangles[t, 1, 1] - triangles[t, 0, 1]
-    az = triangles[t, 1, 2] - triangles[t, 0, 2]
-    bx = triangles[t, 2, 0] - triangles[t, 0, 0]
-    by = triangles[t, 2, 1] - triangles[t, 0, 1]
-    bz = triangles[t, 2, 2] - triangles[t, 0, 2]
-    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
-    return nx * inv, ny * inv, nz * inv
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -127,7 +115,7 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow):
                 f = emitter_irradiance(e, offsets, etris, triangles, px, py, pz, sx, sy, sz) * inv_pi
                 for k in range(3):
                     analytic[i, k] += refl[mi, k] * radiance[e, k] * f
-        gx, gy, gz = _face_normal(triangles, tri)
+        gx, gy, gz = unit_normal(triangles, tri)
         eps = 1e-9 * (1.0 + max(abs(px), abs(py), abs(pz)))
         key = keys[i]
         for j in range(n_shadow):
@@ -146,7 +134,7 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow):
             cos_x = (sx * wx + sy * wy + sz * wz) * inv
             if cos_x <= 0.0:
                 continue
-            lx, ly, lz = _face_normal(triangles, lt)
+            lx, ly, lz = unit_normal(triangles, lt)
             cos_y = -(lx * wx + ly * wy + lz * wz) * inv
             if cos_y <= 0.0:
                 continue

@@ -13,7 +13,8 @@ from probvis.occlusion_map import closed_orientation
 from probvis.scene import SceneBuilder, load_scene
 from probvis.scene import shapes as shp
 from probvis.visibility import ShadingPoints, make_estimator
-from probvis.visibility.occlusion_map import face_normals, visibility_from_lists
+from probvis.geometry import face_normals
+from probvis.visibility.occlusion_map import visibility_from_lists
 from tests.conftest import sensor, write_scene
 
 

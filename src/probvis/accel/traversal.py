@@ -31,6 +31,13 @@ def ray_setup(dx, dy, dz):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def inverse_direction(dx, dy, dz):
+    """Reciprocal direction for the slab test (inf for a zero component)."""
+    return (1.0 / dx if dx != 0.0 else np.inf, 1.0 / dy if dy != 0.0 else np.inf,
+            1.0 / dz if dz != 0.0 else np.inf)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
     """Watertight ray-triangle test of triangle `p` of `tv`; returns (t, b1, b2) with t = inf on a miss."""
     ax = tv[p, 0, kx] - o[kx]
@@ -111,9 +118,7 @@ def trace(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit, stack):
     Returns (bvh-order primitive or -1, t, b1, b2, node tests, triangle tests); `stack` is caller scratch.
     """
     o = (ox, oy, oz)
-    ix = 1.0 / dx if dx != 0.0 else np.inf
-    iy = 1.0 / dy if dy != 0.0 else np.inf
-    iz = 1.0 / dz if dz != 0.0 else np.inf
+    ix, iy, iz = inverse_direction(dx, dy, dz)
     kx, ky, kz, sx, sy, sz = ray_setup(dx, dy, dz)
     best, bt, b1, b2 = -1, tmax, 0.0, 0.0
     n_node, n_tri = 1, 0
@@ -207,9 +212,7 @@ def trace_all(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, cap, out_t, out_p,
     (count, node tests, triangle tests). Once `cap` hits are held, subtrees beyond the farthest are pruned.
     """
     o = (ox, oy, oz)
-    ix = 1.0 / dx if dx != 0.0 else np.inf
-    iy = 1.0 / dy if dy != 0.0 else np.inf
-    iz = 1.0 / dz if dz != 0.0 else np.inf
+    ix, iy, iz = inverse_direction(dx, dy, dz)
     kx, ky, kz, sx, sy, sz = ray_setup(dx, dy, dz)
     count, n_node, n_tri = 0, 1, 0
     far = np.inf

@@ -10,27 +10,11 @@ import numpy as np
 
 from ..cases import CASE_PENUMBRA
 from .map import OcclusionMap
-from .photons import Photons, trace_photons
+from .photons import ADAPTIVE_STREAM, Photons, points_on_emitters, trace_photons
 
 PROBES = 16384  # photons probed per round
 ROUNDS = 4
 GROWTH_STOP = 0.05
-
-
-def _emitter_points(emitters, triangles, e, rng):
-    """Uniform points on emitter e (by area) with their triangles' unit normals."""
-    n = len(e)
-    owner = np.repeat(np.arange(len(emitters.offsets) - 1), np.diff(emitters.offsets))
-    idx = np.searchsorted(owner + emitters.tri_cdf, e + rng.random(n), side="right")
-    idx = np.minimum(idx, emitters.offsets[e + 1] - 1)
-    t = emitters.tris[idx]
-    su = np.sqrt(rng.random(n))
-    b1 = rng.random(n) * su
-    b0 = 1.0 - su
-    v = triangles[t]
-    x = b0[:, None] * v[:, 0] + b1[:, None] * v[:, 1] + (1.0 - b0 - b1)[:, None] * v[:, 2]
-    nrm = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    return x, nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
 
 
 def _classify_probes(omap, pos, nrm, emitter):
@@ -74,11 +58,11 @@ def refine(scene, bvh, emitters, photons: Photons, neighbours, groups, radius, b
         rad = omap.radius * np.sqrt(rng.random(n_new))
         phi = 2 * np.pi * rng.random(n_new)
         target = pos[pick] + rad[:, None] * (np.cos(phi)[:, None] * t1 + np.sin(phi)[:, None] * t2)
-        origin, n_e = _emitter_points(emitters, scene.triangles, e, rng)
+        origin, n_e, _ = points_on_emitters(e.astype(np.int32), emitters.offsets, emitters.tris, emitters.tri_cdf,
+                                            scene.triangles, seed, ADAPTIVE_STREAM, spent)
         d = target - origin
         front = np.einsum("ij,ij->i", d, n_e) > 0.0
-        eps = 1e-9 * (1.0 + np.abs(origin).max(axis=1, keepdims=True))
-        new = trace_photons(scene, bvh, (origin + eps * n_e)[front], d[front], e[front].astype(np.int32))
+        new = trace_photons(scene, bvh, origin[front], d[front], e[front].astype(np.int32))
         photons = Photons.concatenate([photons, new])
         spent += n_new
         grown = OcclusionMap(photons, scene.n_emitters, neighbours, groups, radius)

@@ -53,15 +53,13 @@ def _unique_by_frequency(buf, m):
 @njit(cache=True, parallel=True, error_model="numpy")
 def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_tris, normal_cos, min_photons,
                     max_hits, with_lists):
-    """Case, agreeing (light, shadow) photon counts and candidate lists (CSR of triangles, with the number of
-    neighbouring shadow photons that recorded each one's group) per point.
+    """Case and candidate list (CSR of triangles, most often recorded groups first) per point.
 
     `nbr` (m, k) holds photon ids of one emitter's photons near each point (-1 for none); `nrm` the points'
     normals (a zero normal marks a point that is not shaded). Without `with_lists` the lists are left empty.
     """
     m, k = nbr.shape
     case = np.full(m, CASE_UNKNOWN, np.int8)
-    counts = np.zeros((m, 2), np.int32)
     length = np.zeros(m + 1, np.int64)
     for c in prange((m + 63) // 64):
         buf = np.empty(k * max_hits, np.int32)
@@ -70,7 +68,6 @@ def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_t
             if nx == 0.0 and ny == 0.0 and nz == 0.0:
                 continue
             n_light, n_shadow, g = _gather(nbr, i, pn, nb, start, ray_tris, group, nx, ny, nz, normal_cos, buf)
-            counts[i, 0], counts[i, 1] = n_light, n_shadow
             if n_light + n_shadow < min_photons:
                 continue
             if n_shadow == 0:
@@ -86,7 +83,6 @@ def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_t
                     length[i + 1] += group_off[gr + 1] - group_off[gr]
     offsets = np.cumsum(length)
     tris = np.empty(offsets[m], np.int32)
-    freq = np.empty(offsets[m], np.int32)
     for c in prange((m + 63) // 64 if with_lists else 0):
         buf = np.empty(k * max_hits, np.int32)
         for i in range(c * 64, min(m, c * 64 + 64)):
@@ -94,12 +90,10 @@ def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_t
                 continue
             _, _, g = _gather(nbr, i, pn, nb, start, ray_tris, group, nrm[i, 0], nrm[i, 1], nrm[i, 2], normal_cos,
                               buf)
-            groups, cnt = _unique_by_frequency(buf, g)
+            groups, _ = _unique_by_frequency(buf, g)
             w = offsets[i]
-            for a in range(groups.shape[0]):
-                gr = groups[a]
+            for gr in groups:
                 for q in range(group_off[gr], group_off[gr + 1]):
                     tris[w] = group_tris[q]
-                    freq[w] = cnt[a]
                     w += 1
-    return case, counts, offsets, tris, freq
+    return case, offsets, tris

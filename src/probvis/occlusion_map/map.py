@@ -18,20 +18,21 @@ CELL_FRACTION = 0.25  # shading points in one cell of this fraction of the radiu
 class Lookup:
     """Classification of m shading points against each emitter's photons.
 
-    Points are looked up through representatives: point i uses look-up `rep[i]` of the `n_rep` made.
-    `case[i, e]` is a CASE_*; the candidate list of (i, e) is `tris[lo:hi]` with (lo, hi) = `range(i, e)`,
-    and `freq` the number of neighbouring shadow photons that recorded each triangle; `counts[i, e]` the
-    agreeing (light, shadow) photons; `neighbours[e]` the (n_rep, k) photon ids found (-1 for none).
+    Points are looked up through representatives: point i uses look-up `rep[i]`, made at point `first[rep[i]]`,
+    of the `n_rep` made. `case[i, e]` is a CASE_*; the candidate list of (i, e) is `tris[lo:hi]` with
+    (lo, hi) = `range(i, e)`; `neighbours[e]` the (n_rep, k) photon ids found (-1 for none).
     """
 
     case: np.ndarray
-    counts: np.ndarray
     rep: np.ndarray
-    n_rep: int
+    first: np.ndarray
     offsets: np.ndarray
     tris: np.ndarray
-    freq: np.ndarray
     neighbours: list
+
+    @property
+    def n_rep(self):
+        return len(self.first)
 
     def range(self, i, e):
         pair = np.asarray(e, np.int64) * self.n_rep + self.rep[i]
@@ -104,16 +105,13 @@ class OcclusionMap:
         m = len(pos)
         p = self.photons
         case = np.empty((m, self.n_emitters), np.int8)
-        counts = np.empty((m, self.n_emitters, 2), np.int32)
-        offs, tris, freqs, nbrs = [np.zeros(1, np.int64)], [], [], []
+        offs, tris, nbrs = [np.zeros(1, np.int64)], [], []
         for e in range(self.n_emitters):
             nbr = self.neighbours(pos, e)
-            c, cnt, o, t, f = classify_points(nbr, nrm, p.normal, p.n_blockers, p.start, p.ray_tris, *self.groups,
+            c, o, t = classify_points(nbr, nrm, p.normal, p.n_blockers, p.start, p.ray_tris, *self.groups,
                                               NORMAL_COS, MIN_PHOTONS, MAX_HITS, with_lists)
-            case[:, e], counts[:, e] = c, cnt
+            case[:, e] = c
             offs.append(o[1:] + offs[-1][-1])
             tris.append(t)
-            freqs.append(f)
             nbrs.append(nbr)
-        return Lookup(case[rep], counts[rep], rep, m, np.concatenate(offs), np.concatenate(tris),
-                      np.concatenate(freqs), nbrs)
+        return Lookup(case[rep], rep, first, np.concatenate(offs), np.concatenate(tris), nbrs)

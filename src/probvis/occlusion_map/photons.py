@@ -12,11 +12,13 @@ import numpy as np
 from numba import njit, prange
 
 from ..accel import all_hits
+from ..geometry import unit_normal
 from ..lights import sample_on_emitter
 from ..rng import make_key, uniform
 
 MAX_HITS = 16
 PHOTON_STREAM = 0x5048  # rng stream of photon rays, apart from the camera's
+ADAPTIVE_STREAM = 0x5049  # rng stream of the emitter points of adaptive photon rays
 BATCH = 1 << 18  # photon rays per all-hits batch (bounds the (rays, MAX_HITS) scratch arrays)
 
 
@@ -59,36 +61,34 @@ class Photons:
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def emit_rays(emitter, offsets, etris, tri_cdf, triangles, seed, first):
-    """Photon rays numbered `first ..` (for the rng) from the given emitters: point uniform by area,
-    direction cosine-distributed about the emitting triangle's normal (its front side)."""
+def points_on_emitters(emitter, offsets, etris, tri_cdf, triangles, seed, stream, first):
+    """Points uniform by area on the given emitters (point i from rng key (seed, stream, first + i)), each
+    nudged off its triangle along the front normal; returns points, unit front normals and the keys."""
     n = emitter.shape[0]
     org = np.empty((n, 3))
-    dirs = np.empty((n, 3))
+    nrm = np.empty((n, 3))
+    keys = np.empty(n, np.uint64)
     for i in prange(n):
-        key = make_key(seed, PHOTON_STREAM, first + i)
-        e = emitter[i]
-        t, x, y, z = sample_on_emitter(e, offsets, etris, tri_cdf, triangles, uniform(key, 1), uniform(key, 2),
-                                       uniform(key, 3))
-        nx, ny, nz = _unit_normal(triangles, t)
-        dx, dy, dz = cosine_direction(nx, ny, nz, uniform(key, 4), uniform(key, 5))
+        key = make_key(seed, stream, first + i)
+        t, x, y, z = sample_on_emitter(emitter[i], offsets, etris, tri_cdf, triangles, uniform(key, 1),
+                                       uniform(key, 2), uniform(key, 3))
+        nx, ny, nz = unit_normal(triangles, t)
         eps = 1e-9 * (1.0 + max(abs(x), abs(y), abs(z)))
         org[i, 0], org[i, 1], org[i, 2] = x + eps * nx, y + eps * ny, z + eps * nz
-        dirs[i, 0], dirs[i, 1], dirs[i, 2] = dx, dy, dz
-    return org, dirs
+        nrm[i, 0], nrm[i, 1], nrm[i, 2] = nx, ny, nz
+        keys[i] = key
+    return org, nrm, keys
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _unit_normal(triangles, t):
-    ax = triangles[t, 1, 0] - triangles[t, 0, 0]
-    ay = triangles[t, 1, 1] - triangles[t, 0, 1]
-    az = triangles[t, 1, 2] - triangles[t, 0, 2]
-    bx = triangles[t, 2, 0] - triangles[t, 0, 0]
-    by = triangles[t, 2, 1] - triangles[t, 0, 1]
-    bz = triangles[t, 2, 2] - triangles[t, 0, 2]
-    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
-    return nx * inv, ny * inv, nz * inv
+@njit(cache=True, parallel=True, error_model="numpy")
+def cosine_directions(nrm, keys):
+    """Per point a direction cosine-distributed about its normal (rng dimensions 4 and 5 of its key)."""
+    n = nrm.shape[0]
+    dirs = np.empty((n, 3))
+    for i in prange(n):
+        dirs[i, 0], dirs[i, 1], dirs[i, 2] = cosine_direction(nrm[i, 0], nrm[i, 1], nrm[i, 2], uniform(keys[i], 4),
+                                                              uniform(keys[i], 5))
+    return dirs
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -126,7 +126,7 @@ def _photon_records(triangles, org, dirs, emitter, count, tri, dist):
             t = tri[i, h]
             for c in range(3):
                 pos[k, c] = org[i, c] + dist[i, h] * dirs[i, c]
-            nx, ny, nz = _unit_normal(triangles, t)
+            nx, ny, nz = unit_normal(triangles, t)
             if nx * dirs[i, 0] + ny * dirs[i, 1] + nz * dirs[i, 2] > 0.0:
                 nx, ny, nz = -nx, -ny, -nz
             nrm[k, 0], nrm[k, 1], nrm[k, 2] = nx, ny, nz
@@ -164,5 +164,6 @@ def split_by_power(n, pmf):
 def shoot_photons(scene, bvh, emitters, n, seed):
     """`n` photon rays from the emitters, split by power."""
     emitter = np.repeat(np.arange(scene.n_emitters, dtype=np.int32), split_by_power(n, emitters.emitter_pmf))
-    org, dirs = emit_rays(emitter, emitters.offsets, emitters.tris, emitters.tri_cdf, scene.triangles, seed, 0)
-    return trace_photons(scene, bvh, org, dirs, emitter)
+    org, nrm, keys = points_on_emitters(emitter, emitters.offsets, emitters.tris, emitters.tri_cdf,
+                                        scene.triangles, seed, PHOTON_STREAM, 0)
+    return trace_photons(scene, bvh, org, cosine_directions(nrm, keys), emitter)

@@ -10,6 +10,7 @@ from numba import njit, prange
 from ..accel import any_hit
 from ..accel.traversal import hit_triangle, ray_setup
 from ..errors import ProbvisError
+from ..geometry import face_normals
 from ..occlusion_map import (OcclusionMap, closed_orientation, components, refine, shoot_photons,
                              blocker_groups)
 from .base import CASE_PENUMBRA, CASE_UNKNOWN, VisibilityEstimator, VisibilityResult
@@ -19,21 +20,6 @@ PHOTONS_PER_CAMERA_SAMPLE = 0.5  # default photon budget: half a photon ray per 
 MIN_PHOTONS_DEFAULT = 100_000  # ... but at least this many
 ADAPTIVE_SHARE = 0.5  # adaptive rounds may add up to this share of the first pass's photons
 GROUP_COMPONENTS = 64  # a recorded blocker brings its whole connected component if that is this small
-
-
-@njit(cache=True, error_model="numpy")
-def face_normals(triangles):
-    n = triangles.shape[0]
-    out = np.empty((n, 3))
-    for t in range(n):
-        ax, ay, az = (triangles[t, 1, 0] - triangles[t, 0, 0], triangles[t, 1, 1] - triangles[t, 0, 1],
-                      triangles[t, 1, 2] - triangles[t, 0, 2])
-        bx, by, bz = (triangles[t, 2, 0] - triangles[t, 0, 0], triangles[t, 2, 1] - triangles[t, 0, 1],
-                      triangles[t, 2, 2] - triangles[t, 0, 2])
-        nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-        inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
-        out[t, 0], out[t, 1], out[t, 2] = nx * inv, ny * inv, nz * inv
-    return out
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -167,6 +153,7 @@ class OcclusionMapVisibility(VisibilityEstimator):
         g = self.fnormal[np.maximum(tri, 0)]
         g = np.where((np.einsum("ij,ij->i", g, points.normal) < 0)[:, None], -g, g)
         g[~shaded] = 0.0
+        self.normals = g  # geometric normals on the shading normal's side, zero where not shaded
         with_lists = self.penumbra == "list"
         self.lookup = self.map.lookup(points.position, g, with_lists=with_lists)
         lk, st = self.lookup, self._stats

@@ -9,8 +9,10 @@ import time
 import numpy as np
 
 from ...errors import ProbvisError
+from ...occlusion_map.map import NORMAL_COS
 from ..occlusion_map import OcclusionMapVisibility
 from . import adaptive as adaptive_choice
+from .decomposition import MODE_EXACT
 from .kernels import GROUP_COUNT, GROUP_RANDOM, GROUP_SOLID_ANGLE, configuration_counts, evaluate_segments, group_lists
 from .power import power as power_decomposition
 from .shifted import shifted as shifted_decomposition
@@ -79,8 +81,7 @@ class ProbvisVisibility(OcclusionMapVisibility):
         case = super().classify(points)
         t0 = time.perf_counter()
         lk = self.lookup
-        rep_pos = points.position[self._rep_first(lk)]
-        tris, bounds, balance = group_lists(self.scene.triangles, rep_pos, lk.offsets, lk.tris, lk.n_rep,
+        tris, bounds, balance = group_lists(self.scene.triangles, points.position[lk.first], lk.offsets, lk.tris, lk.n_rep,
                                             GROUPINGS[self.grouping], self.levels, self.cells, self.scene.seed)
         self.grouped, self.bounds = tris, bounds
         n_pairs = len(bounds)
@@ -91,26 +92,17 @@ class ProbvisVisibility(OcclusionMapVisibility):
             self.coef = np.repeat(d.coefficients()[None], n_pairs, axis=0)
             self.mode = np.repeat(d.mode[None], n_pairs, axis=0)
         else:
-            self._choose_adaptive(points, lk, tris, bounds)
+            self._choose_adaptive(lk, tris, bounds)
         used = balance.sum(axis=1) > 0
         self._balance += balance[used].sum(axis=0)
         self._stats["group_balance"] = {"solid_angle_share_A": self._balance[0] / max(self._balance.sum(), 1e-300)}
         self._stats["grouping_seconds"] += time.perf_counter() - t0
         return case
 
-    def _rep_first(self, lk):
-        first = np.empty(lk.n_rep, np.int64)
-        first[lk.rep[::-1]] = np.arange(len(lk.rep))[::-1]
-        return first
-
-    def _choose_adaptive(self, points, lk, tris, bounds):
-        from ...occlusion_map.map import NORMAL_COS
-
+    def _choose_adaptive(self, lk, tris, bounds):
         n_rep = lk.n_rep
         counts = np.zeros((len(bounds), 4))
-        g = self.fnormal[np.maximum(points.triangle, 0)]
-        g = np.where((np.einsum("ij,ij->i", g, points.normal) < 0)[:, None], -g, g)
-        nrm = g[self._rep_first(lk)]
+        nrm = self.normals[lk.first]
         ph = self.map.photons
         for e in range(self.scene.n_emitters):
             sl = slice(e * n_rep, (e + 1) * n_rep)
@@ -133,7 +125,7 @@ class ProbvisVisibility(OcclusionMapVisibility):
             self.coef, self.mode)
         st = self._stats
         st["culled_candidates"] += int(n_cull.sum())
-        exact = self.mode[pair, 0] == 4
+        exact = self.mode[pair, 0] == MODE_EXACT
         sel = np.bincount(term[~exact & (term >= 0)], minlength=3)
         for k in range(3):
             st["term_selections"][k] += int(sel[k])

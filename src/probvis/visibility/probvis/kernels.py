@@ -99,7 +99,7 @@ def group_lists(triangles, pos, offsets, tris, n_rep, method, levels, cells, see
                     b += 1
                 _split(order, weight, leaf, a, b, method, key, level)
                 a = b
-            if level == 0 and levels >= 1:
+            if level == 0:
                 for e in range(n):
                     balance[q, leaf[e] % 2] += weight[e]
         # stable sort by leaf keeps the frequency order inside each leaf
