@@ -85,6 +85,8 @@ def test_occlusion_map_options_and_case_image(tmp_path, capsys):
     assert s["estimator"]["list_length"]["max"] >= 2
     capsys.readouterr()
     for argv, message in ((["--photons", "5"], "does not apply to --visibility exact"),
-                          (["--case-image", str(tmp_path / "c.png")], "--case-image needs")):
+                          (["--case-image", str(tmp_path / "c.png")], "--case-image needs"),
+                          (["--visibility", "occlusion-map", "--estimator", "shifted"],
+                           "--estimator applies to --visibility probvis only")):
         assert main(["render", "quad-shadow", "-o", str(out)] + argv) == 2
         assert message in capsys.readouterr().err

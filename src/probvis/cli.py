@@ -54,8 +54,8 @@ def _triple(text):
     return v
 
 
-VISIBILITY_OPTIONS = ("photons", "neighbours", "radius", "penumbra", "adaptive", "volumetric", "estimator",
-                      "probabilities", "shifts", "power", "grouping", "levels", "cells")
+PROBVIS_OPTIONS = ("estimator", "probabilities", "shifts", "power", "grouping", "levels", "cells")
+VISIBILITY_OPTIONS = ("photons", "neighbours", "radius", "penumbra", "adaptive", "volumetric") + PROBVIS_OPTIONS
 
 
 _positive = _int_at_least(1)
@@ -134,6 +134,9 @@ def _cmd_render(args):
     options = {k: getattr(args, k) for k in VISIBILITY_OPTIONS if getattr(args, k) is not None}
     if options and args.visibility == "exact":
         raise ProbvisError(f"--{next(iter(options)).replace('_', '-')} does not apply to --visibility exact")
+    probvis_only = [k for k in options if k in PROBVIS_OPTIONS]
+    if probvis_only and args.visibility != "probvis":
+        raise ProbvisError(f"--{probvis_only[0]} applies to --visibility probvis only")
     if args.case_image and args.visibility == "exact":
         raise ProbvisError("--case-image needs a visibility that classifies points (e.g. occlusion-map)")
     result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed,
