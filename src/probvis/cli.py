@@ -1,6 +1,7 @@
-"""Command line: `probvis render | info | scenes`."""
+"""Command line: `probvis render | info | scenes | tables | experiment`."""
 import argparse
 import json
+import shlex
 import sys
 import warnings
 from pathlib import Path
@@ -119,6 +120,17 @@ def _parser():
     t.add_argument("--probabilities", type=_triple, metavar="P1,P2,P3", help="term probabilities (default 1/3)")
     t.add_argument("--shifts", type=_triple, metavar="A,B,G", help="shifts of the shifted decomposition")
     t.add_argument("--power", type=_positive, default=8, help="exponent of the power decomposition (default 8)")
+
+    e = sub.add_parser("experiment", help="run a study (TOML) on Dask and write a browsable report",
+                       description="Render every cell (scene x method x shadow rays x seed) of a study, caching "
+                                   "each on disk so an interrupted study resumes, and write a report folder.")
+    e.add_argument("file", nargs="?", help="experiment TOML file (e.g. experiments/paper.toml)")
+    e.add_argument("--quick", action="store_true", help="the built-in quick preset instead of a file")
+    e.add_argument("-o", "--output", metavar="DIR", help="report folder (default: experiment-NAME)")
+    e.add_argument("--cache", metavar="DIR", help="render cache folder (default: DIR/cache)")
+    e.add_argument("--workers", type=_positive, default=1, help="LocalCluster worker processes (default 1)")
+    e.add_argument("--scheduler", metavar="ADDRESS", help="use the Dask scheduler at ADDRESS (tcp://host:port)")
+    e.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     return p
 
 
@@ -242,16 +254,39 @@ def _cmd_tables(args):
     return 0
 
 
+def _cmd_experiment(args):
+    from .experiments import experiment, load_experiment, quick_experiment
+
+    if args.quick == bool(args.file):
+        raise ProbvisError("give an experiment file or --quick (not both)")
+    if args.scheduler and args.workers != 1:
+        raise ProbvisError("--workers applies to the embedded LocalCluster, not to --scheduler")
+    exp = quick_experiment() if args.quick else load_experiment(args.file)
+    out = Path(args.output or f"experiment-{exp.name}")
+    command = "probvis " + shlex.join(args.argv)
+    try:
+        results, index, run = experiment(exp, out, args.cache, args.workers, args.scheduler, not args.quiet,
+                                         command)
+    except KeyboardInterrupt:
+        print(f"probvis: interrupted; finished renders are kept in {args.cache or out / 'cache'}, "
+              f"run the same command to resume", file=sys.stderr)
+        return 130
+    print(f"{run.computed} renders computed, {run.cells_cached} of {len(run.tasks)} cells from the cache; "
+          f"report: {index}")
+    return 0
+
+
 def _warning_line(message, category, filename, lineno, file=None, line=None):
     print(f"probvis: warning: {message}", file=sys.stderr)
 
 
 def main(argv=None):
     args = _parser().parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     warnings.showwarning = _warning_line
     try:
         return {"render": _cmd_render, "info": _cmd_info, "scenes": _cmd_scenes,
-                "tables": _cmd_tables}[args.command](args)
+                "tables": _cmd_tables, "experiment": _cmd_experiment}[args.command](args)
     except ProbvisError as exc:
         print(f"probvis: error: {exc}", file=sys.stderr)
         return 2

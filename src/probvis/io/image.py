@@ -71,8 +71,8 @@ def write_exr(path, image, channels=None):
             f.write(tmp)
 
 
-def read_exr(path):
-    """Read an RGB EXR as (h, w, 3) float32."""
+def read_exr(path, channel=None):
+    """Read an RGB EXR as (h, w, 3) float32, or one named `channel` as (h, w)."""
     import OpenEXR
 
     path = Path(path)
@@ -81,6 +81,10 @@ def read_exr(path):
     try:
         with OpenEXR.File(str(path)) as f:
             ch = f.channels()
+            if channel is not None:
+                if channel not in ch:
+                    raise ProbvisError(f"{path}: no channel {channel} (found {', '.join(ch)})")
+                return np.array(ch[channel].pixels, dtype=np.float32)
             if "RGB" in ch:
                 return np.array(ch["RGB"].pixels, dtype=np.float32)
             if all(c in ch for c in "RGB"):

@@ -78,6 +78,21 @@ class Scene:
         out.validate_settings()
         return out
 
+    def content_hash(self):
+        """SHA-256 of what the image depends on apart from spp, shadow rays and seed: geometry, materials,
+        emitters and camera (including the resolution). Used to cache renders across runs."""
+        import hashlib
+
+        h = hashlib.sha256()
+        for a in (self.triangles, self.vertex_normals, self.tri_material, self.tri_emitter, self.reflectance,
+                  self.twosided, self.emitter_radiance, self.camera.to_world):
+            a = np.ascontiguousarray(a)
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            h.update(a.tobytes())
+        c = self.camera
+        h.update(repr((float(c.fov_x), int(c.width), int(c.height), float(c.near_clip), float(c.far_clip))).encode())
+        return h.hexdigest()
+
     def validate_settings(self):
         c = self.camera
         for what, val, hi in (("width", c.width, 1 << 15), ("height", c.height, 1 << 15),

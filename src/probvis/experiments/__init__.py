@@ -1,0 +1,24 @@
+"""`probvis experiment`: a study of scenes x methods x shadow-ray counts x seeds, run on Dask, cached on disk,
+reported as a browsable folder (see `config`, `runner`, `results`, `report`)."""
+from .config import Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment
+from .report import write_report
+from .results import measure
+from .runner import run_experiment
+
+
+def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, command="", log=None):
+    """Run `exp` (an `Experiment` or a TOML path), cache its renders and write the report to folder `out`.
+
+    Returns (results, path of index.html, run summary)."""
+    from pathlib import Path
+
+    if not isinstance(exp, Experiment):
+        exp = load_experiment(exp)
+    out = Path(out)
+    run = run_experiment(exp, Path(cache) if cache else out / "cache", workers, scheduler, progress, log)
+    results = measure(exp, run)
+    return results, write_report(exp, run, results, out, command), run
+
+
+__all__ = ["Experiment", "MethodSpec", "SceneSpec", "experiment", "load_experiment", "measure", "parse_experiment",
+           "quick_experiment", "run_experiment", "write_report"]

@@ -1,0 +1,209 @@
+"""Experiment definitions: a TOML file of scenes x methods x shadow-ray counts x seeds, validated up front.
+
+Every key is checked against the schema below, so a typo is an error naming the key, never a silent default.
+Paths inside the file are relative to the file.
+"""
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+from ..errors import ProbvisError
+from ..scene import BUILTINS
+from ..visibility import make_estimator
+
+TOP_KEYS = {"name", "description", "spp", "shadow_rays", "seeds", "resolution", "target_relmse", "table_shadow_rays",
+            "reference", "scenes", "methods"}
+REFERENCE_KEYS = {"spp", "shadow_rays", "seed", "visibility"}
+SCENE_KEYS = {"name", "source", "defines", "reference"}
+METHOD_KEYS = {"name", "visibility", "options", "baseline"}
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A scene of the study: `source` is a built-in name or an XML path; `reference` an optional image file."""
+
+    name: str
+    source: str
+    defines: dict = field(default_factory=dict)
+    reference: str | None = None
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """A visibility estimator with its options, under a short label."""
+
+    name: str
+    visibility: str
+    options: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ReferenceSettings:
+    spp: int = 64
+    shadow_rays: int = 64
+    seed: int = 1_000_003
+    visibility: str = "exact"
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    description: str
+    scenes: tuple
+    methods: tuple
+    shadow_rays: tuple
+    spp: int
+    seeds: tuple
+    reference: ReferenceSettings
+    baseline: str
+    resolution: tuple | None = None
+    target_relmse: float | None = None
+    table_shadow_rays: int | None = None
+    source: str = ""
+
+    def method(self, name):
+        return next(m for m in self.methods if m.name == name)
+
+
+def _fail(where, message):
+    raise ProbvisError(f"{where}: {message}")
+
+
+def _check_keys(where, table, allowed):
+    if not isinstance(table, dict):
+        _fail(where, "expected a table")
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        _fail(where, f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))} "
+                     f"(allowed: {', '.join(sorted(allowed))})")
+
+
+def _int(where, value, lowest=1):
+    if isinstance(value, bool) or not isinstance(value, int) or value < lowest:
+        _fail(where, f"expected a whole number >= {lowest}, got {value!r}")
+    return value
+
+
+def _int_list(where, value, lowest=1, distinct=True):
+    if not isinstance(value, list) or not value:
+        _fail(where, f"expected a non-empty list of whole numbers, got {value!r}")
+    items = [_int(f"{where}[{i}]", v, lowest) for i, v in enumerate(value)]
+    if distinct and len(set(items)) != len(items):
+        _fail(where, f"repeated values in {value!r}")
+    return tuple(items)
+
+
+def _str(where, value):
+    if not isinstance(value, str) or not value.strip():
+        _fail(where, f"expected a non-empty string, got {value!r}")
+    return value
+
+
+def _scene(where, table, base):
+    _check_keys(where, table, SCENE_KEYS)
+    for key in ("name", "source"):
+        if key not in table:
+            _fail(where, f"missing key '{key}'")
+    name, source = _str(f"{where}.name", table["name"]), _str(f"{where}.source", table["source"])
+    if source not in BUILTINS:
+        path = (base / source).resolve()
+        if not path.is_file():
+            _fail(f"{where}.source", f"'{source}' is neither a built-in scene ({', '.join(BUILTINS)}) nor a file "
+                                     f"(looked for {path})")
+        source = str(path)
+    defines = table.get("defines", {})
+    _check_keys(f"{where}.defines", defines, set(defines))
+    reference = table.get("reference")
+    if reference is not None:
+        ref = (base / _str(f"{where}.reference", reference)).resolve()
+        if not ref.is_file():
+            _fail(f"{where}.reference", f"image not found: {ref}")
+        reference = str(ref)
+    return SceneSpec(name, source, {k: str(v) for k, v in defines.items()}, reference)
+
+
+def _method(where, table):
+    _check_keys(where, table, METHOD_KEYS)
+    for key in ("name", "visibility"):
+        if key not in table:
+            _fail(where, f"missing key '{key}'")
+    name, vis = _str(f"{where}.name", table["name"]), _str(f"{where}.visibility", table["visibility"])
+    options = table.get("options", {})
+    _check_keys(f"{where}.options", options, set(options))
+    options = {k: tuple(v) if isinstance(v, list) else v for k, v in options.items()}
+    try:
+        make_estimator(vis, **options)
+    except ProbvisError as exc:
+        _fail(f"method '{name}'", str(exc))
+    return MethodSpec(name, vis, options)
+
+
+def parse_experiment(data, base=Path("."), source=""):
+    """Validate a parsed TOML document into an `Experiment`; `base` resolves relative paths."""
+    where = source or "experiment"
+    _check_keys(where, data, TOP_KEYS)
+    scenes = data.get("scenes")
+    methods = data.get("methods")
+    if not isinstance(scenes, list) or not scenes:
+        _fail(where, "needs at least one [[scenes]] entry")
+    if not isinstance(methods, list) or not methods:
+        _fail(where, "needs at least one [[methods]] entry")
+    scene_specs = tuple(_scene(f"scenes[{i}]", s, base) for i, s in enumerate(scenes))
+    method_specs = tuple(_method(f"methods[{i}]", m) for i, m in enumerate(methods))
+    for kind, specs in (("scene", scene_specs), ("method", method_specs)):
+        names = [s.name for s in specs]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            _fail(where, f"repeated {kind} name{'s' if len(dup) > 1 else ''} {', '.join(map(repr, dup))}")
+    baselines = [m["name"] for m in methods if m.get("baseline", False)]
+    if len(baselines) > 1:
+        _fail(where, f"only one method can be the baseline, got {', '.join(baselines)}")
+    ref = data.get("reference", {})
+    _check_keys(f"{where}.reference", ref, REFERENCE_KEYS)
+    reference = ReferenceSettings(
+        spp=_int("reference.spp", ref.get("spp", ReferenceSettings.spp)),
+        shadow_rays=_int("reference.shadow_rays", ref.get("shadow_rays", ReferenceSettings.shadow_rays)),
+        seed=_int("reference.seed", ref.get("seed", ReferenceSettings.seed), 0),
+        visibility=_str("reference.visibility", ref.get("visibility", "exact")))
+    make_estimator(reference.visibility)
+    resolution = data.get("resolution")
+    if resolution is not None:
+        resolution = _int_list("resolution", resolution, distinct=False)
+        if len(resolution) == 1:
+            resolution = resolution * 2
+        if len(resolution) != 2:
+            _fail("resolution", "expected [width, height]")
+    shadow_rays = _int_list("shadow_rays", data.get("shadow_rays", [1, 4, 16, 64, 256]))
+    target = data.get("target_relmse")
+    if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float)) or not target > 0):
+        _fail("target_relmse", f"expected a positive number, got {target!r}")
+    table_rays = data.get("table_shadow_rays")
+    if table_rays is not None and _int("table_shadow_rays", table_rays) not in shadow_rays:
+        _fail("table_shadow_rays", f"{table_rays} is not one of shadow_rays {list(shadow_rays)}")
+    return Experiment(
+        name=_str("name", data.get("name", Path(source).stem or "experiment")),
+        description=str(data.get("description", "")),
+        scenes=scene_specs, methods=method_specs, shadow_rays=tuple(sorted(shadow_rays)),
+        spp=_int("spp", data.get("spp", 4)), seeds=_int_list("seeds", data.get("seeds", [0]), 0),
+        reference=reference, baseline=baselines[0] if baselines else method_specs[0].name,
+        resolution=resolution, target_relmse=None if target is None else float(target),
+        table_shadow_rays=table_rays, source=source)
+
+
+def load_experiment(path):
+    """Read and validate an experiment TOML file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ProbvisError(f"experiment file not found: {path}")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ProbvisError(f"{path}: malformed TOML: {exc}") from None
+    return parse_experiment(data, path.resolve().parent, str(path))
+
+
+def quick_experiment():
+    """The `--quick` preset: built-in scenes, every method, small images; minutes on 2 cores."""
+    text = resources.files(__package__).joinpath("quick.toml").read_text()
+    return parse_experiment(tomllib.loads(text), Path("."), "quick.toml")

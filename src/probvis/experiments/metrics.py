@@ -1,0 +1,49 @@
+"""Error and efficiency measures of a study.
+
+relMSE follows ../shared/README.md (and the benchmarks): mean over pixels and channels of
+(x - ref)^2 / (ref^2 + 0.01). Efficiency is the inverse of error x cost, with cost either seconds or tests.
+"""
+import math
+
+import numpy as np
+
+EPSILON = 0.01
+
+
+def relmse(image, reference):
+    d = np.asarray(image, dtype=np.float64) - reference
+    return float(np.mean(d * d / (np.asarray(reference, dtype=np.float64) ** 2 + EPSILON)))
+
+
+def rmse(image, reference):
+    return float(np.sqrt(np.mean((np.asarray(image, dtype=np.float64) - reference) ** 2)))
+
+
+def relative_error(image, reference):
+    """Per-pixel |x - ref| / (|ref| + 0.1), averaged over channels: the report's false-colour error map."""
+    return np.mean(np.abs(image - reference) / (np.abs(reference) + 0.1), axis=-1)
+
+
+def efficiency(error, cost):
+    """1 / (error x cost); infinite when either is zero, None when unknown."""
+    if error is None or cost is None:
+        return None
+    return math.inf if error * cost == 0 else 1.0 / (error * cost)
+
+
+def time_to_target(costs, errors, target):
+    """Cost at which the error reaches `target`, interpolated log-log between measured (cost, error) points.
+
+    The points are sorted by cost; the first crossing below `target` is used. Returns None when no point
+    reaches the target (no extrapolation), and the first cost when the cheapest point is already below it.
+    """
+    pts = sorted((c, e) for c, e in zip(costs, errors) if c is not None and e is not None and c > 0 and e > 0)
+    if not pts or target is None or target <= 0:
+        return None
+    if pts[0][1] <= target:
+        return pts[0][0]
+    for (c0, e0), (c1, e1) in zip(pts, pts[1:]):
+        if e1 <= target < e0:
+            t = (math.log(target) - math.log(e0)) / (math.log(e1) - math.log(e0))
+            return math.exp(math.log(c0) + t * (math.log(c1) - math.log(c0)))
+    return None

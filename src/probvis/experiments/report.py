@@ -1,0 +1,294 @@
+"""The study's report: a self-contained folder with `index.html`, images, plots, `results.csv` and `results.json`.
+
+The page uses no network resource: images are PNG files beside it, the interactive comparison's float images
+are float16 data in `data/*.js` files loaded by plain script tags (so the page also works from file://), and
+the viewer's script and style are copied from the package.
+"""
+import base64
+import csv
+import html
+import io
+import json
+import math
+import shutil
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ProbvisError
+from ..io.image import atomic_path, write_png
+
+STATIC = ("viewer.js", "report.css")
+
+
+def _slug(text):
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in text)
+
+
+def _write_text(path, text):
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text)
+
+
+def _fmt(x, digits=3):
+    if x is None:
+        return "–"
+    if isinstance(x, float) and math.isinf(x):
+        return "∞"
+    if isinstance(x, int) or (isinstance(x, float) and x.is_integer() and abs(x) >= 1000):
+        return f"{int(x):,}"
+    return f"{x:.{digits}g}"
+
+
+def _pct(x):
+    return "" if x is None else f" ({x:+.1%})".replace("-", "−")
+
+
+def _table_rays(exp):
+    if exp.table_shadow_rays is not None:
+        return exp.table_shadow_rays
+    return 16 if 16 in exp.shadow_rays else exp.shadow_rays[-1]
+
+
+class Report:
+    """Writes the report of one measured study into `folder`."""
+
+    def __init__(self, exp, run, results, folder, command=""):
+        self.exp, self.run, self.results, self.command = exp, run, results, command
+        self.folder = Path(folder)
+        self.seed = exp.seeds[0]
+        self.images = {(t.scene, t.method.name, t.shadow_rays): run.renders[t.key] for t in run.tasks
+                       if t.seed == self.seed}
+
+    def write(self):
+        for sub in ("images", "plots", "data"):
+            (self.folder / sub).mkdir(parents=True, exist_ok=True)
+        for name in STATIC:
+            with atomic_path(self.folder / name) as tmp:
+                shutil.copyfile(resources.files(__package__).joinpath(name), tmp)
+        for spec in self.exp.scenes:
+            self._scene_images(spec.name)
+            self._viewer_data(spec.name)
+            self._heat_maps(spec.name)
+            self._convergence_plot(spec.name)
+        self._csv()
+        self._json()
+        _write_text(self.folder / "index.html", self._html())
+        return self.folder / "index.html"
+
+    # --- files -------------------------------------------------------------------------------------------
+    def _image_path(self, scene, method=None, rays=None):
+        name = "reference" if method is None else f"{_slug(method)}-{rays}"
+        return f"images/{_slug(scene)}/{name}.png"
+
+    def _scene_images(self, scene):
+        (self.folder / "images" / _slug(scene)).mkdir(exist_ok=True)
+        write_png(self.folder / self._image_path(scene), self.run.reference_images[scene])
+        for (s, m, rays), r in self.images.items():
+            if s == scene:
+                write_png(self.folder / self._image_path(scene, m, rays), r.image)
+
+    def _viewer_data(self, scene):
+        ref = self.run.reference_images[scene]
+        h, w = ref.shape[:2]
+
+        def enc(img):
+            return base64.b64encode(np.asarray(img, dtype="<f2").tobytes()).decode()
+
+        images = {"reference": enc(ref)}
+        for (s, m, rays), r in self.images.items():
+            if s == scene:
+                images[f"{m}@{rays}"] = enc(r.image)
+        payload = {"width": w, "height": h, "methods": [m.name for m in self.exp.methods],
+                   "shadowRays": list(self.exp.shadow_rays), "images": images}
+        _write_text(self.folder / "data" / f"{_slug(scene)}.js",
+                    f"window.PROBVIS_DATA = window.PROBVIS_DATA || {{}};\n"
+                    f"window.PROBVIS_DATA[{json.dumps(scene)}] = {json.dumps(payload)};\n")
+
+    def _savefig(self, fig, path):
+        import matplotlib.pyplot as plt
+
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=110)
+        plt.close(fig)
+        with atomic_path(path) as tmp:
+            Path(tmp).write_bytes(buf.getvalue())
+
+    def _heat_maps(self, scene):
+        """Per-pixel ray-triangle tests of every method at each shadow-ray count, one shared log colour scale."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        from matplotlib.colors import LogNorm
+
+        methods, rays = self.exp.methods, self.exp.shadow_rays
+        for sr in rays:
+            maps = [self.images[(scene, m.name, sr)].tests for m in methods]
+            hi = max(1.0, max(float(t.max()) for t in maps))
+            fig, axes = plt.subplots(1, len(methods), figsize=(2.2 * len(methods) + 0.8, 2.6), squeeze=False)
+            for ax, m, t in zip(axes[0], methods, maps):
+                im = ax.imshow(np.maximum(t, 1.0), norm=LogNorm(1.0, hi), cmap="inferno")
+                ax.set_title(f"{m.name}\nmean {t.mean():,.0f}", fontsize=8)
+                ax.axis("off")
+            fig.colorbar(im, ax=axes[0].tolist(), shrink=0.8, label="ray–triangle tests / pixel")
+            fig.suptitle(f"{scene}: {sr} shadow ray{'s' if sr > 1 else ''} per camera sample", fontsize=9)
+            self._savefig(fig, self.folder / "plots" / f"{_slug(scene)}-tests-{sr}.png")
+
+    def _convergence_plot(self, scene):
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+        for m in self.exp.methods:
+            rows = sorted((r for r in self.results.summary if r["scene"] == scene and r["method"] == m.name),
+                          key=lambda r: r["shadow_rays"])
+            for ax, key in zip(axes, ("seconds", "triangle_tests")):
+                ax.loglog([r[key] for r in rows], [r["relmse"] for r in rows], marker="o", ms=3, label=m.name)
+        target = self.results.targets[scene]["target_relmse"]
+        for ax, label in zip(axes, ("render seconds (JIT excluded)", "shadow-ray triangle tests")):
+            ax.axhline(target, color="grey", lw=0.8, ls="--")
+            ax.set_xlabel(label)
+            ax.set_ylabel("relMSE")
+            ax.grid(True, which="both", lw=0.3)
+        axes[1].legend(fontsize=7)
+        fig.suptitle(f"{scene}: relMSE against cost, {', '.join(map(str, self.exp.shadow_rays))} shadow rays",
+                     fontsize=9)
+        fig.tight_layout()
+        self._savefig(fig, self.folder / "plots" / f"{_slug(scene)}-convergence.png")
+
+    def _csv(self):
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=list(self.results.cells[0]) if self.results.cells else [])
+        w.writeheader()
+        for r in self.results.cells:
+            w.writerow({k: json.dumps(v) if isinstance(v, dict) else v for k, v in r.items()})
+        _write_text(self.folder / "results.csv", buf.getvalue())
+
+    def _json(self):
+        exp = self.exp
+        doc = {"experiment": {"name": exp.name, "description": exp.description, "spp": exp.spp,
+                              "shadow_rays": list(exp.shadow_rays), "seeds": list(exp.seeds),
+                              "baseline": exp.baseline, "resolution": exp.resolution,
+                              "reference": vars(exp.reference), "command": self.command,
+                              "scenes": [vars(s) for s in exp.scenes],
+                              "methods": [vars(m) for m in exp.methods]},
+               "cells": self.results.cells, "summary": self.results.summary, "targets": self.results.targets}
+        _write_text(self.folder / "results.json",
+                    json.dumps(doc, indent=1, default=lambda o: None if isinstance(o, float) and math.isinf(o)
+                               else list(o)))
+
+    # --- page --------------------------------------------------------------------------------------------
+    def _reference_note(self, scene):
+        spec = next(s for s in self.exp.scenes if s.name == scene)
+        if spec.reference is not None:
+            return f"file {html.escape(Path(spec.reference).name)}"
+        st, r = self.run.reference_stats[scene], self.exp.reference
+        sec = st["seconds"]["total"] - st["seconds"]["compile"]
+        return f"{html.escape(r.visibility)}, {r.spp} spp × {r.shadow_rays} rays, {sec:.1f} s"
+
+    def _seed_table(self):
+        exp, rays = self.exp, _table_rays(self.exp)
+        others = [m for m in exp.methods if m.name != exp.baseline]
+        e = html.escape
+        head = (f"<tr><th rowspan=2>scene</th><th rowspan=2>reference</th><th colspan=2>{e(exp.baseline)} "
+                f"(baseline)</th>" + "".join(f"<th colspan=2>{e(m.name)}</th>" for m in others) + "</tr><tr>"
+                + "<th>seconds</th><th>tests</th>" * (1 + len(others)) + "</tr>")
+        body = []
+        for spec in exp.scenes:
+            s = spec.name
+            b = self.results.summary_row(s, exp.baseline, rays)
+            cells = [f"<td>{e(s)}</td><td><img class=thumb src='{self._image_path(s)}' alt='reference'>"
+                     f"<br><small>{self._reference_note(s)}</small></td>",
+                     f"<td>{b['seconds']:.2f}</td><td>{_fmt(b['triangle_tests'])}</td>"]
+            for m in others:
+                r = self.results.summary_row(s, m.name, rays)
+                cells.append(f"<td>{r['seconds']:.2f}{_pct(r['seconds_change'])}</td>"
+                             f"<td>{_fmt(r['triangle_tests'])}{_pct(r['tests_change'])}</td>")
+            body.append("<tr>" + "".join(cells) + "</tr>")
+        return (f"<table class=seed id=seed-table><caption>At {exp.spp} spp × {rays} shadow rays: render seconds "
+                f"(JIT excluded) and shadow-ray triangle tests, change against the baseline in brackets.</caption>"
+                f"<thead>{head}</thead><tbody>{''.join(body)}</tbody></table>")
+
+    def _detail_table(self, scene):
+        e = html.escape
+        rows = []
+        for sr in self.exp.shadow_rays:
+            for m in self.exp.methods:
+                r = self.results.summary_row(scene, m.name, sr)
+                rows.append(
+                    f"<tr{' class=base' if r['baseline'] else ''}><td>{sr}</td><td>{e(m.name)}</td>"
+                    f"<td>{r['seconds']:.3f}</td><td>{_pct(r['seconds_change']).strip(' ()')}</td>"
+                    f"<td>{_fmt(r['triangle_tests'])}</td><td>{_pct(r['tests_change']).strip(' ()')}</td>"
+                    f"<td>{_fmt(r['relmse'])}</td><td>{_fmt(r['rmse'])}</td><td>{r['negative_pixel_share']:.1%}</td>"
+                    f"<td>{_fmt(r['efficiency_time'])}</td><td>{_fmt(r['efficiency_vs_baseline'])}</td>"
+                    f"<td>{_fmt(r['efficiency_tests'])}</td></tr>")
+        head = ("<tr><th>rays</th><th>method</th><th>seconds</th><th>Δ</th><th>tests</th><th>Δ</th><th>relMSE</th>"
+                "<th>RMSE</th><th>neg. px</th><th>1/(relMSE·s)</th><th>× base</th><th>1/(relMSE·tests)</th></tr>")
+        return f"<table class=detail><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
+
+    def _target_table(self, scene):
+        t = self.results.targets[scene]
+        rows = "".join(f"<tr><td>{html.escape(m)}</td><td>{_fmt(v['seconds'])}</td><td>{_fmt(v['triangle_tests'])}"
+                       f"</td></tr>" for m, v in t["methods"].items())
+        return (f"<table class=detail><caption>Cost to reach relMSE {t['target_relmse']:.3g} (log–log interpolation "
+                f"between shadow-ray counts; – = not reached)</caption><thead><tr><th>method</th><th>seconds</th>"
+                f"<th>tests</th></tr></thead><tbody>{rows}</tbody></table>")
+
+    def _strip(self, scene):
+        e = html.escape
+        head = "<tr><th></th>" + "".join(f"<th>{sr}</th>" for sr in self.exp.shadow_rays) + "</tr>"
+        rows = [f"<tr><th>reference</th><td colspan={len(self.exp.shadow_rays)}><img class=strip "
+                f"src='{self._image_path(scene)}' alt='reference'></td></tr>"]
+        for m in self.exp.methods:
+            rows.append(f"<tr><th>{e(m.name)}</th>" + "".join(
+                f"<td><img class=strip src='{self._image_path(scene, m.name, sr)}' alt='{e(m.name)} {sr}'></td>"
+                for sr in self.exp.shadow_rays) + "</tr>")
+        return f"<table class=strip><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
+
+    def _viewer(self, scene):
+        return (f"<div class=viewer data-scene='{html.escape(scene)}'></div>"
+                f"<script src='data/{_slug(scene)}.js'></script>")
+
+    def _html(self):
+        exp, e = self.exp, html.escape
+        sections = []
+        for spec in exp.scenes:
+            s, slug = spec.name, _slug(spec.name)
+            heat = "".join(f"<img class=plot src='plots/{slug}-tests-{sr}.png' alt='tests {sr}'>"
+                           for sr in exp.shadow_rays)
+            sections.append(
+                f"<section id='scene-{slug}'><h2>{e(s)}</h2>"
+                f"<h3>Interactive comparison</h3>{self._viewer(s)}"
+                f"<h3>Image strips (seed {self.seed}; columns: shadow rays per camera sample)</h3>{self._strip(s)}"
+                f"<h3>All settings</h3>{self._detail_table(s)}{self._target_table(s)}"
+                f"<h3>Convergence</h3><img class=plot src='plots/{slug}-convergence.png' alt='convergence'>"
+                f"<h3>Ray–triangle tests per pixel</h3><details><summary>heat maps</summary>{heat}</details>"
+                f"</section>")
+        methods = "".join(f"<li><b>{e(m.name)}</b>: {e(m.visibility)} {e(json.dumps(m.options, default=list))}"
+                          f"{' (baseline)' if m.name == exp.baseline else ''}</li>" for m in exp.methods)
+        return f"""<!doctype html>
+<html lang=en><head><meta charset=utf-8><title>probvis experiment: {e(exp.name)}</title>
+<link rel=stylesheet href=report.css></head><body>
+<h1>probvis experiment: {e(exp.name)}</h1>
+<p>{e(exp.description)}</p>
+<p>{exp.spp} camera samples per pixel; shadow rays per camera sample {', '.join(map(str, exp.shadow_rays))};
+seeds {', '.join(map(str, exp.seeds))}. relMSE = mean of (x − ref)² / (ref² + 0.01); tests are ray–triangle tests of
+shadow rays; seconds exclude JIT compilation. Command: <code>{e(self.command)}</code>.
+Data: <a href=results.csv>results.csv</a>, <a href=results.json>results.json</a>.</p>
+<ul>{methods}</ul>
+<h2>Results</h2>{self._seed_table()}
+{''.join(sections)}
+<script src=viewer.js></script></body></html>
+"""
+
+
+def write_report(exp, run, results, folder, command=""):
+    """Write the report; on failure (a full disk, say) say so — the renders stay in the cache."""
+    try:
+        return Report(exp, run, results, folder, command).write()
+    except OSError as exc:
+        raise ProbvisError(f"cannot write the report to '{folder}': {exc.strerror or exc}") from None

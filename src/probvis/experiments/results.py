@@ -1,0 +1,114 @@
+"""Per-cell metrics, their per-setting summary over seeds, and per-method time to a target error."""
+import json
+import statistics
+from dataclasses import dataclass
+
+from . import metrics
+
+CSV_COLUMNS = ("scene", "method", "visibility", "options", "baseline", "shadow_rays", "spp", "seed", "seconds",
+               "seconds_phases", "camera_rays", "shadow_rays_traced", "triangle_tests", "node_tests",
+               "triangle_tests_total", "node_tests_total", "relmse", "rmse", "negative_pixel_share",
+               "negative_estimate_share", "efficiency_time", "efficiency_tests", "seconds_change", "tests_change",
+               "efficiency_vs_baseline")
+
+
+@dataclass
+class Results:
+    """`cells`: one row per render; `summary`: rows per (scene, method, shadow rays) over seeds;
+    `targets`: per scene the target relMSE and each method's interpolated time and tests to reach it."""
+
+    cells: list
+    summary: list
+    targets: dict
+
+    def summary_row(self, scene, method, shadow_rays):
+        return next((r for r in self.summary if (r["scene"], r["method"], r["shadow_rays"]) ==
+                     (scene, method, shadow_rays)), None)
+
+
+def phases(stats):
+    """Seconds per phase of a render, JIT compile excluded: build, render and the estimator's own phases."""
+    out = {"load": stats["seconds"]["load"], "build": stats["seconds"]["build"],
+           "render": stats["seconds"]["render"]}
+    est = stats.get("estimator") or {}
+    for name, sec in (est.get("seconds") or {}).items():
+        out[name] = sec
+    if "grouping_seconds" in est:
+        out["grouping"] = est["grouping_seconds"]
+    return out
+
+
+def cell_row(task, render, reference, baseline_name):
+    s = render.stats
+    err = metrics.relmse(render.image, reference)
+    seconds = s["seconds"]["total"] - s["seconds"]["compile"]
+    tests = s["intersection_tests"]["shadow"]["triangle"]
+    return {
+        "scene": task.scene, "method": task.method.name, "visibility": task.method.visibility,
+        "options": json.dumps(task.method.options, sort_keys=True, default=list),
+        "baseline": task.method.name == baseline_name, "shadow_rays": task.shadow_rays, "spp": task.spp,
+        "seed": task.seed, "seconds": seconds, "seconds_phases": phases(s), "camera_rays": s["camera_rays"],
+        "shadow_rays_traced": s["shadow_rays"], "triangle_tests": tests,
+        "node_tests": s["intersection_tests"]["shadow"]["node"],
+        "triangle_tests_total": s["intersection_tests"]["triangle"], "node_tests_total": s["intersection_tests"]["node"],
+        "relmse": err, "rmse": metrics.rmse(render.image, reference),
+        "negative_pixel_share": s["negative_pixels"]["negative_pixel_share"],
+        "negative_estimate_share": s["negative_estimate_share"],
+        "efficiency_time": metrics.efficiency(err, seconds), "efficiency_tests": metrics.efficiency(err, tests),
+    }
+
+
+def _changes(rows, key_fields):
+    """Add seconds, tests and efficiency relative to the baseline row with the same `key_fields`."""
+    base = {tuple(r[k] for k in key_fields): r for r in rows if r["baseline"]}
+    for r in rows:
+        b = base.get(tuple(r[k] for k in key_fields))
+        r["seconds_change"] = r["seconds"] / b["seconds"] - 1 if b and b["seconds"] else None
+        r["tests_change"] = r["triangle_tests"] / b["triangle_tests"] - 1 if b and b["triangle_tests"] else None
+        r["efficiency_vs_baseline"] = (r["efficiency_time"] / b["efficiency_time"]
+                                       if b and b["efficiency_time"] else None)
+
+
+def _summarise(cells):
+    groups = {}
+    for r in cells:
+        groups.setdefault((r["scene"], r["method"], r["shadow_rays"]), []).append(r)
+    out = []
+    for rows in groups.values():
+        first = rows[0]
+        row = {k: first[k] for k in ("scene", "method", "visibility", "options", "baseline", "shadow_rays", "spp")}
+        row["seeds"] = len(rows)
+        row["seconds"] = statistics.median(r["seconds"] for r in rows)
+        for k in ("triangle_tests", "node_tests", "relmse", "rmse", "negative_pixel_share", "negative_estimate_share"):
+            row[k] = statistics.fmean(r[k] for r in rows)
+        row["efficiency_time"] = metrics.efficiency(row["relmse"], row["seconds"])
+        row["efficiency_tests"] = metrics.efficiency(row["relmse"], row["triangle_tests"])
+        out.append(row)
+    return out
+
+
+def _targets(exp, summary):
+    """Per scene: the target relMSE (the experiment's, else the smallest error every method reaches) and each
+    method's log-log interpolated seconds and tests to reach it."""
+    out = {}
+    for spec in exp.scenes:
+        curves = {m.name: sorted((r for r in summary if r["scene"] == spec.name and r["method"] == m.name),
+                                 key=lambda r: r["shadow_rays"]) for m in exp.methods}
+        target = exp.target_relmse
+        if target is None:
+            target = max(min(r["relmse"] for r in rows) for rows in curves.values())
+        out[spec.name] = {"target_relmse": target, "methods": {
+            name: {"seconds": metrics.time_to_target([r["seconds"] for r in rows], [r["relmse"] for r in rows], target),
+                   "triangle_tests": metrics.time_to_target([r["triangle_tests"] for r in rows],
+                                                            [r["relmse"] for r in rows], target)}
+            for name, rows in curves.items()}}
+    return out
+
+
+def measure(exp, run):
+    """Metrics of every cell of a finished run (a `runner.RunSummary`) against its scene's reference."""
+    cells = [cell_row(t, run.renders[t.key], run.reference_images[t.scene], exp.baseline) for t in run.tasks]
+    _changes(cells, ("scene", "shadow_rays", "seed"))
+    summary = _summarise(cells)
+    _changes(summary, ("scene", "shadow_rays"))
+    return Results(cells, summary, _targets(exp, summary))

@@ -1,0 +1,233 @@
+"""Run a study on Dask: one task per cell (scene x method x shadow rays x seed), cached on disk.
+
+Workers only render; the driver loads scenes, keys every render by a content hash (scene arrays + settings +
+probvis version), writes finished renders to the cache as they arrive (atomically, so an interrupted study
+loses nothing already computed) and measures errors. A cell's numbers depend only on its key, so a study gives
+the same results whichever worker runs which cell.
+"""
+import hashlib
+import json
+import logging
+import os
+import sys
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..errors import ProbvisError
+from ..io.image import atomic_path, read_exr, write_exr
+from ..scene import load_scene
+from .config import MethodSpec
+
+
+@dataclass(frozen=True)
+class Task:
+    """One render: a cell of the study or a scene's reference."""
+
+    scene: str
+    method: MethodSpec
+    spp: int
+    shadow_rays: int
+    seed: int
+    key: str
+    reference: bool = False
+
+
+@dataclass
+class Render:
+    """A finished render: its stats, linear RGB image and per-pixel ray-triangle tests (shadow + camera)."""
+
+    stats: dict
+    image: np.ndarray
+    tests: np.ndarray | None = None
+
+
+@dataclass
+class RunSummary:
+    """What a run produced: every cell's render (by task key) and every scene's reference."""
+
+    tasks: list
+    cells_cached: int = 0
+    references: int = 0
+    references_cached: int = 0
+    computed: int = 0
+    renders: dict = field(default_factory=dict)  # key -> Render
+    reference_images: dict = field(default_factory=dict)  # scene -> image
+    reference_stats: dict = field(default_factory=dict)  # scene -> stats (None for a reference file)
+
+
+def render_task(scene, visibility, options, spp, shadow_rays, seed, threads):
+    """Worker side: render one task and return what the driver stores."""
+    from ..integrator import render
+
+    r = render(scene, spp=spp, shadow_rays=shadow_rays, seed=seed, visibility=visibility,
+               visibility_options=dict(options), threads=threads)
+    return r.stats, r.image.astype(np.float32), r.aovs["triangle_tests"].astype(np.float32)
+
+
+def task_key(scene_hash, method, spp, shadow_rays, seed):
+    blob = json.dumps([__version__, scene_hash, method.visibility, sorted(method.options.items()), spp, shadow_rays,
+                       seed], default=list)
+    return hashlib.sha256(blob.encode()).hexdigest()[:24]
+
+
+class Cache:
+    """Renders on disk: `<key>.json` (stats, written last: its presence marks a finished render) beside
+    `<key>.exr` (image) and `<key>-tests.exr`."""
+
+    def __init__(self, folder):
+        self.folder = Path(folder)
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ProbvisError(f"cannot create cache folder '{self.folder}': {exc.strerror or exc}") from None
+
+    def _paths(self, key):
+        return self.folder / f"{key}.json", self.folder / f"{key}.exr", self.folder / f"{key}-tests.exr"
+
+    def has(self, key):
+        return all(p.is_file() for p in self._paths(key))
+
+    def load(self, key):
+        meta, img, tests = self._paths(key)
+        try:
+            stats = json.loads(meta.read_text())
+            tests_img = read_exr(tests, channel="Y")
+            return Render(stats, read_exr(img)[..., :3], tests_img)
+        except (OSError, ValueError, ProbvisError) as exc:
+            raise ProbvisError(f"cache entry {key} in '{self.folder}' is unreadable ({exc}); delete it to "
+                               f"recompute that render") from None
+
+    def store(self, key, render):
+        meta, img, tests = self._paths(key)
+        write_exr(img, render.image)
+        write_exr(tests, None, channels={"Y": render.tests})
+        with atomic_path(meta) as tmp:
+            Path(tmp).write_text(json.dumps(render.stats))
+
+
+def _open_client(workers, scheduler):
+    """A Dask client: to `scheduler` when given, else to an embedded LocalCluster of `workers` processes."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            return Client(scheduler, timeout="10s"), None
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise ProbvisError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+    with warnings.catch_warnings():  # "port 8787 in use": another cluster's status page; ours needs none
+        warnings.filterwarnings("ignore", message="Port .* is already in use")
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def _load_scenes(exp):
+    scenes = {}
+    for spec in exp.scenes:
+        try:
+            scene = load_scene(spec.source, **spec.defines)
+        except ProbvisError as exc:
+            raise ProbvisError(f"scene '{spec.name}': {exc}") from None
+        if exp.resolution is not None:
+            scene = scene.with_settings(width=exp.resolution[0], height=exp.resolution[1])
+        scenes[spec.name] = scene
+    return scenes
+
+
+def plan(exp, scenes):
+    """The study's tasks: (references, cells), each keyed by content hash."""
+    refs, cells = [], []
+    ref_method = MethodSpec("reference", exp.reference.visibility, {})
+    for spec in exp.scenes:
+        h = scenes[spec.name].content_hash()
+        if spec.reference is None:
+            r = exp.reference
+            refs.append(Task(spec.name, ref_method, r.spp, r.shadow_rays, r.seed,
+                             task_key(h, ref_method, r.spp, r.shadow_rays, r.seed), reference=True))
+        for m in exp.methods:
+            for sr in exp.shadow_rays:
+                for seed in exp.seeds:
+                    cells.append(Task(spec.name, m, exp.spp, sr, seed, task_key(h, m, exp.spp, sr, seed)))
+    return refs, cells
+
+
+def _reference_file(spec, scene):
+    img = read_exr(spec.reference)[..., :3].astype(np.float64)
+    want = (scene.camera.height, scene.camera.width)
+    if img.shape[:2] != want:
+        raise ProbvisError(f"scene '{spec.name}': reference {spec.reference} is {img.shape[1]}x{img.shape[0]}, "
+                           f"the scene renders {want[1]}x{want[0]}")
+    return img
+
+
+def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log=None):
+    """Render every reference and cell of `exp` not already in `cache_dir`; return a `RunSummary`."""
+    from tqdm import tqdm
+
+    log = log or (lambda msg: print(msg, file=sys.stderr))
+    if workers < 1:
+        raise ProbvisError(f"workers must be at least 1, got {workers}")
+    scenes = _load_scenes(exp)
+    cache = Cache(cache_dir)
+    refs, cells = plan(exp, scenes)
+    todo = [t for t in refs + cells if not cache.has(t.key)]
+    out = RunSummary(tasks=cells, computed=len(todo), cells_cached=sum(cache.has(t.key) for t in cells), references=len(refs),
+                     references_cached=sum(cache.has(t.key) for t in refs))
+    log(f"experiment '{exp.name}': {len(cells)} cells ({out.cells_cached} cached), {out.references} rendered "
+        f"references ({out.references_cached} cached), cache {cache.folder}")
+    if todo:
+        _compute(todo, scenes, cache, workers, scheduler, progress, log, tqdm)
+    for spec in exp.scenes:
+        if spec.reference is not None:
+            out.reference_images[spec.name] = _reference_file(spec, scenes[spec.name])
+            out.reference_stats[spec.name] = None
+    for t in refs:
+        r = cache.load(t.key)
+        out.reference_images[t.scene] = r.image.astype(np.float64)
+        out.reference_stats[t.scene] = r.stats
+    for t in cells:
+        out.renders[t.key] = cache.load(t.key)
+    return out
+
+
+def _compute(todo, scenes, cache, workers, scheduler, progress, log, tqdm):
+    from dask.distributed import as_completed
+
+    client, cluster = _open_client(workers, scheduler)
+    failures = []
+    try:
+        n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) or workers
+        threads = None if scheduler else max(1, (os.cpu_count() or 1) // workers)
+        log(f"computing {len(todo)} renders on {'scheduler ' + scheduler if scheduler else 'a LocalCluster'} "
+            f"with {n_workers} worker{'s' if n_workers > 1 else ''}"
+            + (f" x {threads} thread{'s' if threads > 1 else ''}" if threads else ""))
+        shared = {name: client.scatter(scene, broadcast=True) for name, scene in scenes.items()}
+        futures = {}
+        for t in todo:
+            f = client.submit(render_task, shared[t.scene], t.method.visibility, t.method.options, t.spp,
+                              t.shadow_rays, t.seed, threads, key=f"{'ref' if t.reference else 'cell'}-{t.key}",
+                              priority=1 if t.reference else 0, pure=False)
+            futures[f] = t
+        bar = tqdm(total=len(todo), desc="renders", unit="render", disable=not (progress and sys.stderr.isatty()))
+        try:
+            for f in as_completed(futures):
+                t = futures[f]
+                try:
+                    stats, image, tests = f.result()
+                except ProbvisError as exc:
+                    failures.append(f"{t.scene} / {t.method.name} / {t.shadow_rays} shadow rays: {exc}")
+                else:
+                    cache.store(t.key, Render(stats, image, tests))
+                bar.update(1)
+        finally:
+            bar.close()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    if failures:
+        raise ProbvisError(f"{len(failures)} render(s) failed (finished ones are cached): " + "; ".join(failures))

@@ -1,0 +1,88 @@
+"""Experiment files: the shipped ones parse; every mistake is one clear error naming what is wrong."""
+import pytest
+
+from probvis.errors import ProbvisError
+from probvis.experiments import load_experiment, parse_experiment, quick_experiment
+from tests.conftest import SHARED
+
+MINIMAL = {"scenes": [{"name": "q", "source": "quad-shadow"}], "methods": [{"name": "e", "visibility": "exact"}]}
+
+
+def doc(**changes):
+    d = {k: [dict(x) for x in v] for k, v in MINIMAL.items()}
+    d.update(changes)
+    return d
+
+
+def test_quick_preset_covers_every_estimator():
+    exp = quick_experiment()
+    assert exp.baseline == "om-list"
+    assert {m.options.get("estimator") for m in exp.methods if m.visibility == "probvis"} == {
+        "standard", "shifted", "power", "adaptive"}
+    assert exp.shadow_rays == (1, 4, 16, 64, 256)
+
+
+def test_paper_experiment_parses(shared):
+    from pathlib import Path
+
+    exp = load_experiment(Path(__file__).resolve().parents[2] / "experiments" / "paper.toml")
+    assert [s.name for s in exp.scenes] == ["city", "leaves", "cornell-bunny"]
+    assert all(s.reference and s.reference.endswith("-128.exr") for s in exp.scenes)
+
+
+def test_defaults_and_baseline():
+    exp = parse_experiment(doc(shadow_rays=[16, 1]))
+    assert exp.shadow_rays == (1, 16) and exp.baseline == "e" and exp.seeds == (0,)
+    assert exp.reference.visibility == "exact"
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"colour": 1}, "unknown key 'colour'"),
+    ({"scenes": [{"name": "q", "source": "quad-shadow", "defnes": {}}]}, "scenes[0]: unknown key 'defnes'"),
+    ({"scenes": [{"name": "q", "source": "no-such-scene"}]}, "neither a built-in scene"),
+    ({"scenes": [{"name": "q"}]}, "scenes[0]: missing key 'source'"),
+    ({"methods": [{"name": "m", "visibility": "magic"}]}, "unknown visibility 'magic'"),
+    ({"methods": [{"name": "m", "visibility": "probvis", "options": {"estimator": "nope"}}]}, "method 'm'"),
+    ({"methods": [{"name": "m", "visibility": "probvis", "options": {"colour": 3}}]}, "bad options"),
+    ({"methods": [{"name": "m", "visibility": "exact"}, {"name": "m", "visibility": "exact"}]},
+     "repeated method name 'm'"),
+    ({"methods": [{"name": "a", "visibility": "exact", "baseline": True},
+                  {"name": "b", "visibility": "exact", "baseline": True}]}, "only one method can be the baseline"),
+    ({"shadow_rays": [1, 0]}, "shadow_rays[1]: expected a whole number >= 1"),
+    ({"shadow_rays": []}, "shadow_rays: expected a non-empty list"),
+    ({"resolution": [16, 16, 16]}, "resolution: expected [width, height]"),
+    ({"reference": {"sp": 3}}, "reference: unknown key 'sp'"),
+    ({"target_relmse": -1}, "target_relmse: expected a positive number"),
+    ({"table_shadow_rays": 8}, "table_shadow_rays: 8 is not one of shadow_rays"),
+    ({"methods": []}, "at least one [[methods]]"),
+])
+def test_mistakes_are_named(change, message):
+    with pytest.raises(ProbvisError) as info:
+        parse_experiment(doc(**change))
+    assert message in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_files(tmp_path):
+    with pytest.raises(ProbvisError, match="experiment file not found"):
+        load_experiment(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = 'x'\n[[scenes]\n")
+    with pytest.raises(ProbvisError, match=r"bad.toml: malformed TOML: .*line 2"):
+        load_experiment(bad)
+    rel = tmp_path / "rel.toml"
+    rel.write_text("[[scenes]]\nname = 'a'\nsource = 'scene.xml'\n[[methods]]\nname = 'e'\nvisibility = 'exact'\n")
+    with pytest.raises(ProbvisError, match=r"looked for .*scene.xml"):
+        load_experiment(rel)
+
+
+def test_command_line_mistakes_exit_2_with_one_line(tmp_path, capsys):
+    from probvis.cli import main
+
+    assert main(["experiment"]) == 2
+    assert main(["experiment", str(tmp_path / "missing.toml")]) == 2
+    assert main(["experiment", "--quick", "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["probvis: error: give an experiment file or --quick (not both)",
+                   f"probvis: error: experiment file not found: {tmp_path / 'missing.toml'}",
+                   "probvis: error: --workers applies to the embedded LocalCluster, not to --scheduler"]

@@ -1,0 +1,29 @@
+"""Error and efficiency measures against closed forms."""
+import math
+
+import numpy as np
+import pytest
+
+from probvis.experiments import metrics
+
+
+def test_relmse_and_rmse_closed_form():
+    ref = np.full((2, 2, 3), 0.3)
+    img = ref + 0.1
+    assert metrics.relmse(img, ref) == pytest.approx(0.01 / (0.09 + 0.01))
+    assert metrics.rmse(img, ref) == pytest.approx(0.1)
+
+
+def test_efficiency():
+    assert metrics.efficiency(0.5, 4.0) == pytest.approx(0.5)
+    assert metrics.efficiency(0.0, 4.0) == math.inf
+    assert metrics.efficiency(None, 1.0) is None
+
+
+def test_time_to_target_is_exact_on_a_power_law():
+    costs = [1.0, 4.0, 16.0, 64.0]
+    errors = [0.3 / c for c in costs]  # error ~ 1/cost: a straight line in log-log
+    assert metrics.time_to_target(costs, errors, 0.3 / 10.0) == pytest.approx(10.0)
+    assert metrics.time_to_target(costs, errors, 1.0) == 1.0
+    assert metrics.time_to_target(costs, errors, 1e-4) is None
+    assert metrics.time_to_target(costs[::-1], errors[::-1], 0.3 / 32.0) == pytest.approx(32.0)

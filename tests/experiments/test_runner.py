@@ -1,0 +1,113 @@
+"""The runner on a tiny study: cached renders, resume, identical numbers on 1 or 2 workers, clear failures."""
+import errno
+import json
+import socket
+
+import numpy as np
+import pytest
+
+from probvis.errors import ProbvisError
+from probvis.experiments import experiment, parse_experiment
+from probvis.experiments import report as report_module
+from probvis.experiments.runner import Cache, _load_scenes, plan
+
+TINY = {
+    "name": "tiny", "spp": 2, "shadow_rays": [1, 4], "seeds": [3], "resolution": [12, 12],
+    "reference": {"spp": 4, "shadow_rays": 16},
+    "scenes": [{"name": "quad", "source": "quad-shadow"}],
+    "methods": [{"name": "exact", "visibility": "exact"},
+                {"name": "om-list", "visibility": "occlusion-map", "options": {"penumbra": "list", "photons": 4000},
+                 "baseline": True},
+                {"name": "shifted", "visibility": "probvis", "options": {"estimator": "shifted", "photons": 4000}}],
+}
+
+
+def numbers(results):
+    """Everything but times."""
+    keep = ("scene", "method", "shadow_rays", "seed", "shadow_rays_traced", "triangle_tests", "node_tests",
+            "relmse", "rmse", "negative_pixel_share", "tests_change")
+    return [{k: r[k] for k in keep} for r in results.cells]
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tiny")
+    results, index, run = experiment(parse_experiment(TINY), out, progress=False, log=lambda m: None)
+    return out, results, index, run
+
+
+def test_first_run_renders_everything_and_writes_the_report(tiny_run):
+    out, results, index, run = tiny_run
+    assert run.computed == 6 + 1 and run.cells_cached == 0
+    assert index == out / "index.html"
+    for name in ("results.csv", "results.json", "viewer.js", "report.css", "data/quad.js",
+                 "images/quad/reference.png", "images/quad/shifted-4.png", "plots/quad-convergence.png",
+                 "plots/quad-tests-1.png"):
+        assert (out / name).stat().st_size > 0, name
+    doc = json.loads((out / "results.json").read_text())
+    assert len(doc["cells"]) == 6 and doc["experiment"]["baseline"] == "om-list"
+    base = [r for r in results.cells if r["method"] == "om-list"]
+    assert all(r["tests_change"] == 0 for r in base)
+    shifted = {r["shadow_rays"]: r for r in results.cells if r["method"] == "shifted"}
+    assert shifted[4]["relmse"] < shifted[1]["relmse"]  # more shadow rays, less error
+    assert (out / "results.csv").read_text().count("\n") == 7
+
+
+def test_resume_recomputes_nothing_then_only_what_is_missing(tiny_run, tmp_path):
+    out, results, _, run = tiny_run
+    again, _, run2 = experiment(parse_experiment(TINY), out, progress=False, log=lambda m: None)
+    assert run2.computed == 0 and run2.cells_cached == 6
+    assert numbers(again) == numbers(results)
+    victim = next(t for t in run.tasks if t.method.name == "shifted" and t.shadow_rays == 4)
+    (out / "cache" / f"{victim.key}.json").unlink()
+    again, _, run3 = experiment(parse_experiment(TINY), out, progress=False, log=lambda m: None)
+    assert run3.computed == 1
+    assert numbers(again) == numbers(results)
+
+
+def test_two_workers_give_the_same_numbers(tiny_run, tmp_path):
+    _, results, _, _ = tiny_run
+    two, _, run = experiment(parse_experiment(TINY), tmp_path, workers=2, progress=False, log=lambda m: None)
+    assert run.computed == 7
+    assert numbers(two) == numbers(results)
+
+
+def test_keys_follow_scene_content_and_settings():
+    exp = parse_experiment(TINY)
+    refs, cells = plan(exp, _load_scenes(exp))
+    assert len({t.key for t in cells}) == len(cells) == 6
+    other = dict(TINY, resolution=[12, 10])
+    refs2, cells2 = plan(parse_experiment(other), _load_scenes(parse_experiment(other)))
+    assert refs[0].key != refs2[0].key and not {t.key for t in cells} & {t.key for t in cells2}
+
+
+def test_unreachable_scheduler_is_one_clear_error(tmp_path):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # closed again when the block ends: nothing listens there
+    with pytest.raises(ProbvisError, match=f"cannot reach the Dask scheduler at tcp://127.0.0.1:{port}"):
+        experiment(parse_experiment(TINY), tmp_path, scheduler=f"tcp://127.0.0.1:{port}", progress=False,
+                   log=lambda m: None)
+
+
+def test_full_disk_while_writing_the_report_keeps_the_renders(tiny_run, tmp_path, monkeypatch):
+    out, results, _, run = tiny_run
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(report_module.Report, "_csv", full)
+    with pytest.raises(ProbvisError, match="cannot write the report to .*No space left on device"):
+        experiment(parse_experiment(TINY), tmp_path / "report", cache=out / "cache", progress=False,
+                   log=lambda m: None)
+    cache = Cache(out / "cache")
+    assert all(cache.has(t.key) for t in run.tasks)
+
+
+def test_reference_file_of_the_wrong_size_is_named(tmp_path):
+    from probvis.io import write_exr
+
+    write_exr(tmp_path / "ref.exr", np.zeros((5, 5, 3)))
+    doc = dict(TINY, scenes=[{"name": "quad", "source": "quad-shadow", "reference": str(tmp_path / "ref.exr")}])
+    with pytest.raises(ProbvisError, match="reference .*ref.exr is 5x5, the scene renders 12x12"):
+        experiment(parse_experiment(doc), tmp_path / "r", progress=False, log=lambda m: None)
