@@ -111,3 +111,14 @@ def test_reference_file_of_the_wrong_size_is_named(tmp_path):
     doc = dict(TINY, scenes=[{"name": "quad", "source": "quad-shadow", "reference": str(tmp_path / "ref.exr")}])
     with pytest.raises(ProbvisError, match="reference .*ref.exr is 5x5, the scene renders 12x12"):
         experiment(parse_experiment(doc), tmp_path / "r", progress=False, log=lambda m: None)
+
+
+def test_an_existing_scheduler_gives_the_same_numbers(tiny_run, tmp_path):
+    from dask.distributed import LocalCluster
+
+    _, results, _, _ = tiny_run
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        other, _, run = experiment(parse_experiment(TINY), tmp_path, scheduler=cluster.scheduler_address,
+                                   progress=False, log=lambda m: None)
+    assert run.computed == 7
+    assert numbers(other) == numbers(results)

@@ -194,24 +194,29 @@ class Report:
         exp, rays = self.exp, _table_rays(self.exp)
         others = [m for m in exp.methods if m.name != exp.baseline]
         e = html.escape
-        head = (f"<tr><th rowspan=2>scene</th><th rowspan=2>reference</th><th colspan=2>{e(exp.baseline)} "
-                f"(baseline)</th>" + "".join(f"<th colspan=2>{e(m.name)}</th>" for m in others) + "</tr><tr>"
-                + "<th>seconds</th><th>tests</th>" * (1 + len(others)) + "</tr>")
+        head = (f"<tr><th rowspan=2>scene</th><th rowspan=2>reference</th><th colspan=4>{e(exp.baseline)} "
+                f"(baseline)</th>" + "".join(f"<th colspan=4>{e(m.name)}</th>" for m in others) + "</tr><tr>"
+                + "<th>seconds</th><th>tests</th><th>relMSE</th><th>effic.</th>" * (1 + len(others)) + "</tr>")
         body = []
         for spec in exp.scenes:
             s = spec.name
             b = self.results.summary_row(s, exp.baseline, rays)
             cells = [f"<td>{e(s)}</td><td><img class=thumb src='{self._image_path(s)}' alt='reference'>"
                      f"<br><small>{self._reference_note(s)}</small></td>",
-                     f"<td>{b['seconds']:.2f}</td><td>{_fmt(b['triangle_tests'])}</td>"]
+                     f"<td>{b['seconds']:.2f}</td><td>{_fmt(b['triangle_tests'])}</td><td>{_fmt(b['relmse'])}</td>"
+                     f"<td>{_fmt(b['efficiency_time'])}</td>"]
             for m in others:
                 r = self.results.summary_row(s, m.name, rays)
                 cells.append(f"<td>{r['seconds']:.2f}{_pct(r['seconds_change'])}</td>"
-                             f"<td>{_fmt(r['triangle_tests'])}{_pct(r['tests_change'])}</td>")
+                             f"<td>{_fmt(r['triangle_tests'])}{_pct(r['tests_change'])}</td>"
+                             f"<td>{_fmt(r['relmse'])}</td><td>{_fmt(r['efficiency_time'])} "
+                             f"(×{_fmt(r['efficiency_vs_baseline'], 2)})</td>")
             body.append("<tr>" + "".join(cells) + "</tr>")
-        return (f"<table class=seed id=seed-table><caption>At {exp.spp} spp × {rays} shadow rays: render seconds "
-                f"(JIT excluded) and shadow-ray triangle tests, change against the baseline in brackets.</caption>"
-                f"<thead>{head}</thead><tbody>{''.join(body)}</tbody></table>")
+        return (f"<div class=wide><table class=seed id=seed-table><caption>At {exp.spp} spp × {rays} shadow rays: render seconds "
+                f"(JIT excluded) and shadow-ray triangle tests with their change against the baseline, relMSE "
+                f"against the reference, and efficiency 1/(relMSE × seconds) with its ratio to the baseline's."
+                f"</caption>"
+                f"<thead>{head}</thead><tbody>{''.join(body)}</tbody></table></div>")
 
     def _detail_table(self, scene):
         e = html.escape
@@ -219,9 +224,10 @@ class Report:
         for sr in self.exp.shadow_rays:
             for m in self.exp.methods:
                 r = self.results.summary_row(scene, m.name, sr)
+                phases = ", ".join(f"{k} {v:.3f} s" for k, v in r["seconds_phases"].items())
                 rows.append(
                     f"<tr{' class=base' if r['baseline'] else ''}><td>{sr}</td><td>{e(m.name)}</td>"
-                    f"<td>{r['seconds']:.3f}</td><td>{_pct(r['seconds_change']).strip(' ()')}</td>"
+                    f"<td title='{e(phases)}'>{r['seconds']:.3f}</td><td>{_pct(r['seconds_change']).strip(' ()')}</td>"
                     f"<td>{_fmt(r['triangle_tests'])}</td><td>{_pct(r['tests_change']).strip(' ()')}</td>"
                     f"<td>{_fmt(r['relmse'])}</td><td>{_fmt(r['rmse'])}</td><td>{r['negative_pixel_share']:.1%}</td>"
                     f"<td>{_fmt(r['efficiency_time'])}</td><td>{_fmt(r['efficiency_vs_baseline'])}</td>"

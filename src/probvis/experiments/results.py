@@ -79,6 +79,8 @@ def _summarise(cells):
         row = {k: first[k] for k in ("scene", "method", "visibility", "options", "baseline", "shadow_rays", "spp")}
         row["seeds"] = len(rows)
         row["seconds"] = statistics.median(r["seconds"] for r in rows)
+        row["seconds_phases"] = {k: statistics.median(r["seconds_phases"].get(k, 0.0) for r in rows)
+                                 for k in first["seconds_phases"]}
         for k in ("triangle_tests", "node_tests", "relmse", "rmse", "negative_pixel_share", "negative_estimate_share"):
             row[k] = statistics.fmean(r[k] for r in rows)
         row["efficiency_time"] = metrics.efficiency(row["relmse"], row["seconds"])
