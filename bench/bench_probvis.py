@@ -4,8 +4,8 @@
 For ../shared/scenes city, leaves and cornell-bunny at 128x128, 16 spp: the occlusion map without probvis
 (candidate lists, `penumbra=list`) against probvis with each estimator on the same lists, at each shadow-ray
 count: render seconds (JIT excluded), ray-triangle tests and their change, relMSE against the reference, and
-efficiency = 1 / (relMSE x seconds), also relative to the baseline. relMSE is also given against the
-baseline's own converged image (`--converged-spp`), since list-mode bias is shared by all methods.
+efficiency = 1 / (relMSE x seconds), also relative to the baseline. The same study with image strips,
+plots and an interactive report: `probvis experiment experiments/paper.toml`.
 """
 import argparse
 import json

@@ -2,6 +2,7 @@
 import argparse
 import json
 import shlex
+import signal
 import sys
 import warnings
 from pathlib import Path
@@ -254,6 +255,10 @@ def _cmd_tables(args):
     return 0
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def _cmd_experiment(args):
     from .experiments import experiment, load_experiment, quick_experiment
 
@@ -264,6 +269,7 @@ def _cmd_experiment(args):
     exp = quick_experiment() if args.quick else load_experiment(args.file)
     out = Path(args.output or f"experiment-{exp.name}")
     command = "probvis " + shlex.join(args.argv)
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # a batch system's "stop": same as Ctrl-C
     try:
         results, index, run = experiment(exp, out, args.cache, args.workers, args.scheduler, not args.quiet,
                                          command)
@@ -271,6 +277,8 @@ def _cmd_experiment(args):
         print(f"probvis: interrupted; finished renders are kept in {args.cache or out / 'cache'}, "
               f"run the same command to resume", file=sys.stderr)
         return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     print(f"{run.computed} renders computed, {run.cells_cached} of {len(run.tasks)} cells from the cache; "
           f"report: {index}")
     return 0

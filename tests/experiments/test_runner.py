@@ -40,7 +40,7 @@ def test_first_run_renders_everything_and_writes_the_report(tiny_run):
     out, results, index, run = tiny_run
     assert run.computed == 6 + 1 and run.cells_cached == 0
     assert index == out / "index.html"
-    for name in ("results.csv", "results.json", "viewer.js", "report.css", "data/quad.js",
+    for name in ("results.csv", "results.json", "results.md", "viewer.js", "report.css", "data/quad.js",
                  "images/quad/reference.png", "images/quad/shifted-4.png", "plots/quad-convergence.png",
                  "plots/quad-tests-1.png"):
         assert (out / name).stat().st_size > 0, name
@@ -122,3 +122,34 @@ def test_an_existing_scheduler_gives_the_same_numbers(tiny_run, tmp_path):
                                    progress=False, log=lambda m: None)
     assert run.computed == 7
     assert numbers(other) == numbers(results)
+
+
+def test_sigterm_stops_the_study_keeping_finished_renders(tmp_path):
+    """A batch system's SIGTERM interrupts like Ctrl-C: one line, exit 130, finished renders cached."""
+    import subprocess
+    import sys
+    import time
+
+    study = tmp_path / "long.toml"
+    study.write_text('spp = 1\nshadow_rays = [1, 2, 3, 4, 5, 6, 7, 8]\nseeds = [0, 1, 2, 3]\nresolution = [24, 24]\n'
+                     '[reference]\nspp = 1\nshadow_rays = 1\n'
+                     '[[scenes]]\nname = "quad"\nsource = "quad-shadow"\n'
+                     '[[methods]]\nname = "exact"\nvisibility = "exact"\n')
+    proc = subprocess.Popen([sys.executable, "-m", "probvis.cli", "experiment", str(study), "-o", str(tmp_path / "r"),
+                             "-q"], stderr=subprocess.PIPE, text=True)
+    cache = tmp_path / "r" / "cache"
+    deadline = time.monotonic() + 120
+    while not list(cache.glob("*.json")) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    proc.terminate()
+    _, err = proc.communicate(timeout=60)
+    if proc.returncode == 0:
+        pytest.skip("the study finished before the signal arrived")
+    assert proc.returncode == 130, err
+    assert "interrupted; finished renders are kept in" in err and "Traceback" not in err
+    finished = len(list(cache.glob("*.json")))
+    assert finished >= 1 and not list(cache.glob(".*"))
+    again = subprocess.run([sys.executable, "-m", "probvis.cli", "experiment", str(study), "-o", str(tmp_path / "r"),
+                            "-q"], capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert f"{33 - finished} renders computed" in again.stdout

@@ -72,8 +72,10 @@ class Report:
             self._viewer_data(spec.name)
             self._heat_maps(spec.name)
             self._convergence_plot(spec.name)
+            self._strip_figure(spec.name)
         self._csv()
         self._json()
+        _write_text(self.folder / "results.md", self._markdown())
         _write_text(self.folder / "index.html", self._html())
         return self.folder / "index.html"
 
@@ -110,7 +112,7 @@ class Report:
         import matplotlib.pyplot as plt
 
         buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=110)
+        fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
         plt.close(fig)
         with atomic_path(path) as tmp:
             Path(tmp).write_bytes(buf.getvalue())
@@ -160,6 +162,35 @@ class Report:
         fig.tight_layout()
         self._savefig(fig, self.folder / "plots" / f"{_slug(scene)}-convergence.png")
 
+    def _strip_figure(self, scene):
+        """The image strips as one labelled PNG (methods x shadow rays, reference first), for papers and READMEs."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        from ..io.image import tonemap_srgb
+
+        rays, methods = self.exp.shadow_rays, self.exp.methods
+        fig, axes = plt.subplots(len(methods), len(rays) + 1, figsize=(1.3 * (len(rays) + 1), 1.3 * len(methods)),
+                                 squeeze=False, gridspec_kw={"wspace": 0.04, "hspace": 0.04})
+        for i, m in enumerate(methods):
+            for j in range(len(rays) + 1):
+                ax = axes[i][j]
+                ax.set_xticks([])
+                ax.set_yticks([])
+                if j == 0:
+                    ax.imshow(tonemap_srgb(self.run.reference_images[scene]) if i == 0 else
+                              np.ones((1, 1, 3)))
+                    ax.set_ylabel(m.name, fontsize=7)
+                    for side in ax.spines.values():
+                        side.set_visible(i == 0)
+                else:
+                    ax.imshow(tonemap_srgb(self.images[(scene, m.name, rays[j - 1])].image))
+                if i == 0:
+                    ax.set_title("reference" if j == 0 else f"{rays[j - 1]} rays", fontsize=7)
+        self._savefig(fig, self.folder / "plots" / f"{_slug(scene)}-strip.png")
+
     def _csv(self):
         buf = io.StringIO()
         w = csv.DictWriter(buf, fieldnames=list(self.results.cells[0]) if self.results.cells else [])
@@ -180,6 +211,22 @@ class Report:
         _write_text(self.folder / "results.json",
                     json.dumps(doc, indent=1, default=lambda o: None if isinstance(o, float) and math.isinf(o)
                                else list(o)))
+
+    def _markdown(self):
+        """The seed-style table as Markdown, per scene and method at the table's shadow-ray count."""
+        exp, rays = self.exp, _table_rays(self.exp)
+        lines = [f"At {exp.spp} spp × {rays} shadow rays per camera sample; seconds exclude JIT compilation, tests "
+                 f"are shadow-ray triangle tests, efficiency = 1/(relMSE × seconds); changes against "
+                 f"{exp.baseline}.", "",
+                 "| scene | method | seconds | tests | relMSE | efficiency (× baseline) |",
+                 "|---|---|---:|---:|---:|---:|"]
+        for spec in exp.scenes:
+            for m in exp.methods:
+                r = self.results.summary_row(spec.name, m.name, rays)
+                lines.append(f"| {spec.name} | {m.name} | {r['seconds']:.2f}{_pct(r['seconds_change'])} | "
+                             f"{_fmt(r['triangle_tests'])}{_pct(r['tests_change'])} | {_fmt(r['relmse'])} | "
+                             f"{_fmt(r['efficiency_time'])} (×{_fmt(r['efficiency_vs_baseline'], 2)}) |")
+        return "\n".join(lines) + "\n"
 
     # --- page --------------------------------------------------------------------------------------------
     def _reference_note(self, scene):
@@ -270,6 +317,7 @@ class Report:
                 f"<section id='scene-{slug}'><h2>{e(s)}</h2>"
                 f"<h3>Interactive comparison</h3>{self._viewer(s)}"
                 f"<h3>Image strips (seed {self.seed}; columns: shadow rays per camera sample)</h3>{self._strip(s)}"
+                f"<p>As one figure: <a href='plots/{slug}-strip.png'>plots/{slug}-strip.png</a></p>"
                 f"<h3>All settings</h3>{self._detail_table(s)}{self._target_table(s)}"
                 f"<h3>Convergence</h3><img class=plot src='plots/{slug}-convergence.png' alt='convergence'>"
                 f"<h3>Ray–triangle tests per pixel</h3><details><summary>heat maps</summary>{heat}</details>"
@@ -284,7 +332,8 @@ class Report:
 <p>{exp.spp} camera samples per pixel; shadow rays per camera sample {', '.join(map(str, exp.shadow_rays))};
 seeds {', '.join(map(str, exp.seeds))}. relMSE = mean of (x − ref)² / (ref² + 0.01); tests are ray–triangle tests of
 shadow rays; seconds exclude JIT compilation. Command: <code>{e(self.command)}</code>.
-Data: <a href=results.csv>results.csv</a>, <a href=results.json>results.json</a>.</p>
+Data: <a href=results.csv>results.csv</a>, <a href=results.json>results.json</a>,
+<a href=results.md>results.md</a>.</p>
 <ul>{methods}</ul>
 <h2>Results</h2>{self._seed_table()}
 {''.join(sections)}
