@@ -5,6 +5,7 @@ probvis version), writes finished renders to the cache as they arrive (atomicall
 loses nothing already computed) and measures errors. A cell's numbers depend only on its key, so a study gives
 the same results whichever worker runs which cell.
 """
+import functools
 import hashlib
 import json
 import logging
@@ -68,9 +69,20 @@ def render_task(scene, visibility, options, spp, shadow_rays, seed, threads):
     return r.stats, r.image.astype(np.float32), r.aovs["triangle_tests"].astype(np.float32)
 
 
+@functools.cache
+def code_fingerprint():
+    """SHA-256 over probvis's own Python sources: a render cached by another build of probvis is not reused."""
+    h = hashlib.sha256(__version__.encode())
+    root = Path(__file__).resolve().parents[1]
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
 def task_key(scene_hash, method, spp, shadow_rays, seed):
-    blob = json.dumps([__version__, scene_hash, method.visibility, sorted(method.options.items()), spp, shadow_rays,
-                       seed], default=list)
+    blob = json.dumps([code_fingerprint(), scene_hash, method.visibility, sorted(method.options.items()), spp,
+                       shadow_rays, seed], default=list)
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 

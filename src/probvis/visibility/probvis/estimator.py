@@ -117,17 +117,25 @@ class ProbvisVisibility(OcclusionMapVisibility):
             st[k] += int(c)
 
     def evaluate_penumbra(self, query, idx):
+        """Stochastic terms through the decomposition kernel; pairs whose mode is exact evaluation (adaptive)
+        through the occlusion map's own list test, whose photon-frequency order finds a blocker sooner."""
         lk = self.lookup
         pair = query.emitter[idx].astype(np.int64) * lk.n_rep + lk.rep[query.point[idx]]
-        value, n_tri, n_cull, term = evaluate_segments(
-            self.scene.triangles, self.orientation, self.fnormal, query.origin[idx], query.direction[idx],
-            query.tmax[idx], pair, query.key[idx], self.grouped, self.bounds, self.levels, self.cells, self.cdf,
-            self.coef, self.mode)
-        st = self._stats
-        st["culled_candidates"] += int(n_cull.sum())
         exact = self.mode[pair, 0] == MODE_EXACT
-        sel = np.bincount(term[~exact & (term >= 0)], minlength=3)
-        for k in range(3):
-            st["term_selections"][k] += int(sel[k])
-        st["exact_selections"] += int(exact.sum())
+        value = np.empty(len(idx))
+        n_tri = np.empty(len(idx), dtype=np.int64)
+        if exact.any():
+            value[exact], n_tri[exact] = super().evaluate_penumbra(query, idx[exact])
+        rest = ~exact
+        if rest.any():
+            sub, p = idx[rest], pair[rest]
+            value[rest], n_tri[rest], n_cull, term = evaluate_segments(
+                self.scene.triangles, self.orientation, self.fnormal, query.origin[sub], query.direction[sub],
+                query.tmax[sub], p, query.key[sub], self.grouped, self.bounds, self.levels, self.cells, self.cdf,
+                self.coef, self.mode)
+            self._stats["culled_candidates"] += int(n_cull.sum())
+            sel = np.bincount(term[term >= 0], minlength=3)
+            for k in range(3):
+                self._stats["term_selections"][k] += int(sel[k])
+        self._stats["exact_selections"] += int(exact.sum())
         return value, n_tri
