@@ -271,7 +271,7 @@ def _cmd_experiment(args):
     command = "probvis " + shlex.join(args.argv)
     previous = signal.signal(signal.SIGTERM, _interrupt)  # a batch system's "stop": same as Ctrl-C
     try:
-        results, index, run = experiment(exp, out, args.cache, args.workers, args.scheduler, not args.quiet,
+        _, index, run = experiment(exp, out, args.cache, args.workers, args.scheduler, not args.quiet,
                                          command)
     except KeyboardInterrupt:
         print(f"probvis: interrupted; finished renders are kept in {args.cache or out / 'cache'}, "

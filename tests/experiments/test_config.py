@@ -1,9 +1,10 @@
 """Experiment files: the shipped ones parse; every mistake is one clear error naming what is wrong."""
+import re
+
 import pytest
 
 from probvis.errors import ProbvisError
 from probvis.experiments import load_experiment, parse_experiment, quick_experiment
-from tests.conftest import SHARED
 
 MINIMAL = {"scenes": [{"name": "q", "source": "quad-shadow"}], "methods": [{"name": "e", "visibility": "exact"}]}
 
@@ -86,3 +87,18 @@ def test_command_line_mistakes_exit_2_with_one_line(tmp_path, capsys):
     assert err == ["probvis: error: give an experiment file or --quick (not both)",
                    f"probvis: error: experiment file not found: {tmp_path / 'missing.toml'}",
                    "probvis: error: --workers applies to the embedded LocalCluster, not to --scheduler"]
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"methods": [{"name": "e", "visibility": "exact", "baseline": "yes"}]}, "methods[0].baseline: expected true"),
+    ({"reference": {"visibility": "magic"}}, "reference.visibility: unknown visibility 'magic'"),
+    ({"scenes": [{"name": "q", "source": "quad-shadow", "defines": 3}]}, "scenes[0].defines: expected a table"),
+])
+def test_more_mistakes_are_named(change, message):
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        parse_experiment(doc(**change))
+
+
+def test_table_column_defaults_to_16_rays_or_the_most():
+    assert parse_experiment(doc(shadow_rays=[1, 16, 64])).table_shadow_rays == 16
+    assert parse_experiment(doc(shadow_rays=[1, 4])).table_shadow_rays == 4

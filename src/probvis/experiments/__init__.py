@@ -1,5 +1,7 @@
 """`probvis experiment`: a study of scenes x methods x shadow-ray counts x seeds, run on Dask, cached on disk,
 reported as a browsable folder (see `config`, `runner`, `results`, `report`)."""
+from pathlib import Path
+
 from .config import Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment
 from .report import write_report
 from .results import measure
@@ -10,8 +12,6 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     """Run `exp` (an `Experiment` or a TOML path), cache its renders and write the report to folder `out`.
 
     Returns (results, path of index.html, run summary)."""
-    from pathlib import Path
-
     if not isinstance(exp, Experiment):
         exp = load_experiment(exp)
     out = Path(out)

@@ -57,23 +57,23 @@ class Experiment:
     seeds: tuple
     reference: ReferenceSettings
     baseline: str
+    table_shadow_rays: int
     resolution: tuple | None = None
     target_relmse: float | None = None
-    table_shadow_rays: int | None = None
-    source: str = ""
-
-    def method(self, name):
-        return next(m for m in self.methods if m.name == name)
 
 
 def _fail(where, message):
     raise ProbvisError(f"{where}: {message}")
 
 
+def _table(where, value):
+    if not isinstance(value, dict):
+        _fail(where, f"expected a table, got {value!r}")
+    return value
+
+
 def _check_keys(where, table, allowed):
-    if not isinstance(table, dict):
-        _fail(where, "expected a table")
-    unknown = sorted(set(table) - allowed)
+    unknown = sorted(set(_table(where, table)) - allowed)
     if unknown:
         _fail(where, f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))} "
                      f"(allowed: {', '.join(sorted(allowed))})")
@@ -112,8 +112,7 @@ def _scene(where, table, base):
             _fail(f"{where}.source", f"'{source}' is neither a built-in scene ({', '.join(BUILTINS)}) nor a file "
                                      f"(looked for {path})")
         source = str(path)
-    defines = table.get("defines", {})
-    _check_keys(f"{where}.defines", defines, set(defines))
+    defines = _table(f"{where}.defines", table.get("defines", {}))
     reference = table.get("reference")
     if reference is not None:
         ref = (base / _str(f"{where}.reference", reference)).resolve()
@@ -129,9 +128,10 @@ def _method(where, table):
         if key not in table:
             _fail(where, f"missing key '{key}'")
     name, vis = _str(f"{where}.name", table["name"]), _str(f"{where}.visibility", table["visibility"])
-    options = table.get("options", {})
-    _check_keys(f"{where}.options", options, set(options))
-    options = {k: tuple(v) if isinstance(v, list) else v for k, v in options.items()}
+    options = {k: tuple(v) if isinstance(v, list) else v
+               for k, v in _table(f"{where}.options", table.get("options", {})).items()}
+    if not isinstance(table.get("baseline", False), bool):
+        _fail(f"{where}.baseline", f"expected true or false, got {table['baseline']!r}")
     try:
         make_estimator(vis, **options)
     except ProbvisError as exc:
@@ -166,7 +166,10 @@ def parse_experiment(data, base=Path("."), source=""):
         shadow_rays=_int("reference.shadow_rays", ref.get("shadow_rays", ReferenceSettings.shadow_rays)),
         seed=_int("reference.seed", ref.get("seed", ReferenceSettings.seed), 0),
         visibility=_str("reference.visibility", ref.get("visibility", "exact")))
-    make_estimator(reference.visibility)
+    try:
+        make_estimator(reference.visibility)
+    except ProbvisError as exc:
+        _fail("reference.visibility", str(exc))
     resolution = data.get("resolution")
     if resolution is not None:
         resolution = _int_list("resolution", resolution, distinct=False)
@@ -178,8 +181,8 @@ def parse_experiment(data, base=Path("."), source=""):
     target = data.get("target_relmse")
     if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float)) or not target > 0):
         _fail("target_relmse", f"expected a positive number, got {target!r}")
-    table_rays = data.get("table_shadow_rays")
-    if table_rays is not None and _int("table_shadow_rays", table_rays) not in shadow_rays:
+    table_rays = data.get("table_shadow_rays", 16 if 16 in shadow_rays else max(shadow_rays))
+    if _int("table_shadow_rays", table_rays) not in shadow_rays:
         _fail("table_shadow_rays", f"{table_rays} is not one of shadow_rays {list(shadow_rays)}")
     return Experiment(
         name=_str("name", data.get("name", Path(source).stem or "experiment")),
@@ -188,7 +191,7 @@ def parse_experiment(data, base=Path("."), source=""):
         spp=_int("spp", data.get("spp", 4)), seeds=_int_list("seeds", data.get("seeds", [0]), 0),
         reference=reference, baseline=baselines[0] if baselines else method_specs[0].name,
         resolution=resolution, target_relmse=None if target is None else float(target),
-        table_shadow_rays=table_rays, source=source)
+        table_shadow_rays=table_rays)
 
 
 def load_experiment(path):

@@ -19,11 +19,6 @@ def rmse(image, reference):
     return float(np.sqrt(np.mean((np.asarray(image, dtype=np.float64) - reference) ** 2)))
 
 
-def relative_error(image, reference):
-    """Per-pixel |x - ref| / (|ref| + 0.1), averaged over channels: the report's false-colour error map."""
-    return np.mean(np.abs(image - reference) / (np.abs(reference) + 0.1), axis=-1)
-
-
 def efficiency(error, cost):
     """1 / (error x cost); infinite when either is zero, None when unknown."""
     if error is None or cost is None:

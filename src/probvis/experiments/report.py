@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ProbvisError
-from ..io.image import atomic_path, write_png
+from ..io.image import atomic_path, tonemap_srgb, write_png
 
 STATIC = ("viewer.js", "report.css")
 
@@ -41,14 +41,35 @@ def _fmt(x, digits=3):
     return f"{x:.{digits}g}"
 
 
-def _pct(x):
-    return "" if x is None else f" ({x:+.1%})".replace("-", "−")
+def _change(x):
+    return "–" if x is None else f"{x:+.1%}".replace("-", "−")
 
 
-def _table_rays(exp):
-    if exp.table_shadow_rays is not None:
-        return exp.table_shadow_rays
-    return 16 if 16 in exp.shadow_rays else exp.shadow_rays[-1]
+def _finite(obj):
+    """`obj` with infinities (efficiency at zero error) replaced by None: JSON has no infinity."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return None if isinstance(obj, float) and math.isinf(obj) else obj
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _summary_cells(r, baseline):
+    """A summary row's seconds, tests, relMSE and efficiency as the seed-style table shows them."""
+    if baseline:
+        return f"{r['seconds']:.2f}", _fmt(r["triangle_tests"]), _fmt(r["relmse"]), _fmt(r["efficiency_time"])
+    return (f"{r['seconds']:.2f} ({_change(r['seconds_change'])})",
+            f"{_fmt(r['triangle_tests'])} ({_change(r['tests_change'])})", _fmt(r["relmse"]),
+            f"{_fmt(r['efficiency_time'])} (×{_fmt(r['efficiency_vs_baseline'], 2)})")
 
 
 class Report:
@@ -109,21 +130,17 @@ class Report:
                     f"window.PROBVIS_DATA[{json.dumps(scene)}] = {json.dumps(payload)};\n")
 
     def _savefig(self, fig, path):
-        import matplotlib.pyplot as plt
-
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-        plt.close(fig)
+        _pyplot().close(fig)
         with atomic_path(path) as tmp:
             Path(tmp).write_bytes(buf.getvalue())
 
     def _heat_maps(self, scene):
         """Per-pixel ray-triangle tests of every method at each shadow-ray count, one shared log colour scale."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
         from matplotlib.colors import LogNorm
+
+        plt = _pyplot()
 
         methods, rays = self.exp.methods, self.exp.shadow_rays
         for sr in rays:
@@ -139,12 +156,7 @@ class Report:
             self._savefig(fig, self.folder / "plots" / f"{_slug(scene)}-tests-{sr}.png")
 
     def _convergence_plot(self, scene):
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+        fig, axes = _pyplot().subplots(1, 2, figsize=(10, 3.8))
         for m in self.exp.methods:
             rows = sorted((r for r in self.results.summary if r["scene"] == scene and r["method"] == m.name),
                           key=lambda r: r["shadow_rays"])
@@ -164,15 +176,8 @@ class Report:
 
     def _strip_figure(self, scene):
         """The image strips as one labelled PNG (methods x shadow rays, reference first), for papers and READMEs."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        from ..io.image import tonemap_srgb
-
         rays, methods = self.exp.shadow_rays, self.exp.methods
-        fig, axes = plt.subplots(len(methods), len(rays) + 1, figsize=(1.3 * (len(rays) + 1), 1.3 * len(methods)),
+        fig, axes = _pyplot().subplots(len(methods), len(rays) + 1, figsize=(1.3 * (len(rays) + 1), 1.3 * len(methods)),
                                  squeeze=False, gridspec_kw={"wspace": 0.04, "hspace": 0.04})
         for i, m in enumerate(methods):
             for j in range(len(rays) + 1):
@@ -208,13 +213,11 @@ class Report:
                               "scenes": [vars(s) for s in exp.scenes],
                               "methods": [vars(m) for m in exp.methods]},
                "cells": self.results.cells, "summary": self.results.summary, "targets": self.results.targets}
-        _write_text(self.folder / "results.json",
-                    json.dumps(doc, indent=1, default=lambda o: None if isinstance(o, float) and math.isinf(o)
-                               else list(o)))
+        _write_text(self.folder / "results.json", json.dumps(_finite(doc), indent=1, allow_nan=False))
 
     def _markdown(self):
         """The seed-style table as Markdown, per scene and method at the table's shadow-ray count."""
-        exp, rays = self.exp, _table_rays(self.exp)
+        exp, rays = self.exp, self.exp.table_shadow_rays
         lines = [f"At {exp.spp} spp × {rays} shadow rays per camera sample; seconds exclude JIT compilation, tests "
                  f"are shadow-ray triangle tests, efficiency = 1/(relMSE × seconds); changes against "
                  f"{exp.baseline}.", "",
@@ -223,9 +226,8 @@ class Report:
         for spec in exp.scenes:
             for m in exp.methods:
                 r = self.results.summary_row(spec.name, m.name, rays)
-                lines.append(f"| {spec.name} | {m.name} | {r['seconds']:.2f}{_pct(r['seconds_change'])} | "
-                             f"{_fmt(r['triangle_tests'])}{_pct(r['tests_change'])} | {_fmt(r['relmse'])} | "
-                             f"{_fmt(r['efficiency_time'])} (×{_fmt(r['efficiency_vs_baseline'], 2)}) |")
+                cells = _summary_cells(r, m.name == exp.baseline)
+                lines.append(f"| {spec.name} | {m.name} | {' | '.join(cells)} |")
         return "\n".join(lines) + "\n"
 
     # --- page --------------------------------------------------------------------------------------------
@@ -238,7 +240,7 @@ class Report:
         return f"{html.escape(r.visibility)}, {r.spp} spp × {r.shadow_rays} rays, {sec:.1f} s"
 
     def _seed_table(self):
-        exp, rays = self.exp, _table_rays(self.exp)
+        exp, rays = self.exp, self.exp.table_shadow_rays
         others = [m for m in exp.methods if m.name != exp.baseline]
         e = html.escape
         head = (f"<tr><th rowspan=2>scene</th><th rowspan=2>reference</th><th colspan=4>{e(exp.baseline)} "
@@ -247,19 +249,14 @@ class Report:
         body = []
         for spec in exp.scenes:
             s = spec.name
-            b = self.results.summary_row(s, exp.baseline, rays)
-            cells = [f"<td>{e(s)}</td><td><img class=thumb src='{self._image_path(s)}' alt='reference'>"
-                     f"<br><small>{self._reference_note(s)}</small></td>",
-                     f"<td>{b['seconds']:.2f}</td><td>{_fmt(b['triangle_tests'])}</td><td>{_fmt(b['relmse'])}</td>"
-                     f"<td>{_fmt(b['efficiency_time'])}</td>"]
+            cells = [e(s), f"<img class=thumb src='{self._image_path(s)}' alt='reference'>"
+                           f"<br><small>{self._reference_note(s)}</small>"]
+            cells += _summary_cells(self.results.summary_row(s, exp.baseline, rays), True)
             for m in others:
-                r = self.results.summary_row(s, m.name, rays)
-                cells.append(f"<td>{r['seconds']:.2f}{_pct(r['seconds_change'])}</td>"
-                             f"<td>{_fmt(r['triangle_tests'])}{_pct(r['tests_change'])}</td>"
-                             f"<td>{_fmt(r['relmse'])}</td><td>{_fmt(r['efficiency_time'])} "
-                             f"(×{_fmt(r['efficiency_vs_baseline'], 2)})</td>")
-            body.append("<tr>" + "".join(cells) + "</tr>")
-        return (f"<div class=wide><table class=seed id=seed-table><caption>At {exp.spp} spp × {rays} shadow rays: render seconds "
+                cells += _summary_cells(self.results.summary_row(s, m.name, rays), False)
+            body.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+        return (f"<div class=wide><table class=seed id=seed-table><caption>At {exp.spp} spp × {rays} shadow rays: "
+                f"render seconds "
                 f"(JIT excluded) and shadow-ray triangle tests with their change against the baseline, relMSE "
                 f"against the reference, and efficiency 1/(relMSE × seconds) with its ratio to the baseline's."
                 f"</caption>"
@@ -274,8 +271,8 @@ class Report:
                 phases = ", ".join(f"{k} {v:.3f} s" for k, v in r["seconds_phases"].items())
                 rows.append(
                     f"<tr{' class=base' if r['baseline'] else ''}><td>{sr}</td><td>{e(m.name)}</td>"
-                    f"<td title='{e(phases)}'>{r['seconds']:.3f}</td><td>{_pct(r['seconds_change']).strip(' ()')}</td>"
-                    f"<td>{_fmt(r['triangle_tests'])}</td><td>{_pct(r['tests_change']).strip(' ()')}</td>"
+                    f"<td title='{e(phases)}'>{r['seconds']:.3f}</td><td>{_change(r['seconds_change'])}</td>"
+                    f"<td>{_fmt(r['triangle_tests'])}</td><td>{_change(r['tests_change'])}</td>"
                     f"<td>{_fmt(r['relmse'])}</td><td>{_fmt(r['rmse'])}</td><td>{r['negative_pixel_share']:.1%}</td>"
                     f"<td>{_fmt(r['efficiency_time'])}</td><td>{_fmt(r['efficiency_vs_baseline'])}</td>"
                     f"<td>{_fmt(r['efficiency_tests'])}</td></tr>")

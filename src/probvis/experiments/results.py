@@ -5,11 +5,8 @@ from dataclasses import dataclass
 
 from . import metrics
 
-CSV_COLUMNS = ("scene", "method", "visibility", "options", "baseline", "shadow_rays", "spp", "seed", "seconds",
-               "seconds_phases", "camera_rays", "shadow_rays_traced", "triangle_tests", "node_tests",
-               "triangle_tests_total", "node_tests_total", "relmse", "rmse", "negative_pixel_share",
-               "negative_estimate_share", "efficiency_time", "efficiency_tests", "seconds_change", "tests_change",
-               "efficiency_vs_baseline")
+SETUP_PHASES = ("photons", "adaptive", "map_build")  # estimator phases timed inside the render's "build"
+BATCH_PHASES = ("lookup", "grouping")  # estimator phases timed inside the render's "render"
 
 
 @dataclass
@@ -27,15 +24,16 @@ class Results:
 
 
 def phases(stats):
-    """Seconds per phase of a render, JIT compile excluded: build, render and the estimator's own phases."""
-    out = {"load": stats["seconds"]["load"], "build": stats["seconds"]["build"],
-           "render": stats["seconds"]["render"]}
+    """Seconds per phase of a render, splitting its time without JIT compile: scene load, BVH build, the
+    estimator's own phases (photons, map build, look-ups, grouping) and the rest of rendering."""
+    sec = stats["seconds"]
     est = stats.get("estimator") or {}
-    for name, sec in (est.get("seconds") or {}).items():
-        out[name] = sec
+    own = dict(est.get("seconds") or {})
     if "grouping_seconds" in est:
-        out["grouping"] = est["grouping_seconds"]
-    return out
+        own["grouping"] = est["grouping_seconds"]
+    setup = sum(own.get(k, 0.0) for k in SETUP_PHASES)
+    batch = sum(own.get(k, 0.0) for k in BATCH_PHASES)
+    return {"load": sec["load"], "bvh_build": sec["build"] - setup, **own, "render": sec["render"] - batch}
 
 
 def cell_row(task, render, reference, baseline_name):
@@ -50,7 +48,8 @@ def cell_row(task, render, reference, baseline_name):
         "seed": task.seed, "seconds": seconds, "seconds_phases": phases(s), "camera_rays": s["camera_rays"],
         "shadow_rays_traced": s["shadow_rays"], "triangle_tests": tests,
         "node_tests": s["intersection_tests"]["shadow"]["node"],
-        "triangle_tests_total": s["intersection_tests"]["triangle"], "node_tests_total": s["intersection_tests"]["node"],
+        "triangle_tests_total": s["intersection_tests"]["triangle"],
+        "node_tests_total": s["intersection_tests"]["node"],
         "relmse": err, "rmse": metrics.rmse(render.image, reference),
         "negative_pixel_share": s["negative_pixels"]["negative_pixel_share"],
         "negative_estimate_share": s["negative_estimate_share"],

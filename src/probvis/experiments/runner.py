@@ -1,9 +1,9 @@
 """Run a study on Dask: one task per cell (scene x method x shadow rays x seed), cached on disk.
 
-Workers only render; the driver loads scenes, keys every render by a content hash (scene arrays + settings +
-probvis version), writes finished renders to the cache as they arrive (atomically, so an interrupted study
-loses nothing already computed) and measures errors. A cell's numbers depend only on its key, so a study gives
-the same results whichever worker runs which cell.
+Workers only render; the driver loads scenes, keys every render by a content hash (scene arrays, settings,
+a fingerprint of probvis's sources), writes finished renders to the cache as they arrive (atomically, so an
+interrupted study loses nothing already computed) and measures errors. A cell's numbers depend only on its
+key, so a study gives the same results whichever worker runs which cell.
 """
 import functools
 import hashlib
@@ -43,7 +43,7 @@ class Render:
 
     stats: dict
     image: np.ndarray
-    tests: np.ndarray | None = None
+    tests: np.ndarray
 
 
 @dataclass
@@ -52,8 +52,6 @@ class RunSummary:
 
     tasks: list
     cells_cached: int = 0
-    references: int = 0
-    references_cached: int = 0
     computed: int = 0
     renders: dict = field(default_factory=dict)  # key -> Render
     reference_images: dict = field(default_factory=dict)  # scene -> image
@@ -178,8 +176,6 @@ def _reference_file(spec, scene):
 
 def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log=None):
     """Render every reference and cell of `exp` not already in `cache_dir`; return a `RunSummary`."""
-    from tqdm import tqdm
-
     log = log or (lambda msg: print(msg, file=sys.stderr))
     if workers < 1:
         raise ProbvisError(f"workers must be at least 1, got {workers}")
@@ -187,12 +183,11 @@ def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log
     cache = Cache(cache_dir)
     refs, cells = plan(exp, scenes)
     todo = [t for t in refs + cells if not cache.has(t.key)]
-    out = RunSummary(tasks=cells, computed=len(todo), cells_cached=sum(cache.has(t.key) for t in cells), references=len(refs),
-                     references_cached=sum(cache.has(t.key) for t in refs))
-    log(f"experiment '{exp.name}': {len(cells)} cells ({out.cells_cached} cached), {out.references} rendered "
-        f"references ({out.references_cached} cached), cache {cache.folder}")
+    out = RunSummary(tasks=cells, computed=len(todo), cells_cached=sum(cache.has(t.key) for t in cells))
+    log(f"experiment '{exp.name}': {len(cells)} cells ({out.cells_cached} cached), {len(refs)} rendered "
+        f"references ({sum(cache.has(t.key) for t in refs)} cached), cache {cache.folder}")
     if todo:
-        _compute(todo, scenes, cache, workers, scheduler, progress, log, tqdm)
+        _compute(todo, scenes, cache, workers, scheduler, progress, log)
     for spec in exp.scenes:
         if spec.reference is not None:
             out.reference_images[spec.name] = _reference_file(spec, scenes[spec.name])
@@ -206,8 +201,9 @@ def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log
     return out
 
 
-def _compute(todo, scenes, cache, workers, scheduler, progress, log, tqdm):
+def _compute(todo, scenes, cache, workers, scheduler, progress, log):
     from dask.distributed import as_completed
+    from tqdm import tqdm
 
     client, cluster = _open_client(workers, scheduler)
     failures = []
