@@ -271,8 +271,7 @@ def _cmd_experiment(args):
     command = "probvis " + shlex.join(args.argv)
     previous = signal.signal(signal.SIGTERM, _interrupt)  # a batch system's "stop": same as Ctrl-C
     try:
-        _, index, run = experiment(exp, out, args.cache, args.workers, args.scheduler, not args.quiet,
-                                         command)
+        _, index, run = experiment(exp, out, args.cache, args.workers, args.scheduler, not args.quiet, command)
     except KeyboardInterrupt:
         print(f"probvis: interrupted; finished renders are kept in {args.cache or out / 'cache'}, "
               f"run the same command to resume", file=sys.stderr)
