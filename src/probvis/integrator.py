@@ -79,39 +79,33 @@ def surface(geom, prim, b1, b2, dirs):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow):
+def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s_dir, contrib, s_emit, active):
     """Direct light at the shading points, per emitter as the visibility estimator's `cases` say:
 
     lit (case 1) emitters are integrated analytically (Lambert's polygon formula, no noise, no rays),
     shadowed (case 2) ones contribute nothing, and the others are sampled: `n_shadow` emitter samples per
     point (emitter by power among the sampled ones, point uniform by area), slot = point * n_shadow + j.
-    Returns the analytic radiance per point and, per slot, segment origin and direction, the unoccluded
-    contribution (already divided by pdf and n_shadow), the emitter id and an active flag.
+    Returns the analytic radiance per point and fills, per slot, segment origin and direction, the unoccluded
+    contribution (already divided by pdf and n_shadow), the emitter id and the active flag (the other
+    outputs of an inactive slot are left as they were).
     """
     triangles, vnormals, tri_mat, tri_emit, refl, twosided, radiance = geom
     pmf, area, offsets, etris, tri_cdf = es
     n = prim.shape[0]
     n_emit = pmf.shape[0]
     analytic = np.zeros((n, 3))
-    m_slots = n * n_shadow
-    s_org = np.empty((m_slots, 3))
-    s_dir = np.empty((m_slots, 3))
-    contrib = np.zeros((m_slots, 3))
-    s_emit = np.empty(m_slots, np.int32)
-    active = np.zeros(m_slots, np.bool_)
     inv_pi = 1.0 / math.pi
     for i in prange(n):
+        for j in range(n_shadow):
+            active[i * n_shadow + j] = False
         mi = mat[i]
         if mi < 0:
             continue
         tri = prim[i]
         px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
         sx, sy, sz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
-        sampled = np.empty(n_emit, np.bool_)
         for e in range(n_emit):
-            c = cases[i, e]
-            sampled[e] = c == CASE_UNKNOWN or c == CASE_PENUMBRA
-            if c == CASE_LIT:
+            if cases[i, e] == CASE_LIT:
                 f = emitter_irradiance(e, offsets, etris, triangles, px, py, pz, sx, sy, sz) * inv_pi
                 for k in range(3):
                     analytic[i, k] += refl[mi, k] * radiance[e, k] * f
@@ -120,7 +114,7 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow):
         key = keys[i]
         for j in range(n_shadow):
             slot = i * n_shadow + j
-            le, p_e = choose_emitter(pmf, sampled, uniform(key, 2 + 4 * j))
+            le, p_e = choose_emitter(pmf, cases[i], uniform(key, 2 + 4 * j))
             if le < 0:
                 break
             lt, yx, yy, yz = sample_on_emitter(le, offsets, etris, tri_cdf, triangles, uniform(key, 3 + 4 * j),
@@ -147,14 +141,15 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow):
             s_dir[slot, 0], s_dir[slot, 1], s_dir[slot, 2] = yx - ox, yy - oy, yz - oz
             s_emit[slot] = le
             active[slot] = True
-    return analytic, s_org, s_dir, contrib, s_emit, active
+    return analytic
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def compact(active, s_org, s_dir, s_emit, keys, n_shadow):
-    """Gather the active shadow slots into dense arrays, in slot order.
+def compact(active, s_org, s_dir, s_emit, keys, n_shadow, org, dirs, point, emit, rkey):
+    """Gather the active shadow slots into the front of the dense arrays, in slot order.
 
-    `offsets[i]:offsets[i + 1]` is the dense range of camera sample i, so `accumulate` can walk it.
+    Returns `offsets`: `offsets[i]:offsets[i + 1]` is the dense range of camera sample i (so `accumulate`
+    can walk it) and `offsets[-1]` the number of segments.
     """
     n = keys.shape[0]
     counts = np.zeros(n + 1, np.int64)
@@ -164,12 +159,6 @@ def compact(active, s_org, s_dir, s_emit, keys, n_shadow):
             c += active[i * n_shadow + j]
         counts[i + 1] = c
     offsets = np.cumsum(counts)
-    m = offsets[n]
-    org = np.empty((m, 3))
-    dirs = np.empty((m, 3))
-    point = np.empty(m, np.int64)
-    emit = np.empty(m, np.int32)
-    rkey = np.empty(m, np.uint64)
     for i in prange(n):
         k = offsets[i]
         for j in range(n_shadow):
@@ -182,7 +171,7 @@ def compact(active, s_org, s_dir, s_emit, keys, n_shadow):
                 emit[k] = s_emit[slot]
                 rkey[k] = mix64(keys[i] + np.uint64(j + 1))
                 k += 1
-    return offsets, org, dirs, point, emit, rkey
+    return offsets
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -218,6 +207,27 @@ def accumulate(emitted, contrib, active, offsets, value, cam_node, cam_tri, sh_n
             img[q, c] /= spp
             m2[q, c] /= spp
     return img, m2, tests
+
+
+class _Buffers:
+    """Shadow-slot and segment arrays reused by every batch of a render: fresh multi-megabyte arrays per
+    batch cost more in page faults than the kernels that fill them."""
+
+    def __init__(self, n_slots):
+        self.s_org, self.s_dir, self.contrib = (np.empty((n_slots, 3)) for _ in range(3))
+        self.s_emit = np.empty(n_slots, np.int32)
+        self.active = np.empty(n_slots, np.bool_)
+        self.org, self.dirs = np.empty((n_slots, 3)), np.empty((n_slots, 3))
+        self.point = np.empty(n_slots, np.int64)
+        self.emit = np.empty(n_slots, np.int32)
+        self.key = np.empty(n_slots, np.uint64)
+        self.tmax = np.full(n_slots, 1.0 - SHADOW_EPSILON)
+
+    def slots(self, m):
+        return self.s_org[:m], self.s_dir[:m], self.contrib[:m], self.s_emit[:m], self.active[:m]
+
+    def segments(self):
+        return self.org, self.dirs, self.point, self.emit, self.key
 
 
 def scene_arrays(scene):
@@ -278,6 +288,7 @@ def _render_prepared(scene, estimator, progress, warmup=False):
     n_pix_total = width * height
     spp, n_shadow = scene.spp, scene.shadow_rays
     per_batch = max(1, min(n_pix_total, TARGET_SLOTS // (spp * n_shadow)))
+    buffers = _Buffers(per_batch * spp * n_shadow)
     image = np.zeros((n_pix_total, 3))
     moment2 = np.zeros((n_pix_total, 3))
     tests = np.zeros((n_pix_total, 2), np.int64)
@@ -309,13 +320,14 @@ def _render_prepared(scene, estimator, progress, warmup=False):
                     for c in range(N_CASES):
                         case_counts[p0:p1, :, c] = (per_px == c).sum(axis=1)
                         totals["cases"][c] += int((cases[shaded] == c).sum())
-                analytic, s_org, s_dir, contrib, s_emit, active = sample_lights(geom, es, prim, pos, nrm, mat, cases,
-                                                                                keys, n_shadow)
-                emitted += analytic
-                offsets, q_org, q_dir, q_point, q_emit, q_key = compact(active, s_org, s_dir, s_emit, keys, n_shadow)
-                n_q = len(q_point)
-                query = ShadowQuery(origin=q_org, direction=q_dir, tmax=np.full(n_q, 1.0 - SHADOW_EPSILON),
-                                    point=q_point, emitter=q_emit, key=q_key, points=points)
+                s_org, s_dir, contrib, s_emit, active = buffers.slots(len(prim) * n_shadow)
+                emitted += sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow,
+                                         s_org, s_dir, contrib, s_emit, active)
+                offsets = compact(active, s_org, s_dir, s_emit, keys, n_shadow, *buffers.segments())
+                n_q = int(offsets[-1])
+                query = ShadowQuery(origin=buffers.org[:n_q], direction=buffers.dirs[:n_q], tmax=buffers.tmax[:n_q],
+                                    point=buffers.point[:n_q], emitter=buffers.emit[:n_q], key=buffers.key[:n_q],
+                                    points=points)
                 res = estimator.evaluate(query)
                 img, m2, tst = accumulate(emitted, contrib, active, offsets, res.value, cam_node, cam_tri,
                                           res.node_tests, res.triangle_tests, spp, n_shadow, p1 - p0)

@@ -4,6 +4,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .cases import CASE_PENUMBRA, CASE_UNKNOWN
 from .errors import ProbvisError
 
 _LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
@@ -58,11 +59,18 @@ def _search(cdf, lo, hi, u):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def choose_emitter(pmf, sampled, u):
-    """An emitter among those with `sampled[e]`, by power: (emitter id, its selection probability)."""
+def is_sampled(case):
+    """Whether an emitter of this occlusion case gets shadow rays (lit ones are integrated, shadowed skipped)."""
+    return case == CASE_UNKNOWN or case == CASE_PENUMBRA
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def choose_emitter(pmf, cases, u):
+    """An emitter among the sampled ones (`cases[e]` unknown or penumbra), by power: (emitter id, its
+    selection probability)."""
     total = 0.0
     for e in range(pmf.shape[0]):
-        if sampled[e]:
+        if is_sampled(cases[e]):
             total += pmf[e]
     if total <= 0.0:
         return -1, 0.0
@@ -70,7 +78,7 @@ def choose_emitter(pmf, sampled, u):
     last = -1
     acc = 0.0
     for e in range(pmf.shape[0]):
-        if sampled[e]:
+        if is_sampled(cases[e]):
             last = e
             acc += pmf[e]
             if acc > target:

@@ -31,10 +31,13 @@ def ray_setup(dx, dy, dz):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def inverse_direction(dx, dy, dz):
-    """Reciprocal direction for the slab test (inf for a zero component)."""
-    return (1.0 / dx if dx != 0.0 else np.inf, 1.0 / dy if dy != 0.0 else np.inf,
-            1.0 / dz if dz != 0.0 else np.inf)
+def slab_setup(dx, dy, dz):
+    """Per-ray constants of the slab test: reciprocal direction (inf for a zero component) and, per axis, the
+    offset (0 or 3) of the box bound the ray meets first."""
+    ix = 1.0 / dx if dx != 0.0 else np.inf
+    iy = 1.0 / dy if dy != 0.0 else np.inf
+    iz = 1.0 / dz if dz != 0.0 else np.inf
+    return ix, iy, iz, 0 if ix >= 0.0 else 3, 0 if iy >= 0.0 else 3, 0 if iz >= 0.0 else 3
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -74,43 +77,40 @@ def hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def hit_box(b, node, off, ox, oy, oz, ix, iy, iz, tmin, tmax):
-    """Slab test of the box b[node, off:off + 6]; returns the entry distance, or inf on a miss in [tmin, tmax].
+def hit_box(b, node, off, ox, oy, oz, ix, iy, iz, nx, ny, nz, tmin, tmax):
+    """Slab test of the box b[node, off:off + 6] (lo xyz, hi xyz); `nx, ny, nz` are 0 or 3, the offset of
+    the bound the ray meets first on each axis. Returns the entry distance, or inf on a miss in [tmin, tmax].
 
-    A zero direction component gives inf * 0 = NaN, which the ordered comparisons ignore.
+    A zero direction component gives inf * 0 = NaN, which the ordered comparisons ignore; the exit distance
+    is widened by 2 gamma(3) so that rounding never culls a box the ray touches.
     """
-    t0, t1 = tmin, tmax
-    tn = (b[node, off] - ox) * ix
-    tf = (b[node, off + 3] - ox) * ix
-    if tn > tf:
-        tn, tf = tf, tn
-    tf *= _BOX_SLACK
+    t0 = tmin
+    tn = (b[node, off + nx] - ox) * ix
     if tn > t0:
         t0 = tn
-    if tf < t1:
-        t1 = tf
-    tn = (b[node, off + 1] - oy) * iy
-    tf = (b[node, off + 4] - oy) * iy
-    if tn > tf:
-        tn, tf = tf, tn
-    tf *= _BOX_SLACK
+    tn = (b[node, off + 1 + ny] - oy) * iy
     if tn > t0:
         t0 = tn
-    if tf < t1:
-        t1 = tf
-    tn = (b[node, off + 2] - oz) * iz
-    tf = (b[node, off + 5] - oz) * iz
-    if tn > tf:
-        tn, tf = tf, tn
-    tf *= _BOX_SLACK
+    tn = (b[node, off + 2 + nz] - oz) * iz
     if tn > t0:
         t0 = tn
+    t1 = np.inf
+    tf = (b[node, off + 3 - nx] - ox) * ix
     if tf < t1:
         t1 = tf
+    tf = (b[node, off + 4 - ny] - oy) * iy
+    if tf < t1:
+        t1 = tf
+    tf = (b[node, off + 5 - nz] - oz) * iz
+    if tf < t1:
+        t1 = tf
+    t1 *= _BOX_SLACK
+    if tmax < t1:
+        t1 = tmax
     return t0 if t0 <= t1 else np.inf
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def trace(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit, stack):
     """Traverse one ray. With `any_hit` stop at the first hit found, else find the nearest.
 
@@ -118,12 +118,12 @@ def trace(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit, stack):
     Returns (bvh-order primitive or -1, t, b1, b2, node tests, triangle tests); `stack` is caller scratch.
     """
     o = (ox, oy, oz)
-    ix, iy, iz = inverse_direction(dx, dy, dz)
+    ix, iy, iz, nx, ny, nz = slab_setup(dx, dy, dz)
     kx, ky, kz, sx, sy, sz = ray_setup(dx, dy, dz)
     best, bt, b1, b2 = -1, tmax, 0.0, 0.0
     n_node, n_tri = 1, 0
     root_box = root.reshape(1, 6)
-    if hit_box(root_box, 0, 0, ox, oy, oz, ix, iy, iz, tmin, bt) == np.inf:
+    if hit_box(root_box, 0, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, tmin, bt) == np.inf:
         return best, bt, b1, b2, n_node, n_tri
     sp = 0
     node = 0
@@ -131,8 +131,8 @@ def trace(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit, stack):
         cnt = ci[node, 13]
         if cnt == 0:
             n_node += 2
-            tl = hit_box(cb, node, 0, ox, oy, oz, ix, iy, iz, tmin, bt)
-            tr = hit_box(cb, node, 6, ox, oy, oz, ix, iy, iz, tmin, bt)
+            tl = hit_box(cb, node, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, tmin, bt)
+            tr = hit_box(cb, node, 6, ox, oy, oz, ix, iy, iz, nx, ny, nz, tmin, bt)
             if tl < np.inf:
                 if tr < np.inf:
                     if tl <= tr:
@@ -204,7 +204,7 @@ def any_hit(bvh, org, dirs, tmin, tmax):
     return occ, n_node, n_tri
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def trace_all(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, cap, out_t, out_p, stack):
     """Every hit of one ray beyond `tmin`, nearest first, up to `cap` of them (the nearest `cap`).
 
@@ -212,12 +212,12 @@ def trace_all(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, cap, out_t, out_p,
     (count, node tests, triangle tests). Once `cap` hits are held, subtrees beyond the farthest are pruned.
     """
     o = (ox, oy, oz)
-    ix, iy, iz = inverse_direction(dx, dy, dz)
+    ix, iy, iz, nx, ny, nz = slab_setup(dx, dy, dz)
     kx, ky, kz, sx, sy, sz = ray_setup(dx, dy, dz)
     count, n_node, n_tri = 0, 1, 0
     far = np.inf
     root_box = root.reshape(1, 6)
-    if hit_box(root_box, 0, 0, ox, oy, oz, ix, iy, iz, tmin, far) == np.inf:
+    if hit_box(root_box, 0, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, tmin, far) == np.inf:
         return count, n_node, n_tri
     sp = 0
     node = 0
@@ -225,8 +225,8 @@ def trace_all(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, cap, out_t, out_p,
         cnt = ci[node, 13]
         if cnt == 0:
             n_node += 2
-            tl = hit_box(cb, node, 0, ox, oy, oz, ix, iy, iz, tmin, far)
-            tr = hit_box(cb, node, 6, ox, oy, oz, ix, iy, iz, tmin, far)
+            tl = hit_box(cb, node, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, tmin, far)
+            tr = hit_box(cb, node, 6, ox, oy, oz, ix, iy, iz, nx, ny, nz, tmin, far)
             if tl < np.inf:
                 if tr < np.inf:
                     stack[sp] = ci[node, 12]
