@@ -22,7 +22,7 @@ from .accel import build_bvh, closest_hit
 from .camera import camera_params, camera_rays
 from .errors import ProbvisError
 from .geometry import unit_normal
-from .lights import build_emitter_sampler, choose_emitter, emitter_irradiance, sample_on_emitter
+from .lights import build_emitter_sampler, choose_emitter, emitter_irradiance, sample_on_emitter, sampled_share
 from .rng import mix64, uniform
 from .scene import Scene, load_scene
 from .visibility import CASE_LIT, CASE_PENUMBRA, CASE_NAMES, CASE_UNKNOWN, N_CASES, ShadingPoints, ShadowQuery, make_estimator
@@ -109,14 +109,15 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s
                 f = emitter_irradiance(e, offsets, etris, triangles, px, py, pz, sx, sy, sz) * inv_pi
                 for k in range(3):
                     analytic[i, k] += refl[mi, k] * radiance[e, k] * f
+        total = sampled_share(pmf, cases, i)
+        if total <= 0.0:
+            continue
         gx, gy, gz = unit_normal(triangles, tri)
         eps = 1e-9 * (1.0 + max(abs(px), abs(py), abs(pz)))
         key = keys[i]
         for j in range(n_shadow):
             slot = i * n_shadow + j
-            le, p_e = choose_emitter(pmf, cases[i], uniform(key, 2 + 4 * j))
-            if le < 0:
-                break
+            le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
             lt, yx, yy, yz = sample_on_emitter(le, offsets, etris, tri_cdf, triangles, uniform(key, 3 + 4 * j),
                                                uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
             pdf = p_e / area[le]

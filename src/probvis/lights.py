@@ -65,20 +65,24 @@ def is_sampled(case):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def choose_emitter(pmf, cases, u):
-    """An emitter among the sampled ones (`cases[e]` unknown or penumbra), by power: (emitter id, its
-    selection probability)."""
+def sampled_share(pmf, cases, i):
+    """Total selection probability of the emitters point `i` samples (`cases[i, e]` unknown or penumbra)."""
     total = 0.0
     for e in range(pmf.shape[0]):
-        if is_sampled(cases[e]):
+        if is_sampled(cases[i, e]):
             total += pmf[e]
-    if total <= 0.0:
-        return -1, 0.0
+    return total
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def choose_emitter(pmf, cases, i, total, u):
+    """An emitter among those point `i` samples, by power, given their `sampled_share` `total` (> 0):
+    (emitter id, its selection probability)."""
     target = u * total
     last = -1
     acc = 0.0
     for e in range(pmf.shape[0]):
-        if is_sampled(cases[e]):
+        if is_sampled(cases[i, e]):
             last = e
             acc += pmf[e]
             if acc > target:
@@ -86,7 +90,7 @@ def choose_emitter(pmf, cases, u):
     return last, pmf[last] / total  # only reached through rounding when u is within an ulp of 1
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def sample_on_emitter(e, offsets, tris, tri_cdf, triangles, u1, u2, u3):
     """A point uniform on emitter `e`: (scene triangle id, x, y, z); its pdf per unit area is 1 / area[e]."""
     t = tris[_search(tri_cdf, offsets[e], offsets[e + 1], u1)]
