@@ -7,6 +7,7 @@ variance, and exact evaluation of both groups (A, then B only if A is visible) -
 worse than the baseline. See docs/adaptive.md for the derivation.
 """
 import numpy as np
+from numba import njit, prange
 
 from .decomposition import CONFIGS, MODE_A, MODE_AB_BLOCKED, MODE_B, MODE_EXACT
 
@@ -17,21 +18,73 @@ PRIOR = 0.5
 # X_i(VA, VB) of the shifted terms: V_A, V_B, complement product
 _X = np.array([[va, vb, (1 - va) * (1 - vb)] for va, vb in CONFIGS], dtype=float)  # (4 configs, 3 terms)
 _V = np.array([va * vb for va, vb in CONFIGS], dtype=float)
+_VA = np.array([va for va, _ in CONFIGS], dtype=np.int64)
+_VB = np.array([vb for _, vb in CONFIGS], dtype=np.int64)
 
 
-def _costs(size_a, size_b):
-    """(n, 4 configs, 3 terms) expected triangle tests of each shifted term, and (n, 4) of exact evaluation:
-    a group is tested to the end when visible, to about its middle when it blocks."""
-    ca = np.stack([(size_a + 1) / 2, size_a], axis=1)  # by V_A = 0, 1
-    cb = np.stack([(size_b + 1) / 2, size_b], axis=1)
-    terms = np.empty((len(size_a), 4, 3))
-    exact = np.empty((len(size_a), 4))
-    for c, (va, vb) in enumerate(CONFIGS):
-        terms[:, c, 0] = ca[:, va]
-        terms[:, c, 1] = cb[:, vb]
-        terms[:, c, 2] = ca[:, va] + (va == 0) * cb[:, vb]
-        exact[:, c] = ca[:, va] + (va == 1) * cb[:, vb]
-    return terms, exact
+@njit(cache=True, parallel=True, error_model="numpy")
+def _choose(counts, size_a, size_b, p_grid, prior, xs, vs, vas, vbs, cdf, coef, mode, best):
+    """Per pair the strategy with the least variance x cost; fills cdf, coef, mode and best (0 = exact)."""
+    n_terms = 3
+    for q in prange(counts.shape[0]):
+        total = 4 * prior
+        for c in range(4):
+            total += counts[q, c]
+        pi = np.empty(4)
+        for c in range(4):
+            pi[c] = (counts[q, c] + prior) / total
+        ex = np.zeros(n_terms)
+        ev, ev2 = 0.0, 0.0
+        for c in range(4):
+            ev += pi[c] * vs[c]
+            ev2 += pi[c] * vs[c] * vs[c]
+            for k in range(n_terms):
+                ex[k] += pi[c] * xs[c, k]
+        # a group of n candidates costs n tests when visible, about (n + 1) / 2 when it blocks
+        cost = np.empty((4, n_terms + 1))  # per configuration: the three terms, then exact evaluation
+        for c in range(4):
+            ca = size_a[q] if vas[c] == 1 else (size_a[q] + 1) / 2
+            cb = size_b[q] if vbs[c] == 1 else (size_b[q] + 1) / 2
+            cost[c, 0] = ca
+            cost[c, 1] = cb
+            cost[c, 2] = ca + (vas[c] == 0) * cb
+            cost[c, 3] = ca + (vas[c] == 1) * cb
+        exact_cost = 0.0
+        for c in range(4):
+            exact_cost += pi[c] * cost[c, 3]
+        best_score = max((ev2 - ev * ev) * exact_cost, 1e-12)  # exact: only the variance of V itself
+        chosen = 0
+        s_best = np.zeros(n_terms)
+        s = np.empty(n_terms)
+        sum_ex = ex[0] + ex[1] + ex[2]
+        for g in range(p_grid.shape[0]):
+            for k in range(n_terms):  # the shifts that minimise sum_i E[(X_i - s_i)^2] / p_i
+                s[k] = ex[k] + p_grid[g, k] * (1.0 - sum_ex)
+            second, cst = 0.0, 0.0
+            for c in range(4):
+                for k in range(n_terms):
+                    dev = xs[c, k] - s[k]
+                    second += pi[c] * dev * dev / p_grid[g, k]
+                    cst += pi[c] * p_grid[g, k] * cost[c, k]
+            score = max(second - ev * ev, 0.0) * cst
+            if score < best_score * (1 - 1e-9):
+                chosen, best_score = g + 1, score
+                s_best[:] = s
+        best[q] = chosen
+        if chosen == 0:
+            mode[q, 0], mode[q, 1], mode[q, 2] = MODE_EXACT, MODE_B, MODE_AB_BLOCKED
+            cdf[q, 0] = cdf[q, 1] = cdf[q, 2] = 1.0
+            coef[q, 0, 3] = 1.0  # V_A V_B
+            continue
+        p = p_grid[chosen - 1]
+        mode[q, 0], mode[q, 1], mode[q, 2] = MODE_A, MODE_B, MODE_AB_BLOCKED
+        cdf[q, 0], cdf[q, 1], cdf[q, 2] = p[0], p[0] + p[1], 1.0
+        # term 0: (V_A - s0)/p0; term 1: (V_B - s1)/p1; term 2: ((1-V_A)(1-V_B) - s2)/p2
+        coef[q, 0, 0], coef[q, 0, 1] = -s_best[0] / p[0], 1 / p[0]
+        coef[q, 1, 0], coef[q, 1, 2] = -s_best[1] / p[1], 1 / p[1]
+        coef[q, 2, 0] = (1 - s_best[2]) / p[2]
+        coef[q, 2, 1] = coef[q, 2, 2] = -1 / p[2]
+        coef[q, 2, 3] = 1 / p[2]
 
 
 def choose(counts, size_a, size_b):
@@ -39,44 +92,10 @@ def choose(counts, size_a, size_b):
 
     `counts` (n, 4) are photon counts per configuration (VA, VB) in CONFIGS order."""
     n = len(counts)
-    pi = (counts + PRIOR) / (counts.sum(axis=1, keepdims=True) + 4 * PRIOR)
-    ex = pi @ _X  # (n, 3) expected X_i
-    var_v = pi @ (_V ** 2) - (pi @ _V) ** 2
-    cost_terms, cost_exact = _costs(size_a.astype(float), size_b.astype(float))
-    best = np.full(n, 0)
-    best_score = var_v * np.einsum("nc,nc->n", pi, cost_exact)  # exact: only the variance of V itself
-    best_score = np.maximum(best_score, 1e-12)
-    shifts_all = np.empty((len(P_GRID), n, 3))
-    for g, p in enumerate(P_GRID):
-        s = ex + p[None, :] * (1.0 - ex.sum(axis=1, keepdims=True))  # minimises sum_i E[(X_i - s_i)^2] / p_i
-        shifts_all[g] = s
-        dev = _X[None, :, :] - s[:, None, :]  # (n, 4, 3)
-        second = np.einsum("nck,k->nc", dev ** 2, 1.0 / p)
-        var = np.einsum("nc,nc->n", pi, second) - (pi @ _V) ** 2
-        cost = np.einsum("nc,nck,k->n", pi, cost_terms, p)
-        score = np.maximum(var, 0.0) * cost
-        better = score < best_score * (1 - 1e-9)
-        best = np.where(better, g + 1, best)
-        best_score = np.where(better, score, best_score)
     cdf = np.zeros((n, 3))
     coef = np.zeros((n, 3, 4))
     mode = np.empty((n, 3), np.int8)
-    mode[:] = (MODE_A, MODE_B, MODE_AB_BLOCKED)
-    is_exact = best == 0
-    mode[is_exact, 0] = MODE_EXACT
-    cdf[is_exact] = 1.0
-    coef[is_exact, 0, 3] = 1.0  # V_A V_B
-    idx = np.flatnonzero(~is_exact)
-    if len(idx):
-        g = best[idx] - 1
-        p = P_GRID[g]
-        s = shifts_all[g, idx]
-        cdf[idx] = np.cumsum(p, axis=1)
-        # term 0: (V_A - s0)/p0; term 1: (V_B - s1)/p1; term 2: ((1-V_A)(1-V_B) - s2)/p2
-        coef[idx, 0, 0], coef[idx, 0, 1] = -s[:, 0] / p[:, 0], 1 / p[:, 0]
-        coef[idx, 1, 0], coef[idx, 1, 2] = -s[:, 1] / p[:, 1], 1 / p[:, 1]
-        coef[idx, 2, 0] = (1 - s[:, 2]) / p[:, 2]
-        coef[idx, 2, 1] = coef[idx, 2, 2] = -1 / p[:, 2]
-        coef[idx, 2, 3] = 1 / p[:, 2]
-    cdf[:, 2] = 1.0
+    best = np.empty(n, np.int64)
+    _choose(np.ascontiguousarray(counts, dtype=float), np.asarray(size_a, dtype=float),
+            np.asarray(size_b, dtype=float), P_GRID, PRIOR, _X, _V, _VA, _VB, cdf, coef, mode, best)
     return cdf, coef, mode, best

@@ -9,7 +9,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ...accel.traversal import hit_triangle, ray_setup
+from ...accel.traversal import CHUNK, hit_triangle, ray_setup
 from ...rng import mix64, uniform
 from ..occlusion_map import culled
 from .decomposition import MODE_A, MODE_AB_BLOCKED, MODE_B, MODE_BOTH, MODE_EXACT
@@ -76,22 +76,24 @@ def group_lists(triangles, pos, offsets, tris, n_rep, method, levels, cells, see
         i = q % n_rep
         px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
         weight = np.empty(n)
-        dist = np.empty(n)
         for a in range(n):
-            t = tris[lo + a]
-            weight[a] = solid_angle(triangles, t, px, py, pz)
-            cx = (triangles[t, 0, 0] + triangles[t, 1, 0] + triangles[t, 2, 0]) / 3.0 - px
-            cy = (triangles[t, 0, 1] + triangles[t, 1, 1] + triangles[t, 2, 1]) / 3.0 - py
-            cz = (triangles[t, 0, 2] + triangles[t, 1, 2] + triangles[t, 2, 2]) / 3.0 - pz
-            dist[a] = cx * cx + cy * cy + cz * cz
+            weight[a] = solid_angle(triangles, tris[lo + a], px, py, pz)
         leaf = np.zeros(n, np.int64)
-        # cells: equal counts by distance from the point
-        by_dist = np.argsort(dist, kind="mergesort")
-        for a in range(n):
-            leaf[by_dist[a]] = (a * cells) // max(n, 1)
+        if cells > 1:  # cells: equal counts by distance from the point
+            dist = np.empty(n)
+            for a in range(n):
+                t = tris[lo + a]
+                cx = (triangles[t, 0, 0] + triangles[t, 1, 0] + triangles[t, 2, 0]) / 3.0 - px
+                cy = (triangles[t, 0, 1] + triangles[t, 1, 1] + triangles[t, 2, 1]) / 3.0 - py
+                cz = (triangles[t, 0, 2] + triangles[t, 1, 2] + triangles[t, 2, 2]) / 3.0 - pz
+                dist[a] = cx * cx + cy * cy + cz * cz
+            by_dist = np.argsort(dist, kind="mergesort")
+            for a in range(n):
+                leaf[by_dist[a]] = (a * cells) // max(n, 1)
         key = mix64(np.uint64(seed) + np.uint64(q) * np.uint64(0x9E3779B97F4A7C15))
         for level in range(levels):
-            order = np.argsort(leaf, kind="mergesort")
+            # elements grouped by leaf, list order inside each (one leaf, in list order, at the top of one cell)
+            order = np.arange(n) if level == 0 and cells == 1 else np.argsort(leaf, kind="mergesort")
             a = 0
             while a < n:
                 b = a
@@ -102,15 +104,17 @@ def group_lists(triangles, pos, offsets, tris, n_rep, method, levels, cells, see
             if level == 0:
                 for e in range(n):
                     balance[q, leaf[e] % 2] += weight[e]
-        # stable sort by leaf keeps the frequency order inside each leaf
-        order = np.argsort(leaf, kind="mergesort")
-        counts = np.zeros(n_leaves, np.int64)
+        # leaves in order, the frequency order kept inside each leaf (a stable sort by leaf)
+        counts = np.zeros(n_leaves + 1, np.int64)
         for a in range(n):
-            out[lo + a] = tris[lo + order[a]]
-            counts[leaf[a]] += 1
-        bounds[q, 0] = lo
+            counts[leaf[a] + 1] += 1
         for g in range(n_leaves):
-            bounds[q, g + 1] = bounds[q, g] + counts[g]
+            counts[g + 1] += counts[g]
+            bounds[q, g] = lo + counts[g]
+        bounds[q, n_leaves] = hi
+        for a in range(n):
+            out[lo + counts[leaf[a]]] = tris[lo + a]
+            counts[leaf[a]] += 1
     return out, bounds, balance
 
 
@@ -171,20 +175,22 @@ def evaluate_segments(triangles, orientation, fnormal, org, dirs, tmax, pair, ke
     n_cull = np.zeros(n, np.int32)
     term = np.full(n, -1, np.int8)
     per_cell = 1 << levels
-    for s in prange(n):
-        o = (org[s, 0], org[s, 1], org[s, 2])
-        d = (dirs[s, 0], dirs[s, 1], dirs[s, 2])
-        rs = ray_setup(d[0], d[1], d[2])
+    for chunk in prange((n + CHUNK - 1) // CHUNK):
         tests = np.zeros(2, np.int64)
         dim = np.zeros(1, np.int64)
-        chosen = np.full(1, -1, np.int64)
-        q = pair[s]
-        v = 1.0
-        for c in range(cells):
-            v *= _estimate(triangles, orientation, fnormal, o, d, rs, tmax[s], tris, bounds, q, c * per_cell,
-                           (c + 1) * per_cell, levels, cdf, coef, mode, keys[s], dim, tests, chosen)
-        value[s] = v
-        n_tri[s], n_cull[s], term[s] = tests[0], tests[1], chosen[0]
+        chosen = np.empty(1, np.int64)
+        for s in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+            o = (org[s, 0], org[s, 1], org[s, 2])
+            d = (dirs[s, 0], dirs[s, 1], dirs[s, 2])
+            rs = ray_setup(d[0], d[1], d[2])
+            tests[0], tests[1], dim[0], chosen[0] = 0, 0, 0, -1
+            q = pair[s]
+            v = 1.0
+            for c in range(cells):
+                v *= _estimate(triangles, orientation, fnormal, o, d, rs, tmax[s], tris, bounds, q, c * per_cell,
+                               (c + 1) * per_cell, levels, cdf, coef, mode, keys[s], dim, tests, chosen)
+            value[s] = v
+            n_tri[s], n_cull[s], term[s] = tests[0], tests[1], chosen[0]
     return value, n_tri, n_cull, term
 
 
