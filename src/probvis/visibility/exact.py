@@ -1,7 +1,6 @@
-"""Exact visibility: every shadow segment is tested against the whole scene's BVH (any-hit, early exit)."""
-import numpy as np
-
-from ..accel import any_hit
+"""Exact visibility: every shadow segment is tested against the whole scene's BVH (any-hit, early exit), the
+segments of one shading point traversed together as a packet."""
+from ..accel import occluded_segments
 from .base import VisibilityEstimator, VisibilityResult
 
 
@@ -9,6 +8,5 @@ class ExactVisibility(VisibilityEstimator):
     name = "exact"
 
     def evaluate(self, query):
-        tmin = np.zeros(len(query.tmax))
-        occluded, n_node, n_tri = any_hit(self.bvh.arrays, query.origin, query.direction, tmin, query.tmax)
+        occluded, n_node, n_tri = occluded_segments(self.bvh, query.origin, query.direction, query.tmax, query.point)
         return VisibilityResult(1.0 - occluded, n_node, n_tri)

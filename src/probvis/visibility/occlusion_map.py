@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 from numba import njit, prange
 
-from ..accel import any_hit
+from ..accel import occluded_segments
 from ..accel.traversal import hit_triangle, ray_setup
 from ..errors import ProbvisError
 from ..geometry import face_normals
@@ -183,8 +183,8 @@ class OcclusionMapVisibility(VisibilityEstimator):
         on_bvh = (case == CASE_UNKNOWN) | ((case == CASE_PENUMBRA) if self.penumbra == "bvh" else False)
         idx = np.flatnonzero(on_bvh)
         if len(idx):
-            occ, a, b = any_hit(self.bvh.arrays, query.origin[idx], query.direction[idx], np.zeros(len(idx)),
-                                query.tmax[idx])
+            occ, a, b = occluded_segments(self.bvh, query.origin[idx], query.direction[idx], query.tmax[idx],
+                                          query.point[idx])
             value[idx], n_node[idx], n_tri[idx] = 1.0 - occ, a, b
         self._stats["unknown_shadow_rays"] += int((case == CASE_UNKNOWN).sum())
         self._stats["penumbra_shadow_rays"] += int((case == CASE_PENUMBRA).sum())

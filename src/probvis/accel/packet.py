@@ -1,0 +1,175 @@
+"""Any-hit traversal of ray packets: the shadow segments of one shading point, traversed together.
+
+Segments from one point towards one emitter are coherent, so most BVH nodes are wanted by most of them.
+A packet fetches each node once, tests both child boxes against all of its rays in one loop that LLVM turns
+into SIMD code, and descends with a bit mask of the rays whose boxes were hit. Every ray still makes exactly
+the box and triangle tests it would make alone (a ray only follows the nodes whose boxes it hits, and leaves
+the packet at its first hit), except that the visiting order is the packet's: an occluded ray may find a
+different blocker first. Results are those of `traversal.any_hit`.
+"""
+import numpy as np
+from numba import njit, prange
+
+from .traversal import _BOX_SLACK, hit_triangle, ray_setup
+
+MAX_PACKET = 64  # rays per packet: one bit each in a uint64 mask
+PACKETS_PER_TASK = 8
+_BIG = 1e300  # reciprocal of a zero direction component: finite, so (bound - origin) * _BIG is never NaN
+
+
+def packet_starts(point, max_size=MAX_PACKET):
+    """Packet boundaries for segments sorted by shading point: a packet is a run of equal `point` values,
+    cut every `max_size` segments. Returns (packets + 1,) int64 offsets."""
+    n = len(point)
+    cuts = np.flatnonzero(point[1:] != point[:-1]) + 1
+    runs = np.concatenate([[0], cuts, [n]]).astype(np.int64)
+    lengths = np.diff(runs)
+    pieces = (lengths + max_size - 1) // max_size
+    run_of = np.repeat(np.arange(len(lengths)), pieces)
+    k = np.arange(len(run_of)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    return np.append(runs[:-1][run_of] + k * max_size, n).astype(np.int64)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _child_boxes(b, node, m, rays, t_left, t_right):
+    """Entry distances of rays 0..m-1 (columns of `rays`) into both boxes of record `node`, inf on a miss."""
+    lx, ly, lz, hx, hy, hz = b[node, 0], b[node, 1], b[node, 2], b[node, 3], b[node, 4], b[node, 5]
+    mx, my, mz, kx, ky, kz = b[node, 6], b[node, 7], b[node, 8], b[node, 9], b[node, 10], b[node, 11]
+    for r in range(m):
+        ox, oy, oz = rays[0, r], rays[1, r], rays[2, r]
+        ix, iy, iz = rays[3, r], rays[4, r], rays[5, r]
+        t_lo, t_hi = rays[6, r], rays[7, r]
+        for side in range(2):
+            if side == 0:
+                a0, a1, c0, c1, e0, e1 = (lx - ox) * ix, (hx - ox) * ix, (ly - oy) * iy, (hy - oy) * iy, \
+                    (lz - oz) * iz, (hz - oz) * iz
+            else:
+                a0, a1, c0, c1, e0, e1 = (mx - ox) * ix, (kx - ox) * ix, (my - oy) * iy, (ky - oy) * iy, \
+                    (mz - oz) * iz, (kz - oz) * iz
+            t0 = max(max(min(a0, a1), min(c0, c1)), max(min(e0, e1), t_lo))
+            t1 = min(min(max(a0, a1), max(c0, c1)), max(e0, e1)) * _BOX_SLACK
+            t1 = min(t1, t_hi)
+            t = t0 if t0 <= t1 else np.inf
+            if side == 0:
+                t_left[r] = t
+            else:
+                t_right[r] = t
+
+
+@njit(cache=True, error_model="numpy")
+def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, shear, axes, t_left, t_right, visits,
+                  stack, stack_mask, occ, n_node, n_tri):
+    """Any-hit traversal of segments lo..lo+m-1 (m <= 64); fills their `occ`, `n_node` and `n_tri`."""
+    one = np.uint64(1)
+    for r in range(m):
+        i = lo + r
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        rays[0, r], rays[1, r], rays[2, r] = org[i, 0], org[i, 1], org[i, 2]
+        rays[3, r] = 1.0 / dx if dx != 0.0 else _BIG
+        rays[4, r] = 1.0 / dy if dy != 0.0 else _BIG
+        rays[5, r] = 1.0 / dz if dz != 0.0 else _BIG
+        rays[6, r], rays[7, r] = tmin[i], tmax[i]
+        kx, ky, kz, sx, sy, sz = ray_setup(dx, dy, dz)
+        shear[0, r], shear[1, r], shear[2, r] = sx, sy, sz
+        axes[0, r], axes[1, r], axes[2, r] = kx, ky, kz
+        visits[r] = 0
+        occ[i] = False
+        n_tri[i] = 0
+    _child_boxes(root2, 0, m, rays, t_left, t_right)  # the root's box, stored as both children of one record
+    alive = np.uint64(0)
+    for r in range(m):
+        if t_left[r] < np.inf:
+            alive |= one << np.uint64(r)
+    mask = alive
+    sp = 0
+    node = 0
+    while True:
+        mask &= alive
+        if mask != 0:
+            cnt = ci[node, 13]
+            if cnt == 0:
+                _child_boxes(cb, node, m, rays, t_left, t_right)
+                left = np.uint64(0)
+                right = np.uint64(0)
+                for r in range(m):
+                    sh = np.uint64(r)
+                    inside = (mask >> sh) & one
+                    visits[r] += inside
+                    left |= (np.uint64(t_left[r] < np.inf) & inside) << sh
+                    right |= (np.uint64(t_right[r] < np.inf) & inside) << sh
+                if left != 0 and right != 0:
+                    both = left & right
+                    r0 = 0
+                    while both != 0 and (both >> np.uint64(r0)) & one == 0:
+                        r0 += 1
+                    # nearer child first, as seen by the first ray that hits both (left first if none does)
+                    if both == 0 or t_left[r0] <= t_right[r0]:
+                        stack[sp], stack_mask[sp] = ci[node, 12], right
+                        node, mask = node + 1, left
+                    else:
+                        stack[sp], stack_mask[sp] = node + 1, left
+                        node, mask = ci[node, 12], right
+                    sp += 1
+                    continue
+                if left != 0:
+                    node, mask = node + 1, left
+                    continue
+                if right != 0:
+                    node, mask = ci[node, 12], right
+                    continue
+            else:
+                first = ci[node, 12]
+                for r in range(m):
+                    bit = one << np.uint64(r)
+                    if mask & bit == 0:
+                        continue
+                    o = (rays[0, r], rays[1, r], rays[2, r])
+                    for p in range(first, first + cnt):
+                        n_tri[lo + r] += 1
+                        t, _, _ = hit_triangle(tv, p, o, axes[0, r], axes[1, r], axes[2, r], shear[0, r],
+                                               shear[1, r], shear[2, r], rays[6, r], rays[7, r])
+                        if t < rays[7, r]:
+                            occ[lo + r] = True
+                            alive &= ~bit
+                            break
+        if sp == 0 or alive == 0:
+            break
+        sp -= 1
+        node, mask = stack[sp], stack_mask[sp]
+    for r in range(m):
+        n_node[lo + r] = 1 + 2 * np.int64(visits[r])
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
+    """Batched occlusion queries over packets [starts[k], starts[k + 1]) of at most 64 segments (see
+    `packet_starts`): occluded flag, node and triangle tests per segment."""
+    cb, ci, root, tv, prim_ids, depth = bvh
+    n = org.shape[0]
+    occ = np.zeros(n, np.bool_)
+    n_node = np.zeros(n, np.int32)
+    n_tri = np.zeros(n, np.int32)
+    n_packets = starts.shape[0] - 1
+    root2 = np.empty((1, 12))
+    root2[0, :6] = root
+    root2[0, 6:] = root
+    for task in prange((n_packets + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK):
+        rays = np.empty((8, MAX_PACKET))
+        shear = np.empty((3, MAX_PACKET))
+        axes = np.empty((3, MAX_PACKET), np.int64)
+        t_left = np.empty(MAX_PACKET)
+        t_right = np.empty(MAX_PACKET)
+        visits = np.empty(MAX_PACKET, np.uint64)
+        stack = np.empty(depth, np.int64)
+        stack_mask = np.empty(depth, np.uint64)
+        for k in range(task * PACKETS_PER_TASK, min(n_packets, (task + 1) * PACKETS_PER_TASK)):
+            _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays,
+                          shear, axes, t_left, t_right, visits, stack, stack_mask, occ, n_node, n_tri)
+    return occ, n_node, n_tri
+
+
+def occluded_segments(bvh, origin, direction, tmax, point):
+    """Occlusion of shadow segments (t in (0, tmax)), traversed in packets of equal `point` (segments of one
+    shading point; contiguous runs are packed, so sort by point for the largest packets): occluded flag, node
+    and triangle tests per segment."""
+    return any_hit_packets(bvh.arrays, origin, direction, np.zeros(len(tmax)), tmax, packet_starts(point))
