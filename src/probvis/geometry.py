@@ -23,3 +23,12 @@ def face_normals(triangles):
     """(n, 3) unit normals of all triangles."""
     n = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
     return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+@njit(cache=True, error_model="numpy")
+def unit_normals(triangles):
+    """(n, 3) `unit_normal` of every triangle, bit for bit as the kernels compute it."""
+    out = np.empty((triangles.shape[0], 3))
+    for t in range(triangles.shape[0]):
+        out[t, 0], out[t, 1], out[t, 2] = unit_normal(triangles, t)
+    return out

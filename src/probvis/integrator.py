@@ -21,7 +21,7 @@ from . import __version__
 from .accel import build_bvh, closest_hit
 from .camera import camera_params, camera_rays
 from .errors import ProbvisError
-from .geometry import unit_normal
+from .geometry import unit_normals
 from .lights import build_emitter_sampler, choose_emitter, emitter_irradiance, sample_on_emitter, sampled_share
 from .rng import mix64, uniform
 from .scene import Scene, load_scene
@@ -44,7 +44,7 @@ class RenderResult:
 def surface(geom, prim, b1, b2, dirs):
     """Shading points of the camera hits: emitted radiance seen directly, position, shading normal turned
     to the camera's side, and the material (-1 where nothing is reflected: a miss or a one-sided back face)."""
-    triangles, vnormals, tri_mat, tri_emit, refl, twosided, radiance = geom
+    triangles, vnormals, fnormals, tri_mat, tri_emit, refl, twosided, radiance = geom
     n = prim.shape[0]
     emitted = np.zeros((n, 3))
     pos = np.zeros((n, 3))
@@ -89,7 +89,7 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s
     contribution (already divided by pdf and n_shadow), the emitter id and the active flag (the other
     outputs of an inactive slot are left as they were).
     """
-    triangles, vnormals, tri_mat, tri_emit, refl, twosided, radiance = geom
+    triangles, vnormals, fnormals, tri_mat, tri_emit, refl, twosided, radiance = geom
     pmf, area, offsets, etris, tri_cdf = es
     n = prim.shape[0]
     n_emit = pmf.shape[0]
@@ -112,7 +112,7 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s
         total = sampled_share(pmf, cases, i)
         if total <= 0.0:
             continue
-        gx, gy, gz = unit_normal(triangles, tri)
+        gx, gy, gz = fnormals[tri, 0], fnormals[tri, 1], fnormals[tri, 2]
         eps = 1e-9 * (1.0 + max(abs(px), abs(py), abs(pz)))
         key = keys[i]
         for j in range(n_shadow):
@@ -129,7 +129,7 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s
             cos_x = (sx * wx + sy * wy + sz * wz) * inv
             if cos_x <= 0.0:
                 continue
-            lx, ly, lz = unit_normal(triangles, lt)
+            lx, ly, lz = fnormals[lt, 0], fnormals[lt, 1], fnormals[lt, 2]
             cos_y = -(lx * wx + ly * wy + lz * wz) * inv
             if cos_y <= 0.0:
                 continue
@@ -232,8 +232,9 @@ class _Buffers:
 
 
 def scene_arrays(scene):
-    return (scene.triangles, scene.vertex_normals, scene.tri_material, scene.tri_emitter, scene.reflectance,
-            scene.twosided, scene.emitter_radiance)
+    """The scene as the kernels take it (with unit face normals, computed once per render)."""
+    return (scene.triangles, scene.vertex_normals, unit_normals(scene.triangles), scene.tri_material,
+            scene.tri_emitter, scene.reflectance, scene.twosided, scene.emitter_radiance)
 
 
 _warmed = set()
