@@ -1,5 +1,6 @@
 """Command line: `probvis render | info | scenes | tables | experiment`."""
 import argparse
+import dataclasses
 import json
 import shlex
 import signal
@@ -53,6 +54,17 @@ def _triple(text):
         raise argparse.ArgumentTypeError(f"expected three comma-separated numbers, got '{text}'") from None
     if len(v) != 3:
         raise argparse.ArgumentTypeError(f"expected three comma-separated numbers, got '{text}'")
+    return v
+
+
+def _seed_list(text):
+    """argparse type: distinct comma-separated whole numbers >= 0."""
+    try:
+        v = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated whole numbers, got '{text}'") from None
+    if min(v) < 0 or len(set(v)) != len(v):
+        raise argparse.ArgumentTypeError(f"expected distinct seeds >= 0, got '{text}'")
     return v
 
 
@@ -129,6 +141,7 @@ def _parser():
     e.add_argument("--quick", action="store_true", help="the built-in quick preset instead of a file")
     e.add_argument("-o", "--output", metavar="DIR", help="report folder (default: experiment-NAME)")
     e.add_argument("--cache", metavar="DIR", help="render cache folder (default: DIR/cache)")
+    e.add_argument("--seeds", type=_seed_list, metavar="S1,S2,...", help="render these seeds instead of the file's")
     e.add_argument("--workers", type=_positive, default=1, help="LocalCluster worker processes (default 1)")
     e.add_argument("--scheduler", metavar="ADDRESS", help="use the Dask scheduler at ADDRESS (tcp://host:port)")
     e.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -267,6 +280,8 @@ def _cmd_experiment(args):
     if args.scheduler and args.workers != 1:
         raise ProbvisError("--workers applies to the embedded LocalCluster, not to --scheduler")
     exp = quick_experiment() if args.quick else load_experiment(args.file)
+    if args.seeds:
+        exp = dataclasses.replace(exp, seeds=args.seeds)
     out = Path(args.output or f"experiment-{exp.name}")
     command = "probvis " + shlex.join(args.argv)
     previous = signal.signal(signal.SIGTERM, _interrupt)  # a batch system's "stop": same as Ctrl-C

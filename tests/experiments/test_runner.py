@@ -153,3 +153,10 @@ def test_sigterm_stops_the_study_keeping_finished_renders(tmp_path):
                             "-q"], capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr
     assert f"{33 - finished} renders computed" in again.stdout
+    more = subprocess.run([sys.executable, "-m", "probvis.cli", "experiment", str(study), "-o", str(tmp_path / "r"),
+                           "-q", "--seeds", "3,4"], capture_output=True, text=True, timeout=300)
+    assert more.returncode == 0, more.stderr
+    assert "8 renders computed, 8 of 16 cells from the cache" in more.stdout  # seed 3 cached, seed 4 new
+    bad = subprocess.run([sys.executable, "-m", "probvis.cli", "experiment", str(study), "--seeds", "1,1"],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "distinct seeds" in bad.stderr
