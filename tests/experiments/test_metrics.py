@@ -27,3 +27,12 @@ def test_time_to_target_is_exact_on_a_power_law():
     assert metrics.time_to_target(costs, errors, 1.0) == 1.0
     assert metrics.time_to_target(costs, errors, 1e-4) is None
     assert metrics.time_to_target(costs[::-1], errors[::-1], 0.3 / 32.0) == pytest.approx(32.0)
+
+
+def test_report_numbers_print_counts_and_their_seed_means_in_full():
+    from probvis.experiments.report import _fmt
+
+    assert _fmt(11592345.67) == "11,592,346"  # a mean test count over seeds, not 1.16e+07
+    assert _fmt(727769) == "727,769"
+    assert _fmt(0.09551) == "0.0955" and _fmt(97.24) == "97.2"
+    assert _fmt(math.inf) == "∞" and _fmt(None) == "–"

@@ -36,8 +36,8 @@ def _fmt(x, digits=3):
         return "–"
     if isinstance(x, float) and math.isinf(x):
         return "∞"
-    if isinstance(x, int) or (isinstance(x, float) and x.is_integer() and abs(x) >= 1000):
-        return f"{int(x):,}"
+    if isinstance(x, int) or abs(x) >= 1000:  # counts, and their means over seeds
+        return f"{round(x):,}"
     return f"{x:.{digits}g}"
 
 
