@@ -33,19 +33,19 @@ def packet_starts(point, max_size=MAX_PACKET):
 @njit(cache=True, error_model="numpy", inline="always")
 def _child_boxes(b, node, m, rays, t_left, t_right):
     """Entry distances of rays 0..m-1 (columns of `rays`) into both boxes of record `node`, inf on a miss."""
-    lx, ly, lz, hx, hy, hz = b[node, 0], b[node, 1], b[node, 2], b[node, 3], b[node, 4], b[node, 5]
-    mx, my, mz, kx, ky, kz = b[node, 6], b[node, 7], b[node, 8], b[node, 9], b[node, 10], b[node, 11]
+    ax0, ay0, az0, ax1, ay1, az1 = b[node, 0], b[node, 1], b[node, 2], b[node, 3], b[node, 4], b[node, 5]
+    bx0, by0, bz0, bx1, by1, bz1 = b[node, 6], b[node, 7], b[node, 8], b[node, 9], b[node, 10], b[node, 11]
     for r in range(m):
         ox, oy, oz = rays[0, r], rays[1, r], rays[2, r]
         ix, iy, iz = rays[3, r], rays[4, r], rays[5, r]
         t_lo, t_hi = rays[6, r], rays[7, r]
         for side in range(2):
-            if side == 0:
-                a0, a1, c0, c1, e0, e1 = (lx - ox) * ix, (hx - ox) * ix, (ly - oy) * iy, (hy - oy) * iy, \
-                    (lz - oz) * iz, (hz - oz) * iz
+            if side == 0:  # slab distances to both bounds of each axis
+                a0, a1, c0, c1, e0, e1 = (ax0 - ox) * ix, (ax1 - ox) * ix, (ay0 - oy) * iy, (ay1 - oy) * iy, \
+                    (az0 - oz) * iz, (az1 - oz) * iz
             else:
-                a0, a1, c0, c1, e0, e1 = (mx - ox) * ix, (kx - ox) * ix, (my - oy) * iy, (ky - oy) * iy, \
-                    (mz - oz) * iz, (kz - oz) * iz
+                a0, a1, c0, c1, e0, e1 = (bx0 - ox) * ix, (bx1 - ox) * ix, (by0 - oy) * iy, (by1 - oy) * iy, \
+                    (bz0 - oz) * iz, (bz1 - oz) * iz
             t0 = max(max(min(a0, a1), min(c0, c1)), max(min(e0, e1), t_lo))
             t1 = min(min(max(a0, a1), max(c0, c1)), max(e0, e1)) * _BOX_SLACK
             t1 = min(t1, t_hi)
