@@ -109,7 +109,7 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s
                 f = emitter_irradiance(e, offsets, etris, triangles, px, py, pz, sx, sy, sz) * inv_pi
                 for k in range(3):
                     analytic[i, k] += refl[mi, k] * radiance[e, k] * f
-        total = sampled_share(pmf, cases, i)
+        total, only = sampled_share(pmf, cases, i)
         if total <= 0.0:
             continue
         gx, gy, gz = fnormals[tri, 0], fnormals[tri, 1], fnormals[tri, 2]
@@ -117,7 +117,10 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s
         key = keys[i]
         for j in range(n_shadow):
             slot = i * n_shadow + j
-            le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
+            if only >= 0:  # a single emitter: no choice (its random dimension is simply not drawn)
+                le, p_e = only, 1.0
+            else:
+                le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
             lt, yx, yy, yz = sample_on_emitter(le, offsets, etris, tri_cdf, triangles, uniform(key, 3 + 4 * j),
                                                uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
             pdf = p_e / area[le]

@@ -66,12 +66,17 @@ def is_sampled(case):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def sampled_share(pmf, cases, i):
-    """Total selection probability of the emitters point `i` samples (`cases[i, e]` unknown or penumbra)."""
+    """Total selection probability of the emitters point `i` samples (`cases[i, e]` unknown or penumbra), and
+    that emitter's id if there is only one (else -1: a choice is needed)."""
     total = 0.0
+    only = -1
+    count = 0
     for e in range(pmf.shape[0]):
         if is_sampled(cases[i, e]):
             total += pmf[e]
-    return total
+            only = e
+            count += 1
+    return total, only if count == 1 else -1
 
 
 @njit(cache=True, error_model="numpy", inline="always")
