@@ -25,7 +25,7 @@ from .geometry import unit_normals
 from .lights import build_emitter_sampler, choose_emitter, emitter_irradiance, sample_on_emitter, sampled_share
 from .rng import mix64, uniform
 from .scene import Scene, load_scene
-from .visibility import CASE_LIT, CASE_PENUMBRA, CASE_NAMES, CASE_UNKNOWN, N_CASES, ShadingPoints, ShadowQuery, make_estimator
+from .visibility import CASE_LIT, CASE_NAMES, CASE_UNKNOWN, N_CASES, ShadingPoints, ShadowQuery, make_estimator
 
 SHADOW_EPSILON = 1e-6  # segments stop this fraction short of the emitter point
 TARGET_SLOTS = 1 << 20  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
