@@ -85,6 +85,8 @@ def test_stats_and_test_count_image_add_up():
     assert it["node"] == r.aovs["node_tests"].sum() > 0
     assert it["triangle"] == it["camera"]["triangle"] + it["shadow"]["triangle"]
     assert 0 < s["shadow_rays"] <= s["camera_rays"] * 2
+    assert it["shadow"]["triangle_per_ray"] == pytest.approx(it["shadow"]["triangle"] / s["shadow_rays"])
+    assert it["shadow"]["node_per_ray"] == pytest.approx(it["shadow"]["node"] / s["shadow_rays"])
     assert s["visibility"]["name"] == "exact" and s["seed"] == 0 and s["spp"] == 2
 
 

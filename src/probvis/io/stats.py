@@ -22,7 +22,8 @@ def summary(stats):
         f"rays        camera {stats['camera_rays']:,}  shadow {stats['shadow_rays']:,}"
         + (f"  ({stats['shadow_rays_per_second'] / 1e6:.2f} M/s)" if stats["shadow_rays_per_second"] else ""),
         f"tests       triangle {it['triangle']:,}  node {it['node']:,}  "
-        f"(shadow: triangle {it['shadow']['triangle']:,}, node {it['shadow']['node']:,})",
+        f"(shadow: triangle {it['shadow']['triangle']:,}, node {it['shadow']['node']:,}; per shadow ray "
+        f"{it['shadow']['triangle_per_ray']:.3g} triangle, {it['shadow']['node_per_ray']:.3g} node)",
         "image mean  " + ", ".join(f"{x:.5g}" for x in stats["image_mean"]),
     ]
     return "\n".join(lines)
