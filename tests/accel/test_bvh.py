@@ -1,5 +1,6 @@
 """The BVH against brute force: closest hits, any-hit segments, test counts, watertightness."""
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from numba import njit, prange
@@ -142,3 +143,27 @@ def test_sah_separates_clusters_that_a_median_split_would_cut():
     right = bvh.bounds[bvh.node_index[0]]
     lo, hi = sorted([left, right], key=lambda b: b[0])
     assert lo[3] < -4 and hi[0] > 4  # each child holds exactly one cluster
+
+
+def test_parallel_build_gives_the_single_threaded_tree():
+    """Subtrees below the top levels are built concurrently and spliced in: the same arrays as one thread."""
+    import numba
+
+    from probvis.accel.bvh import PARALLEL_MIN_TRIANGLES
+
+    rng = np.random.default_rng(5)
+    tris = random_soup(rng, PARALLEL_MIN_TRIANGLES + 5000, size=0.02)
+    tris[:3000] = tris[0]  # a clump of identical triangles (count splits) inside the parallel part
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = build_bvh(tris)
+    finally:
+        numba.set_num_threads(threads)
+    if threads < 2:
+        pytest.skip("one thread: nothing is built concurrently")
+    many = build_bvh(tris)
+    for a, b in ((one.bounds, many.bounds), (one.node_index, many.node_index), (one.node_count, many.node_count),
+                 (one.prim_ids, many.prim_ids), (one.packed, many.packed)):
+        np.testing.assert_array_equal(a, b)
+    assert one.max_depth == many.max_depth

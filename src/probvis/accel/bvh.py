@@ -6,14 +6,18 @@ primitives of a leaf.
 Triangle vertices are stored in BVH order in `tri_v`; `prim_ids` maps BVH order back to scene triangle ids.
 """
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import numba
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 N_BINS = 16
 MAX_LEAF = 8
 TRAVERSAL_COST = 1.0  # relative to one ray-triangle test
+PARALLEL_MIN_TRIANGLES = 20000  # smaller meshes build on one thread
+PARALLEL_DEPTH = 3  # subtrees below this depth (up to 8) are built concurrently
 
 
 @njit(cache=True, error_model="numpy")
@@ -24,20 +28,24 @@ def _area(b):
     return 2.0 * (dx * dy + dy * dz + dz * dx)
 
 
-@njit(cache=True, error_model="numpy")
-def _build(tri_lo, tri_hi, cent, n_bins, max_leaf, trav_cost):
-    n = cent.shape[0]
-    idx = np.arange(n).astype(np.int32)
+@njit(cache=True, error_model="numpy", nogil=True)
+def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, defer_depth):
+    """Build the subtree over idx[first:last] (reordering that range in place). Ranges reached at depth
+    `defer_depth` (> 0) are not built but left as placeholder nodes (count -1, range in `deferred`), so that
+    the caller can build them concurrently. Leaves store absolute positions in `idx`."""
+    n = last - first
     max_nodes = 2 * n
     bounds = np.empty((max_nodes, 6))
     node_index = np.zeros(max_nodes, np.int32)
     node_count = np.zeros(max_nodes, np.int32)
-    # pending ranges: start, end, parent (right-child links are patched when the node is created)
+    deferred = np.empty((max(1, 1 << max(defer_depth, 0)), 3), np.int64)  # node, start, end
+    n_deferred = 0
+    # pending ranges: start, end, parent (right-child links are patched when the node is created), depth
     st_start = np.empty(n + 64, np.int64)
     st_end = np.empty(n + 64, np.int64)
     st_parent = np.empty(n + 64, np.int64)
-    sp = 0
-    st_start[0], st_end[0], st_parent[0] = 0, n, -1
+    st_depth = np.empty(n + 64, np.int64)
+    st_start[0], st_end[0], st_parent[0], st_depth[0] = first, last, -1, 0
     sp = 1
     n_nodes = 0
     bin_cnt = np.zeros((3, n_bins), np.int64)
@@ -48,11 +56,16 @@ def _build(tri_lo, tri_hi, cent, n_bins, max_leaf, trav_cost):
     acc = np.empty(6)
     while sp > 0:
         sp -= 1
-        start, end, parent = st_start[sp], st_end[sp], st_parent[sp]
+        start, end, parent, depth = st_start[sp], st_end[sp], st_parent[sp], st_depth[sp]
         node = n_nodes
         n_nodes += 1
         if parent >= 0:
             node_index[parent] = node
+        if defer_depth > 0 and depth == defer_depth and end - start > 1:
+            node_count[node] = -1
+            deferred[n_deferred, 0], deferred[n_deferred, 1], deferred[n_deferred, 2] = node, start, end
+            n_deferred += 1
+            continue
         # node bounds and centroid bounds
         for k in range(3):
             bounds[node, k] = np.inf
@@ -145,12 +158,12 @@ def _build(tri_lo, tri_hi, cent, n_bins, max_leaf, trav_cost):
         if mid <= start or mid >= end:
             mid = (start + end) // 2  # all centroids coincide: split by count
         node_count[node] = 0
-        st_start[sp], st_end[sp], st_parent[sp] = mid, end, node
+        st_start[sp], st_end[sp], st_parent[sp], st_depth[sp] = mid, end, node, depth + 1
         sp += 1
-        st_start[sp], st_end[sp], st_parent[sp] = start, mid, -1
+        st_start[sp], st_end[sp], st_parent[sp], st_depth[sp] = start, mid, -1, depth + 1
         sp += 1
     return bounds[:n_nodes].copy(), node_index[:n_nodes].copy(), node_count[:n_nodes].copy(), \
-        idx
+        deferred[:n_deferred].copy()
 
 
 @njit(cache=True, error_model="numpy")
@@ -206,30 +219,75 @@ class BVH:
         }
 
 
+@njit(cache=True, parallel=True, error_model="numpy")
+def _fill_records(rec, ints, bounds, node_index, node_count):
+    for i in prange(bounds.shape[0]):
+        inner = node_count[i] == 0
+        for k in range(6):
+            rec[i, k] = bounds[i + 1, k] if inner else 0.0
+            rec[i, 6 + k] = bounds[node_index[i], k] if inner else 0.0
+        ints[i, 12] = node_index[i]
+        ints[i, 13] = node_count[i]
+        ints[i, 14] = 0
+        ints[i, 15] = 0
+
+
 def _pack(bounds, node_index, node_count):
     """Two cache lines per node: both children's boxes in float64 (columns 0-11, so one visit tests the two
     children with the exact bounds), then as int64 the right child or first primitive (12) and the leaf
     primitive count (13, 0 for interior nodes)."""
-    buf = np.zeros(len(bounds) * 16 + 8, np.float64)
+    buf = np.empty(len(bounds) * 16 + 8, np.float64)
     start = (-buf.ctypes.data % 64) // 8  # align records to 64 bytes
     rec = buf[start:start + len(bounds) * 16].reshape(-1, 16)
-    inner = np.flatnonzero(node_count == 0)
-    rec[inner, 0:6] = bounds[inner + 1]
-    rec[inner, 6:12] = bounds[node_index[inner]]
-    ints = rec.view(np.int64)
-    ints[:, 12] = node_index
-    ints[:, 13] = node_count
+    _fill_records(rec, rec.view(np.int64), bounds, node_index, node_count)
     return rec
 
 
+def _splice(bounds, node_index, node_count, deferred, subtrees):
+    """The depth-first node arrays of the top tree with each placeholder replaced by its subtree: the same
+    arrays a single-threaded build produces."""
+    top = len(bounds)
+    sizes = np.array([len(sub[0]) for sub in subtrees], np.int64)
+    shift = np.zeros(top + 1, np.int64)
+    np.add.at(shift, deferred[:, 0] + 1, sizes - 1)
+    final = np.arange(top) + np.cumsum(shift)[:top]
+    total = top + int((sizes - 1).sum())
+    out_b = np.empty((total, 6))
+    out_i = np.empty(total, np.int32)
+    out_c = np.empty(total, np.int32)
+    keep = node_count != -1
+    inner = keep & (node_count == 0)
+    out_b[final[keep]] = bounds[keep]
+    out_c[final[keep]] = node_count[keep]
+    out_i[final[keep]] = node_index[keep]
+    out_i[final[inner]] = final[node_index[inner]]
+    for (node, _, _), (b, ni, nc, _) in zip(deferred, subtrees):
+        base = final[node]
+        out_b[base:base + len(b)] = b
+        out_c[base:base + len(b)] = nc
+        out_i[base:base + len(b)] = np.where(nc == 0, ni + base, ni)
+    return out_b, out_i, out_c
+
+
 def build_bvh(triangles, n_bins=N_BINS, max_leaf=MAX_LEAF):
-    """Build a BVH over `triangles` (n, 3, 3) float64."""
+    """Build a BVH over `triangles` (n, 3, 3) float64. Large meshes build the top levels first and the
+    subtrees below them on all threads; the tree is the same as a single-threaded build's."""
     tris = np.ascontiguousarray(triangles, dtype=np.float64)
     t0 = time.perf_counter()
     lo = tris.min(axis=1)
     hi = tris.max(axis=1)
     cent = 0.5 * (lo + hi)
-    bounds, node_index, node_count, idx = _build(lo, hi, cent, n_bins, max_leaf, TRAVERSAL_COST)
+    n = len(tris)
+    idx = np.arange(n, dtype=np.int32)
+    threads = numba.get_num_threads()
+    defer = PARALLEL_DEPTH if n >= PARALLEL_MIN_TRIANGLES and threads > 1 else 0
+    bounds, node_index, node_count, deferred = _build(lo, hi, cent, idx, 0, n, n_bins, max_leaf, TRAVERSAL_COST,
+                                                      defer)
+    if len(deferred):
+        with ThreadPoolExecutor(threads) as pool:
+            subtrees = list(pool.map(lambda d: _build(lo, hi, cent, idx, d[1], d[2], n_bins, max_leaf,
+                                                      TRAVERSAL_COST, 0), deferred))
+        bounds, node_index, node_count = _splice(bounds, node_index, node_count, deferred, subtrees)
     tri_v = np.ascontiguousarray(tris[idx])
     depth = int(_depth_stats(node_index, node_count))
     return BVH(bounds, node_index, node_count, tri_v, idx, depth, time.perf_counter() - t0)
