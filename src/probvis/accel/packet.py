@@ -17,17 +17,21 @@ PACKETS_PER_TASK = 8
 _BIG = 1e300  # reciprocal of a zero direction component: finite, so (bound - origin) * _BIG is never NaN
 
 
+@njit(cache=True, error_model="numpy")
 def packet_starts(point, max_size=MAX_PACKET):
     """Packet boundaries for segments sorted by shading point: a packet is a run of equal `point` values,
     cut every `max_size` segments. Returns (packets + 1,) int64 offsets."""
-    n = len(point)
-    cuts = np.flatnonzero(point[1:] != point[:-1]) + 1
-    runs = np.concatenate([[0], cuts, [n]]).astype(np.int64)
-    lengths = np.diff(runs)
-    pieces = (lengths + max_size - 1) // max_size
-    run_of = np.repeat(np.arange(len(lengths)), pieces)
-    k = np.arange(len(run_of)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
-    return np.append(runs[:-1][run_of] + k * max_size, n).astype(np.int64)
+    n = point.shape[0]
+    starts = np.empty(n + 1, np.int64)
+    k = 0
+    first = 0
+    for i in range(n):
+        if i == 0 or point[i] != point[i - 1] or i - first == max_size:
+            starts[k] = i
+            k += 1
+            first = i
+    starts[k] = n
+    return starts[:k + 1].copy()
 
 
 @njit(cache=True, error_model="numpy", inline="always")
