@@ -14,7 +14,7 @@ from .traversal import _BOX_SLACK, hit_triangle, ray_setup
 
 MAX_PACKET = 64  # rays per packet: one bit each in a uint64 mask
 PACKETS_PER_TASK = 8
-_BIG = 1e300  # reciprocal of a zero direction component: finite, so (bound - origin) * _BIG is never NaN
+_BIG = 1e300  # reciprocal of a zero direction component: finite, so an axis-parallel ray gives no NaN
 
 
 @njit(cache=True, error_model="numpy")
