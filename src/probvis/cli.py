@@ -47,11 +47,16 @@ def _positive_float(text):
     return v
 
 
-def _triple(text):
+def _comma_list(text, convert, what):
+    """The comma-separated values of `text` converted, or an argparse error naming `what` was expected."""
     try:
-        v = tuple(float(x) for x in text.split(","))
+        return tuple(convert(x) for x in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers, got '{text}'") from None
+        raise argparse.ArgumentTypeError(f"expected {what}, got '{text}'") from None
+
+
+def _triple(text):
+    v = _comma_list(text, float, "three comma-separated numbers")
     if len(v) != 3:
         raise argparse.ArgumentTypeError(f"expected three comma-separated numbers, got '{text}'")
     return v
@@ -59,10 +64,7 @@ def _triple(text):
 
 def _seed_list(text):
     """argparse type: distinct comma-separated whole numbers >= 0."""
-    try:
-        v = tuple(int(x) for x in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated whole numbers, got '{text}'") from None
+    v = _comma_list(text, int, "comma-separated whole numbers")
     if min(v) < 0 or len(set(v)) != len(v):
         raise argparse.ArgumentTypeError(f"expected distinct seeds >= 0, got '{text}'")
     return v

@@ -19,12 +19,6 @@ def unit_normal(triangles, t):
     return nx * inv, ny * inv, nz * inv
 
 
-def face_normals(triangles):
-    """(n, 3) unit normals of all triangles."""
-    n = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
-    return n / np.linalg.norm(n, axis=1, keepdims=True)
-
-
 @njit(cache=True, error_model="numpy")
 def unit_normals(triangles):
     """(n, 3) `unit_normal` of every triangle, bit for bit as the kernels compute it."""

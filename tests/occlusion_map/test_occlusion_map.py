@@ -13,7 +13,7 @@ from probvis.occlusion_map import closed_orientation
 from probvis.scene import SceneBuilder, load_scene
 from probvis.scene import shapes as shp
 from probvis.visibility import ShadingPoints, make_estimator
-from probvis.geometry import face_normals
+from probvis.geometry import unit_normals
 from probvis.visibility.occlusion_map import visibility_from_lists
 from tests.conftest import sensor, write_scene
 
@@ -109,7 +109,7 @@ def test_closed_components_are_found_and_culling_keeps_visibility_identical():
     end = 2.5 * b / np.linalg.norm(b, axis=1, keepdims=True) + [1, 0, 0]
     everything = np.arange(scene.n_triangles, dtype=np.int32)
     lo, hi = np.zeros(n, np.int64), np.full(n, scene.n_triangles, np.int64)
-    fn = face_normals(scene.triangles)
+    fn = unit_normals(scene.triangles)
     args = (org, end - org, np.ones(n), lo, hi, everything)
     vis_all, tests_all, cull_none = visibility_from_lists(scene.triangles, np.zeros_like(orient), fn, *args)
     vis_cull, tests_cull, culled = visibility_from_lists(scene.triangles, orient, fn, *args)

@@ -10,7 +10,7 @@ from numba import njit, prange
 from ..accel import occluded_segments
 from ..accel.traversal import hit_triangle, ray_setup
 from ..errors import ProbvisError
-from ..geometry import face_normals
+from ..geometry import unit_normals
 from ..occlusion_map import (OcclusionMap, closed_orientation, components, refine, shoot_photons,
                              blocker_groups)
 from .base import CASE_PENUMBRA, CASE_UNKNOWN, VisibilityEstimator, VisibilityResult
@@ -105,7 +105,7 @@ class OcclusionMapVisibility(VisibilityEstimator):
         n = self.n_photons or max(MIN_PHOTONS_DEFAULT,
                                   int(PHOTONS_PER_CAMERA_SAMPLE * cam.width * cam.height * scene.spp))
         t_geom = time.perf_counter()
-        self.fnormal = face_normals(scene.triangles)
+        self.fnormal = unit_normals(scene.triangles)
         n_tri = scene.n_triangles
         self.orientation = np.zeros(n_tri, np.int8)
         if self.penumbra == "list":
