@@ -23,12 +23,15 @@ from .camera import camera_params, camera_rays
 from .errors import ProbvisError
 from .geometry import unit_normals
 from .lights import build_emitter_sampler, choose_emitter, emitter_irradiance, sample_on_emitter, sampled_share
+from .parallel import spread, spread_iterations
 from .rng import mix64, uniform
 from .scene import Scene, load_scene
 from .visibility import CASE_LIT, CASE_NAMES, CASE_UNKNOWN, N_CASES, ShadingPoints, ShadowQuery, make_estimator
 
 SHADOW_EPSILON = 1e-6  # segments stop this fraction short of the emitter point
 TARGET_SLOTS = 1 << 20  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
+POINTS_PER_BLOCK = 64  # shading points per parallel work item of the emitter sampling
+N_COUNTS = 5  # per-pixel counts kept by `accumulate`
 
 
 @dataclass
@@ -95,56 +98,61 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s
     n_emit = pmf.shape[0]
     analytic = np.zeros((n, 3))
     inv_pi = 1.0 / math.pi
-    for i in prange(n):
-        for j in range(n_shadow):
-            active[i * n_shadow + j] = False
-        mi = mat[i]
-        if mi < 0:
+    n_blocks = (n + POINTS_PER_BLOCK - 1) // POINTS_PER_BLOCK
+    for it in prange(spread_iterations(n_blocks)):
+        blk = spread(it, n_blocks)
+        if blk < 0:
             continue
-        tri = prim[i]
-        px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
-        sx, sy, sz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
-        for e in range(n_emit):
-            if cases[i, e] == CASE_LIT:
-                f = emitter_irradiance(e, offsets, etris, triangles, px, py, pz, sx, sy, sz) * inv_pi
+        for i in range(blk * POINTS_PER_BLOCK, min(n, (blk + 1) * POINTS_PER_BLOCK)):
+            for j in range(n_shadow):
+                active[i * n_shadow + j] = False
+            mi = mat[i]
+            if mi < 0:
+                continue
+            tri = prim[i]
+            px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
+            sx, sy, sz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
+            for e in range(n_emit):
+                if cases[i, e] == CASE_LIT:
+                    f = emitter_irradiance(e, offsets, etris, triangles, px, py, pz, sx, sy, sz) * inv_pi
+                    for k in range(3):
+                        analytic[i, k] += refl[mi, k] * radiance[e, k] * f
+            total, only = sampled_share(pmf, cases, i)
+            if total <= 0.0:
+                continue
+            gx, gy, gz = fnormals[tri, 0], fnormals[tri, 1], fnormals[tri, 2]
+            eps = 1e-9 * (1.0 + max(abs(px), abs(py), abs(pz)))
+            key = keys[i]
+            for j in range(n_shadow):
+                slot = i * n_shadow + j
+                if only >= 0:  # a single emitter: no choice (its random dimension is simply not drawn)
+                    le, p_e = only, 1.0
+                else:
+                    le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
+                lt, yx, yy, yz = sample_on_emitter(le, offsets, etris, tri_cdf, triangles, uniform(key, 3 + 4 * j),
+                                                   uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
+                pdf = p_e / area[le]
+                wx, wy, wz = yx - px, yy - py, yz - pz
+                d2 = wx * wx + wy * wy + wz * wz
+                if d2 == 0.0:
+                    continue
+                inv = 1.0 / math.sqrt(d2)
+                cos_x = (sx * wx + sy * wy + sz * wz) * inv
+                if cos_x <= 0.0:
+                    continue
+                lx, ly, lz = fnormals[lt, 0], fnormals[lt, 1], fnormals[lt, 2]
+                cos_y = -(lx * wx + ly * wy + lz * wz) * inv
+                if cos_y <= 0.0:
+                    continue
+                g = cos_x * cos_y / (d2 * pdf * n_shadow) * inv_pi
+                off = eps if gx * wx + gy * wy + gz * wz > 0.0 else -eps
+                ox, oy, oz = px + off * gx, py + off * gy, pz + off * gz
                 for k in range(3):
-                    analytic[i, k] += refl[mi, k] * radiance[e, k] * f
-        total, only = sampled_share(pmf, cases, i)
-        if total <= 0.0:
-            continue
-        gx, gy, gz = fnormals[tri, 0], fnormals[tri, 1], fnormals[tri, 2]
-        eps = 1e-9 * (1.0 + max(abs(px), abs(py), abs(pz)))
-        key = keys[i]
-        for j in range(n_shadow):
-            slot = i * n_shadow + j
-            if only >= 0:  # a single emitter: no choice (its random dimension is simply not drawn)
-                le, p_e = only, 1.0
-            else:
-                le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
-            lt, yx, yy, yz = sample_on_emitter(le, offsets, etris, tri_cdf, triangles, uniform(key, 3 + 4 * j),
-                                               uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
-            pdf = p_e / area[le]
-            wx, wy, wz = yx - px, yy - py, yz - pz
-            d2 = wx * wx + wy * wy + wz * wz
-            if d2 == 0.0:
-                continue
-            inv = 1.0 / math.sqrt(d2)
-            cos_x = (sx * wx + sy * wy + sz * wz) * inv
-            if cos_x <= 0.0:
-                continue
-            lx, ly, lz = fnormals[lt, 0], fnormals[lt, 1], fnormals[lt, 2]
-            cos_y = -(lx * wx + ly * wy + lz * wz) * inv
-            if cos_y <= 0.0:
-                continue
-            g = cos_x * cos_y / (d2 * pdf * n_shadow) * inv_pi
-            off = eps if gx * wx + gy * wy + gz * wz > 0.0 else -eps
-            ox, oy, oz = px + off * gx, py + off * gy, pz + off * gz
-            for k in range(3):
-                contrib[slot, k] = refl[mi, k] * radiance[le, k] * g
-            s_org[slot, 0], s_org[slot, 1], s_org[slot, 2] = ox, oy, oz
-            s_dir[slot, 0], s_dir[slot, 1], s_dir[slot, 2] = yx - ox, yy - oy, yz - oz
-            s_emit[slot] = le
-            active[slot] = True
+                    contrib[slot, k] = refl[mi, k] * radiance[le, k] * g
+                s_org[slot, 0], s_org[slot, 1], s_org[slot, 2] = ox, oy, oz
+                s_dir[slot, 0], s_dir[slot, 1], s_dir[slot, 2] = yx - ox, yy - oy, yz - oz
+                s_emit[slot] = le
+                active[slot] = True
     return analytic
 
 
@@ -180,15 +188,16 @@ def compact(active, s_org, s_dir, s_emit, keys, n_shadow, org, dirs, point, emit
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def accumulate(emitted, contrib, active, offsets, value, cam_node, cam_tri, sh_node, sh_tri, spp, n_shadow, n_pix):
-    """Pixel means (box filter), per-pixel second moment of the sample radiance, and per-pixel test counts."""
+    """Pixel means (box filter), per-pixel second moment of the sample radiance, and per-pixel counts:
+    camera-ray triangle and node tests, shadow-ray triangle and node tests, negative visibility estimates."""
     img = np.zeros((n_pix, 3))
     m2 = np.zeros((n_pix, 3))
-    tests = np.zeros((n_pix, 2), np.int64)  # triangle, node
+    counts = np.zeros((n_pix, N_COUNTS), np.int64)
     for q in prange(n_pix):
         for s in range(spp):
             i = q * spp + s
-            tests[q, 0] += cam_tri[i]
-            tests[q, 1] += cam_node[i]
+            counts[q, 0] += cam_tri[i]
+            counts[q, 1] += cam_node[i]
             l0, l1, l2 = emitted[i, 0], emitted[i, 1], emitted[i, 2]
             k = offsets[i]
             for j in range(n_shadow):
@@ -198,8 +207,9 @@ def accumulate(emitted, contrib, active, offsets, value, cam_node, cam_tri, sh_n
                     l0 += contrib[slot, 0] * v
                     l1 += contrib[slot, 1] * v
                     l2 += contrib[slot, 2] * v
-                    tests[q, 0] += sh_tri[k]
-                    tests[q, 1] += sh_node[k]
+                    counts[q, 2] += sh_tri[k]
+                    counts[q, 3] += sh_node[k]
+                    counts[q, 4] += v < 0.0
                     k += 1
             img[q, 0] += l0
             img[q, 1] += l1
@@ -210,7 +220,7 @@ def accumulate(emitted, contrib, active, offsets, value, cam_node, cam_tri, sh_n
         for c in range(3):
             img[q, c] /= spp
             m2[q, c] /= spp
-    return img, m2, tests
+    return img, m2, counts
 
 
 class _Buffers:
@@ -296,9 +306,8 @@ def _render_prepared(scene, estimator, progress, warmup=False):
     buffers = _Buffers(per_batch * spp * n_shadow)
     image = np.zeros((n_pix_total, 3))
     moment2 = np.zeros((n_pix_total, 3))
-    tests = np.zeros((n_pix_total, 2), np.int64)
-    totals = dict(cam_tri=0, cam_node=0, sh_tri=0, sh_node=0, shadow_rays=0, camera_hits=0, negative=0,
-                  cases=[0] * N_CASES)
+    counts = np.zeros((n_pix_total, N_COUNTS), np.int64)
+    totals = dict(shadow_rays=0, camera_hits=0, cases=[0] * N_CASES)
     case_counts = None
     bar = None
     if progress:
@@ -334,26 +343,22 @@ def _render_prepared(scene, estimator, progress, warmup=False):
                                     point=buffers.point[:n_q], emitter=buffers.emit[:n_q], key=buffers.key[:n_q],
                                     points=points)
                 res = estimator.evaluate(query)
-                img, m2, tst = accumulate(emitted, contrib, active, offsets, res.value, cam_node, cam_tri,
+                img, m2, cnt = accumulate(emitted, contrib, active, offsets, res.value, cam_node, cam_tri,
                                           res.node_tests, res.triangle_tests, spp, n_shadow, p1 - p0)
-                image[p0:p1], moment2[p0:p1], tests[p0:p1] = img, m2, tst
-                totals["cam_tri"] += int(cam_tri.sum())
-                totals["cam_node"] += int(cam_node.sum())
-                totals["sh_tri"] += int(res.triangle_tests.sum())
-                totals["sh_node"] += int(res.node_tests.sum())
+                image[p0:p1], moment2[p0:p1], counts[p0:p1] = img, m2, cnt
                 totals["shadow_rays"] += n_q
                 totals["camera_hits"] += int((prim >= 0).sum())
-                totals["negative"] += int((res.value < 0).sum())
                 if bar is not None:
                     bar.update(p1 - p0)
         finally:
             if bar is not None:
                 bar.close()
     render_seconds = time.perf_counter() - t_render
+    totals.update(zip(("cam_tri", "cam_node", "sh_tri", "sh_node", "negative"), map(int, counts.sum(axis=0))))
     shape = (height, width)
     aovs = {
-        "triangle_tests": tests[:, 0].reshape(shape),
-        "node_tests": tests[:, 1].reshape(shape),
+        "triangle_tests": (counts[:, 0] + counts[:, 2]).reshape(shape),
+        "node_tests": (counts[:, 1] + counts[:, 3]).reshape(shape),
         "second_moment": moment2.reshape(shape + (3,)),
     }
     if case_counts is not None:

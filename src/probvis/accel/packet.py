@@ -10,6 +10,7 @@ different blocker first. Results are those of `traversal.any_hit`.
 import numpy as np
 from numba import njit, prange
 
+from ..parallel import spread, spread_iterations
 from .traversal import _BOX_SLACK, hit_triangle, ray_setup
 
 MAX_PACKET = 64  # rays per packet: one bit each in a uint64 mask
@@ -61,8 +62,8 @@ def _child_boxes(b, node, m, rays, t_left, t_right):
 
 
 @njit(cache=True, error_model="numpy")
-def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, shear, axes, t_left, t_right, visits,
-                  stack, stack_mask, occ, n_node, n_tri):
+def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left, t_right, visits, stack,
+                  stack_mask, occ, n_node, n_tri):
     """Any-hit traversal of segments lo..lo+m-1 (m <= 64); fills their `occ`, `n_node` and `n_tri`."""
     one = np.uint64(1)
     for r in range(m):
@@ -73,9 +74,6 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, shear, 
         rays[4, r] = 1.0 / dy if dy != 0.0 else _BIG
         rays[5, r] = 1.0 / dz if dz != 0.0 else _BIG
         rays[6, r], rays[7, r] = tmin[i], tmax[i]
-        kx, ky, kz, sx, sy, sz = ray_setup(dx, dy, dz)
-        shear[0, r], shear[1, r], shear[2, r] = sx, sy, sz
-        axes[0, r], axes[1, r], axes[2, r] = kx, ky, kz
         visits[r] = 0
         occ[i] = False
         n_tri[i] = 0
@@ -128,10 +126,11 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, shear, 
                     if mask & bit == 0:
                         continue
                     o = (rays[0, r], rays[1, r], rays[2, r])
+                    # the triangle test's shear, only for the few rays that reach a leaf (saves divisions)
+                    kx, ky, kz, sx, sy, sz = ray_setup(dirs[lo + r, 0], dirs[lo + r, 1], dirs[lo + r, 2])
                     for p in range(first, first + cnt):
                         n_tri[lo + r] += 1
-                        t, _, _ = hit_triangle(tv, p, o, axes[0, r], axes[1, r], axes[2, r], shear[0, r],
-                                               shear[1, r], shear[2, r], rays[6, r], rays[7, r])
+                        t, _, _ = hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, rays[6, r], rays[7, r])
                         if t < rays[7, r]:
                             occ[lo + r] = True
                             alive &= ~bit
@@ -157,10 +156,12 @@ def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     root2 = np.empty((1, 12))
     root2[0, :6] = root
     root2[0, 6:] = root
-    for task in prange((n_packets + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK):
+    n_tasks = (n_packets + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
+    for it in prange(spread_iterations(n_tasks)):
+        task = spread(it, n_tasks)
+        if task < 0:
+            continue
         rays = np.empty((8, MAX_PACKET))
-        shear = np.empty((3, MAX_PACKET))
-        axes = np.empty((3, MAX_PACKET), np.int64)
         t_left = np.empty(MAX_PACKET)
         t_right = np.empty(MAX_PACKET)
         visits = np.empty(MAX_PACKET, np.uint64)
@@ -168,7 +169,7 @@ def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
         stack_mask = np.empty(depth, np.uint64)
         for k in range(task * PACKETS_PER_TASK, min(n_packets, (task + 1) * PACKETS_PER_TASK)):
             _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays,
-                          shear, axes, t_left, t_right, visits, stack, stack_mask, occ, n_node, n_tri)
+                          t_left, t_right, visits, stack, stack_mask, occ, n_node, n_tri)
     return occ, n_node, n_tri
 
 
