@@ -29,7 +29,7 @@ from .scene import Scene, load_scene
 from .visibility import CASE_LIT, CASE_NAMES, CASE_UNKNOWN, N_CASES, ShadingPoints, ShadowQuery, make_estimator
 
 SHADOW_EPSILON = 1e-6  # segments stop this fraction short of the emitter point
-TARGET_SLOTS = 1 << 20  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
+TARGET_SLOTS = 1 << 18  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
 POINTS_PER_BLOCK = 64  # shading points per parallel work item of the emitter sampling
 N_COUNTS = 5  # per-pixel counts kept by `accumulate`
 
