@@ -23,7 +23,7 @@ from .camera import camera_params, camera_rays
 from .errors import ProbvisError
 from .geometry import unit_normals
 from .lights import build_emitter_sampler, choose_emitter, emitter_irradiance, sample_on_emitter, sampled_share
-from .parallel import spread, spread_iterations
+from .parallel import spread
 from .rng import mix64, uniform
 from .scene import Scene, load_scene
 from .visibility import CASE_LIT, CASE_NAMES, CASE_UNKNOWN, N_CASES, ShadingPoints, ShadowQuery, make_estimator
@@ -99,10 +99,8 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s
     analytic = np.zeros((n, 3))
     inv_pi = 1.0 / math.pi
     n_blocks = (n + POINTS_PER_BLOCK - 1) // POINTS_PER_BLOCK
-    for it in prange(spread_iterations(n_blocks)):
+    for it in prange(n_blocks):
         blk = spread(it, n_blocks)
-        if blk < 0:
-            continue
         for i in range(blk * POINTS_PER_BLOCK, min(n, (blk + 1) * POINTS_PER_BLOCK)):
             for j in range(n_shadow):
                 active[i * n_shadow + j] = False

@@ -10,7 +10,7 @@ different blocker first. Results are those of `traversal.any_hit`.
 import numpy as np
 from numba import njit, prange
 
-from ..parallel import spread, spread_iterations
+from ..parallel import spread
 from .traversal import _BOX_SLACK, hit_triangle, ray_setup
 
 MAX_PACKET = 64  # rays per packet: one bit each in a uint64 mask
@@ -157,10 +157,8 @@ def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     root2[0, :6] = root
     root2[0, 6:] = root
     n_tasks = (n_packets + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
-    for it in prange(spread_iterations(n_tasks)):
+    for it in prange(n_tasks):
         task = spread(it, n_tasks)
-        if task < 0:
-            continue
         rays = np.empty((8, MAX_PACKET))
         t_left = np.empty(MAX_PACKET)
         t_right = np.empty(MAX_PACKET)

@@ -7,7 +7,7 @@ Wald (JCGT 2013) in double precision: rays through shared edges and vertices nev
 import numpy as np
 from numba import njit, prange
 
-from ..parallel import spread, spread_iterations
+from ..parallel import spread
 
 CHUNK = 64  # rays per stack allocation in the parallel loops
 _BOX_SLACK = 1.0 + 2.0 * 3.0 * 1.1102230246251565e-16  # 1 + 2 gamma(3): conservative slab exit
@@ -178,10 +178,8 @@ def closest_hit(bvh, org, dirs, tmin, tmax):
     n_node = np.zeros(n, np.int32)
     n_tri = np.zeros(n, np.int32)
     n_chunks = (n + CHUNK - 1) // CHUNK
-    for it in prange(spread_iterations(n_chunks)):
+    for it in prange(n_chunks):
         c = spread(it, n_chunks)
-        if c < 0:
-            continue
         stack = np.empty(depth, np.int32)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             p, tt, u, v, a, b = trace(cb, ci, root, tv, org[i, 0], org[i, 1], org[i, 2],
@@ -202,10 +200,8 @@ def any_hit(bvh, org, dirs, tmin, tmax):
     n_node = np.zeros(n, np.int32)
     n_tri = np.zeros(n, np.int32)
     n_chunks = (n + CHUNK - 1) // CHUNK
-    for it in prange(spread_iterations(n_chunks)):
+    for it in prange(n_chunks):
         c = spread(it, n_chunks)
-        if c < 0:
-            continue
         stack = np.empty(depth, np.int32)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             p, _, _, _, a, b = trace(cb, ci, root, tv, org[i, 0], org[i, 1], org[i, 2],
@@ -284,10 +280,8 @@ def all_hits(bvh, org, dirs, tmin, cap):
     n_node = np.zeros(n, np.int32)
     n_tri = np.zeros(n, np.int32)
     n_chunks = (n + CHUNK - 1) // CHUNK
-    for it in prange(spread_iterations(n_chunks)):
+    for it in prange(n_chunks):
         c = spread(it, n_chunks)
-        if c < 0:
-            continue
         stack = np.empty(depth, np.int32)
         ot = np.empty(cap)
         op = np.empty(cap, np.int32)
