@@ -129,20 +129,15 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s
                     le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
                 lt, yx, yy, yz = sample_on_emitter(le, offsets, etris, tri_cdf, triangles, uniform(key, 3 + 4 * j),
                                                    uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
-                pdf = p_e / area[le]
                 wx, wy, wz = yx - px, yy - py, yz - pz
                 d2 = wx * wx + wy * wy + wz * wz
-                if d2 == 0.0:
-                    continue
-                inv = 1.0 / math.sqrt(d2)
-                cos_x = (sx * wx + sy * wy + sz * wz) * inv
-                if cos_x <= 0.0:
-                    continue
+                # cosines times |w|: their signs need no square root, and cos_x cos_y / d2 = dot_x dot_y / d2^2
+                dot_x = sx * wx + sy * wy + sz * wz
                 lx, ly, lz = fnormals[lt, 0], fnormals[lt, 1], fnormals[lt, 2]
-                cos_y = -(lx * wx + ly * wy + lz * wz) * inv
-                if cos_y <= 0.0:
+                dot_y = -(lx * wx + ly * wy + lz * wz)
+                if dot_x <= 0.0 or dot_y <= 0.0:
                     continue
-                g = cos_x * cos_y / (d2 * pdf * n_shadow) * inv_pi
+                g = dot_x * dot_y * (area[le] * inv_pi / (p_e * n_shadow)) / (d2 * d2)
                 off = eps if gx * wx + gy * wy + gz * wz > 0.0 else -eps
                 ox, oy, oz = px + off * gx, py + off * gy, pz + off * gz
                 for k in range(3):

@@ -61,7 +61,7 @@ def _child_boxes(b, node, m, rays, t_left, t_right):
                 t_right[r] = t
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left, t_right, visits, stack,
                   stack_mask, occ, n_node, n_tri):
     """Any-hit traversal of segments lo..lo+m-1 (m <= 64); fills their `occ`, `n_node` and `n_tri`."""

@@ -14,7 +14,7 @@ from numba import njit, prange
 from ..cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _gather(nbr, i, pn, nb, start, ray_tris, group, nx, ny, nz, normal_cos, buf):
     """Blocker groups of point i's agreeing shadow photons into `buf`; returns (light, shadow, gathered)."""
     n_light, n_shadow, m = 0, 0, 0
@@ -32,7 +32,7 @@ def _gather(nbr, i, pn, nb, start, ray_tris, group, nx, ny, nz, normal_cos, buf)
     return n_light, n_shadow, m
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _unique_by_frequency(buf, m):
     """Distinct values of buf[:m] and how often each occurs, most frequent first (ties: lower id first)."""
     s = np.sort(buf[:m])

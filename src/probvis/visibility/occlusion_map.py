@@ -29,7 +29,7 @@ def culled(orientation, fnormal, t, dx, dy, dz):
     return o != 0 and o * (fnormal[t, 0] * dx + fnormal[t, 1] * dy + fnormal[t, 2] * dz) <= 0.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def first_blocker(triangles, orientation, fnormal, ox, oy, oz, dx, dy, dz, tmax, tris, lo, hi):
     """Test candidates tris[lo:hi] in order until one blocks the segment.
 
