@@ -196,8 +196,9 @@ class BVH:
 
     @property
     def arrays(self):
-        """The tuple handed to the traversal kernels: float and int views of the same 64-byte node records."""
-        return (self.packed, self.packed.view(np.int64), self.bounds[0].copy(), self.tri_v, self.prim_ids,
+        """The tuple handed to the traversal kernels: float and int views of the same node records, the root
+        box as a (1, 6) array, triangles, primitive ids and the stack depth."""
+        return (self.packed, self.packed.view(np.int64), self.bounds[:1].copy(), self.tri_v, self.prim_ids,
                 self.max_depth + 2)
 
     def stats(self):

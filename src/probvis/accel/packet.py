@@ -154,8 +154,8 @@ def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     n_tri = np.zeros(n, np.int32)
     n_packets = starts.shape[0] - 1
     root2 = np.empty((1, 12))
-    root2[0, :6] = root
-    root2[0, 6:] = root
+    root2[0, :6] = root[0]
+    root2[0, 6:] = root[0]
     n_tasks = (n_packets + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
     for it in prange(n_tasks):
         task = spread(it, n_tasks)

@@ -124,8 +124,7 @@ def trace(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit, stack):
     kx, ky, kz, sx, sy, sz = ray_setup(dx, dy, dz)
     best, bt, b1, b2 = -1, tmax, 0.0, 0.0
     n_node, n_tri = 1, 0
-    root_box = root.reshape(1, 6)
-    if hit_box(root_box, 0, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, tmin, bt) == np.inf:
+    if hit_box(root, 0, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, tmin, bt) == np.inf:
         return best, bt, b1, b2, n_node, n_tri
     sp = 0
     node = 0
@@ -222,8 +221,7 @@ def trace_all(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, cap, out_t, out_p,
     kx, ky, kz, sx, sy, sz = ray_setup(dx, dy, dz)
     count, n_node, n_tri = 0, 1, 0
     far = np.inf
-    root_box = root.reshape(1, 6)
-    if hit_box(root_box, 0, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, tmin, far) == np.inf:
+    if hit_box(root, 0, 0, ox, oy, oz, ix, iy, iz, nx, ny, nz, tmin, far) == np.inf:
         return count, n_node, n_tri
     sp = 0
     node = 0
