@@ -36,29 +36,38 @@ def packet_starts(point, max_size=MAX_PACKET):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _child_boxes(b, node, m, rays, t_left, t_right):
-    """Entry distances of rays 0..m-1 (columns of `rays`) into both boxes of record `node`, inf on a miss."""
+def _slab_entry(a0, a1, c0, c1, e0, e1, t_lo, t_hi):
+    """Entry distance into a box from the slab distances of its six planes, inf on a miss in [t_lo, t_hi]."""
+    t0 = max(max(min(a0, a1), min(c0, c1)), max(min(e0, e1), t_lo))
+    t1 = min(min(max(a0, a1), max(c0, c1)), max(e0, e1)) * _BOX_SLACK
+    t1 = min(t1, t_hi)
+    return t0 if t0 <= t1 else np.inf
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _child_boxes(b, node, m, rays, shared, t_left, t_right):
+    """Entry distances of rays 0..m-1 (columns of `rays`) into both boxes of record `node`, inf on a miss.
+    With `shared` all rays start at the first one's origin, and box-minus-origin is computed once."""
+    if shared:
+        ox, oy, oz = rays[0, 0], rays[1, 0], rays[2, 0]
+        ax0, ay0, az0, ax1, ay1, az1 = b[node, 0] - ox, b[node, 1] - oy, b[node, 2] - oz, b[node, 3] - ox, \
+            b[node, 4] - oy, b[node, 5] - oz
+        bx0, by0, bz0, bx1, by1, bz1 = b[node, 6] - ox, b[node, 7] - oy, b[node, 8] - oz, b[node, 9] - ox, \
+            b[node, 10] - oy, b[node, 11] - oz
+        for r in range(m):
+            ix, iy, iz, t_lo, t_hi = rays[3, r], rays[4, r], rays[5, r], rays[6, r], rays[7, r]
+            t_left[r] = _slab_entry(ax0 * ix, ax1 * ix, ay0 * iy, ay1 * iy, az0 * iz, az1 * iz, t_lo, t_hi)
+            t_right[r] = _slab_entry(bx0 * ix, bx1 * ix, by0 * iy, by1 * iy, bz0 * iz, bz1 * iz, t_lo, t_hi)
+        return
     ax0, ay0, az0, ax1, ay1, az1 = b[node, 0], b[node, 1], b[node, 2], b[node, 3], b[node, 4], b[node, 5]
     bx0, by0, bz0, bx1, by1, bz1 = b[node, 6], b[node, 7], b[node, 8], b[node, 9], b[node, 10], b[node, 11]
     for r in range(m):
         ox, oy, oz = rays[0, r], rays[1, r], rays[2, r]
-        ix, iy, iz = rays[3, r], rays[4, r], rays[5, r]
-        t_lo, t_hi = rays[6, r], rays[7, r]
-        for side in range(2):
-            if side == 0:  # slab distances to both bounds of each axis
-                a0, a1, c0, c1, e0, e1 = (ax0 - ox) * ix, (ax1 - ox) * ix, (ay0 - oy) * iy, (ay1 - oy) * iy, \
-                    (az0 - oz) * iz, (az1 - oz) * iz
-            else:
-                a0, a1, c0, c1, e0, e1 = (bx0 - ox) * ix, (bx1 - ox) * ix, (by0 - oy) * iy, (by1 - oy) * iy, \
-                    (bz0 - oz) * iz, (bz1 - oz) * iz
-            t0 = max(max(min(a0, a1), min(c0, c1)), max(min(e0, e1), t_lo))
-            t1 = min(min(max(a0, a1), max(c0, c1)), max(e0, e1)) * _BOX_SLACK
-            t1 = min(t1, t_hi)
-            t = t0 if t0 <= t1 else np.inf
-            if side == 0:
-                t_left[r] = t
-            else:
-                t_right[r] = t
+        ix, iy, iz, t_lo, t_hi = rays[3, r], rays[4, r], rays[5, r], rays[6, r], rays[7, r]
+        t_left[r] = _slab_entry((ax0 - ox) * ix, (ax1 - ox) * ix, (ay0 - oy) * iy, (ay1 - oy) * iy,
+                                (az0 - oz) * iz, (az1 - oz) * iz, t_lo, t_hi)
+        t_right[r] = _slab_entry((bx0 - ox) * ix, (bx1 - ox) * ix, (by0 - oy) * iy, (by1 - oy) * iy,
+                                 (bz0 - oz) * iz, (bz1 - oz) * iz, t_lo, t_hi)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -66,6 +75,7 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
                   stack_mask, occ, n_node, n_tri):
     """Any-hit traversal of segments lo..lo+m-1 (m <= 64); fills their `occ`, `n_node` and `n_tri`."""
     one = np.uint64(1)
+    shared = True  # all segments leave one point (as the shadow rays of one shading point do)
     for r in range(m):
         i = lo + r
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
@@ -75,9 +85,10 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
         rays[5, r] = 1.0 / dz if dz != 0.0 else _BIG
         rays[6, r], rays[7, r] = tmin[i], tmax[i]
         visits[r] = 0
+        shared &= org[i, 0] == org[lo, 0] and org[i, 1] == org[lo, 1] and org[i, 2] == org[lo, 2]
         occ[i] = False
         n_tri[i] = 0
-    _child_boxes(root2, 0, m, rays, t_left, t_right)  # the root's box, stored as both children of one record
+    _child_boxes(root2, 0, m, rays, shared, t_left, t_right)  # the root's box, stored as both children of one record
     alive = np.uint64(0)
     for r in range(m):
         if t_left[r] < np.inf:
@@ -90,7 +101,7 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
         if mask != 0:
             cnt = ci[node, 13]
             if cnt == 0:
-                _child_boxes(cb, node, m, rays, t_left, t_right)
+                _child_boxes(cb, node, m, rays, shared, t_left, t_right)
                 left = np.uint64(0)
                 right = np.uint64(0)
                 for r in range(m):
