@@ -372,8 +372,9 @@ def render(scene, *, spp=None, shadow_rays=None, seed=None, resolution=None, vis
     `spp`, `shadow_rays` (emitter samples per camera sample), `seed` and `resolution` (width, height)
     override the scene's settings; extra keyword arguments are passed to `load_scene` as `<default>`
     overrides. `clamp_negative` sets negative pixels (from probabilistic visibility) to zero: biased, the
-    image gets too bright on average; the stats report by how much. `visibility` names the estimator (see `probvis.visibility.ESTIMATORS`). Returns a
-    `RenderResult` whose `.image` is linear RGB radiance and whose `.stats` is JSON-serialisable.
+    image gets too bright on average; the stats report by how much. `visibility` names the estimator (see
+    `probvis.visibility.ESTIMATORS`). Returns a `RenderResult` whose `.image` is linear RGB radiance and whose
+    `.stats` is JSON-serialisable.
     """
     t_start = time.perf_counter()
     if not isinstance(scene, Scene):
