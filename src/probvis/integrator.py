@@ -81,6 +81,29 @@ def surface(geom, prim, b1, b2, dirs):
     return emitted, pos, nrm, mat
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _emitter_segment(slot, le, scale, rgb, u, table, triangles, fnormals, p, s, gn, eps, contrib, s_org, s_dir,
+                     s_emit, active):
+    """Fill shadow slot `slot` with a point sampled on emitter `le` (random numbers `u`) seen from shading
+    point p (shading normal s, geometric normal gn): segment, contribution `rgb` x `scale` x cos cos / d^2
+    (`scale` holds area / (pdf of the emitter x samples x pi)) and the active flag. No branches: the slot is
+    written whether or not the emitter point faces p, and `active` says which."""
+    lt, yx, yy, yz = sample_on_emitter(le, table, triangles, u[0], u[1], u[2])
+    wx, wy, wz = yx - p[0], yy - p[1], yz - p[2]
+    d2 = wx * wx + wy * wy + wz * wz
+    # cosines times |w|: their signs need no square root, and cos_x cos_y / d2 = dot_x dot_y / d2^2
+    dot_x = s[0] * wx + s[1] * wy + s[2] * wz
+    dot_y = -(fnormals[lt, 0] * wx + fnormals[lt, 1] * wy + fnormals[lt, 2] * wz)
+    g = dot_x * dot_y * scale / (d2 * d2)
+    off = eps if gn[0] * wx + gn[1] * wy + gn[2] * wz > 0.0 else -eps
+    ox, oy, oz = p[0] + off * gn[0], p[1] + off * gn[1], p[2] + off * gn[2]
+    contrib[slot, 0], contrib[slot, 1], contrib[slot, 2] = rgb[0] * g, rgb[1] * g, rgb[2] * g
+    s_org[slot, 0], s_org[slot, 1], s_org[slot, 2] = ox, oy, oz
+    s_dir[slot, 0], s_dir[slot, 1], s_dir[slot, 2] = yx - ox, yy - oy, yz - oz
+    s_emit[slot] = le
+    active[slot] = (dot_x > 0.0) & (dot_y > 0.0)
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s_dir, contrib, s_emit, active):
     """Direct light at the shading points, per emitter as the visibility estimator's `cases` say:
@@ -90,10 +113,11 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s
     point (emitter by power among the sampled ones, point uniform by area), slot = point * n_shadow + j.
     Returns the analytic radiance per point and fills, per slot, segment origin and direction, the unoccluded
     contribution (already divided by pdf and n_shadow), the emitter id and the active flag (the other
-    outputs of an inactive slot are left as they were).
+    outputs of an inactive slot are meaningless).
     """
     triangles, vnormals, fnormals, tri_mat, tri_emit, refl, twosided, radiance = geom
-    pmf, area, offsets, etris, tri_cdf = es
+    pmf, area, table = es
+    offsets, etris = table[0], table[1]
     n = prim.shape[0]
     n_emit = pmf.shape[0]
     analytic = np.zeros((n, 3))
@@ -102,50 +126,42 @@ def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s
     for it in prange(n_blocks):
         blk = spread(it, n_blocks)
         for i in range(blk * POINTS_PER_BLOCK, min(n, (blk + 1) * POINTS_PER_BLOCK)):
-            for j in range(n_shadow):
-                active[i * n_shadow + j] = False
             mi = mat[i]
             if mi < 0:
+                for j in range(n_shadow):
+                    active[i * n_shadow + j] = False
                 continue
             tri = prim[i]
-            px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
-            sx, sy, sz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
+            p = (pos[i, 0], pos[i, 1], pos[i, 2])
+            s = (nrm[i, 0], nrm[i, 1], nrm[i, 2])
             for e in range(n_emit):
                 if cases[i, e] == CASE_LIT:
-                    f = emitter_irradiance(e, offsets, etris, triangles, px, py, pz, sx, sy, sz) * inv_pi
+                    f = emitter_irradiance(e, offsets, etris, triangles, p[0], p[1], p[2], s[0], s[1], s[2]) * inv_pi
                     for k in range(3):
                         analytic[i, k] += refl[mi, k] * radiance[e, k] * f
             total, only = sampled_share(pmf, cases, i)
             if total <= 0.0:
+                for j in range(n_shadow):
+                    active[i * n_shadow + j] = False
                 continue
-            gx, gy, gz = fnormals[tri, 0], fnormals[tri, 1], fnormals[tri, 2]
-            eps = 1e-9 * (1.0 + max(abs(px), abs(py), abs(pz)))
+            gn = (fnormals[tri, 0], fnormals[tri, 1], fnormals[tri, 2])
+            eps = 1e-9 * (1.0 + max(abs(p[0]), abs(p[1]), abs(p[2])))
             key = keys[i]
+            if only >= 0:  # a single emitter: no choice (its random dimension is simply not drawn)
+                scale = area[only] * inv_pi / n_shadow
+                rgb = (refl[mi, 0] * radiance[only, 0], refl[mi, 1] * radiance[only, 1],
+                       refl[mi, 2] * radiance[only, 2])
+                for j in range(n_shadow):
+                    u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
+                    _emitter_segment(i * n_shadow + j, only, scale, rgb, u, table, triangles, fnormals, p, s, gn,
+                                     eps, contrib, s_org, s_dir, s_emit, active)
+                continue
             for j in range(n_shadow):
-                slot = i * n_shadow + j
-                if only >= 0:  # a single emitter: no choice (its random dimension is simply not drawn)
-                    le, p_e = only, 1.0
-                else:
-                    le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
-                lt, yx, yy, yz = sample_on_emitter(le, offsets, etris, tri_cdf, triangles, uniform(key, 3 + 4 * j),
-                                                   uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
-                wx, wy, wz = yx - px, yy - py, yz - pz
-                d2 = wx * wx + wy * wy + wz * wz
-                # cosines times |w|: their signs need no square root, and cos_x cos_y / d2 = dot_x dot_y / d2^2
-                dot_x = sx * wx + sy * wy + sz * wz
-                lx, ly, lz = fnormals[lt, 0], fnormals[lt, 1], fnormals[lt, 2]
-                dot_y = -(lx * wx + ly * wy + lz * wz)
-                if dot_x <= 0.0 or dot_y <= 0.0:
-                    continue
-                g = dot_x * dot_y * (area[le] * inv_pi / (p_e * n_shadow)) / (d2 * d2)
-                off = eps if gx * wx + gy * wy + gz * wz > 0.0 else -eps
-                ox, oy, oz = px + off * gx, py + off * gy, pz + off * gz
-                for k in range(3):
-                    contrib[slot, k] = refl[mi, k] * radiance[le, k] * g
-                s_org[slot, 0], s_org[slot, 1], s_org[slot, 2] = ox, oy, oz
-                s_dir[slot, 0], s_dir[slot, 1], s_dir[slot, 2] = yx - ox, yy - oy, yz - oz
-                s_emit[slot] = le
-                active[slot] = True
+                le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
+                rgb = (refl[mi, 0] * radiance[le, 0], refl[mi, 1] * radiance[le, 1], refl[mi, 2] * radiance[le, 2])
+                u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
+                _emitter_segment(i * n_shadow + j, le, area[le] * inv_pi / (p_e * n_shadow), rgb, u, table,
+                                 triangles, fnormals, p, s, gn, eps, contrib, s_org, s_dir, s_emit, active)
     return analytic
 
 

@@ -1,4 +1,4 @@
-"""Area emitters: choose an emitter by power, a triangle by area, a point uniformly on it."""
+"""Area emitters: choose an emitter by power, a triangle by area (alias table), a point uniformly on it."""
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,12 +16,53 @@ class EmitterSampler:
     emitter_area: np.ndarray  # (e,)
     offsets: np.ndarray  # (e + 1,) range of each emitter in `tris`
     tris: np.ndarray  # scene triangle ids of all emitting triangles, grouped by emitter
-    tri_cdf: np.ndarray  # inclusive cumulative area fraction within each emitter
+    tri_prob: np.ndarray  # alias table of each emitter's triangles by area: keep probability of column k ...
+    tri_alias: np.ndarray  # ... and the column (index within the emitter) taken otherwise
     power: np.ndarray  # (e,) emitted flux (luminance of radiance x pi x area)
 
     @property
+    def triangle_table(self):
+        """What `sample_on_emitter` needs: (offsets, tris, tri_prob, tri_alias)."""
+        return self.offsets, self.tris, self.tri_prob, self.tri_alias
+
+    @property
     def arrays(self):
-        return self.emitter_pmf, self.emitter_area, self.offsets, self.tris, self.tri_cdf
+        return self.emitter_pmf, self.emitter_area, self.triangle_table
+
+
+@njit(cache=True, error_model="numpy")
+def alias_table(weights):
+    """Walker's alias table of non-negative `weights` (Vose's construction): column k = floor(u n) is kept
+    with probability prob[k], else alias[k] is taken, so index i comes out with probability w_i / sum(w)."""
+    n = weights.shape[0]
+    prob = np.ones(n)
+    alias = np.arange(n)
+    total = weights.sum()
+    if total <= 0.0:
+        return prob, alias
+    scaled = weights * (n / total)
+    small = np.empty(n, np.int64)
+    large = np.empty(n, np.int64)
+    ns = nl = 0
+    for i in range(n):
+        if scaled[i] < 1.0:
+            small[ns] = i
+            ns += 1
+        else:
+            large[nl] = i
+            nl += 1
+    while ns > 0 and nl > 0:
+        ns -= 1
+        s = small[ns]
+        g = large[nl - 1]
+        prob[s] = scaled[s]
+        alias[s] = g
+        scaled[g] -= 1.0 - scaled[s]
+        if scaled[g] < 1.0:  # g has given away enough: it becomes a column of its own
+            nl -= 1
+            small[ns] = g
+            ns += 1
+    return prob, alias
 
 
 def build_emitter_sampler(scene):
@@ -33,28 +74,16 @@ def build_emitter_sampler(scene):
     counts = np.bincount(scene.tri_emitter[order], minlength=e)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     area = np.array([tri_area[order[offsets[i]:offsets[i + 1]]].sum() for i in range(e)])
-    tri_cdf = np.empty(len(order))
+    tri_prob = np.empty(len(order))
+    tri_alias = np.empty(len(order), np.int64)
     for i in range(e):
-        a = tri_area[order[offsets[i]:offsets[i + 1]]]
-        tri_cdf[offsets[i]:offsets[i + 1]] = np.cumsum(a) / a.sum() if a.sum() > 0 else 1.0
-        tri_cdf[offsets[i + 1] - 1] = 1.0
+        tri_prob[offsets[i]:offsets[i + 1]], tri_alias[offsets[i]:offsets[i + 1]] = alias_table(
+            tri_area[order[offsets[i]:offsets[i + 1]]])
     power = np.pi * area * (scene.emitter_radiance @ _LUMINANCE)
     if not np.any(power > 0):
         raise ProbvisError(f"scene '{scene.name}' has emitters, but all of them have zero power")
     pmf = power / power.sum()
-    return EmitterSampler(pmf, area, offsets, order.astype(np.int64), tri_cdf, power)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _search(cdf, lo, hi, u):
-    """Smallest index in [lo, hi) whose inclusive cdf exceeds u (hi - 1 if none does)."""
-    a, b = lo, hi - 1
-    while a < b:  # selects, not branches: u is random, so a branch would be mispredicted half the time
-        mid = (a + b) // 2
-        right = cdf[mid] <= u
-        a = mid + 1 if right else a
-        b = b if right else mid
-    return a
+    return EmitterSampler(pmf, area, offsets, order.astype(np.int64), tri_prob, tri_alias, power)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -95,12 +124,21 @@ def choose_emitter(pmf, cases, i, total, u):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def sample_on_emitter(e, offsets, tris, tri_cdf, triangles, u1, u2, u3):
-    """A point uniform on emitter `e`: (scene triangle id, x, y, z); its pdf per unit area is 1 / area[e].
+def sample_on_emitter(e, table, triangles, u1, u2, u3):
+    """A point uniform on emitter `e` (`table` is `EmitterSampler.triangle_table`): (scene triangle id, x, y,
+    z); its pdf per unit area is 1 / area[e].
 
-    The point is Heitz's low-distortion square-to-triangle map of (u2, u3) (JCGT 2019): uniform, and without
-    the square root of the usual map."""
-    t = tris[_search(tri_cdf, offsets[e], offsets[e + 1], u1)]
+    The triangle comes from the alias table in O(1) with no branch on u1 (a binary search over the area CDF
+    mispredicted half its branches), the point from Heitz's low-distortion square-to-triangle map of (u2, u3)
+    (JCGT 2019): uniform, and without the square root of the usual map."""
+    offsets, tris, prob, alias = table
+    lo = offsets[e]
+    n = offsets[e + 1] - lo
+    x = u1 * n
+    k = min(np.int64(x), n - 1)
+    other = alias[lo + k]  # loaded unconditionally: an array read inside the select costs Numba a refcount
+    k = k if x - k < prob[lo + k] else other
+    t = tris[lo + k]
     upper = u3 > u2
     b0 = 0.5 * u2 if upper else u2 - 0.5 * u3
     b1 = u3 - 0.5 * u2 if upper else 0.5 * u3

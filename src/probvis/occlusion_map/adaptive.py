@@ -58,8 +58,8 @@ def refine(scene, bvh, emitters, photons: Photons, neighbours, groups, radius, b
         rad = omap.radius * np.sqrt(rng.random(n_new))
         phi = 2 * np.pi * rng.random(n_new)
         target = pos[pick] + rad[:, None] * (np.cos(phi)[:, None] * t1 + np.sin(phi)[:, None] * t2)
-        origin, n_e, _ = points_on_emitters(e.astype(np.int32), emitters.offsets, emitters.tris, emitters.tri_cdf,
-                                            scene.triangles, seed, ADAPTIVE_STREAM, spent)
+        origin, n_e, _ = points_on_emitters(e.astype(np.int32), emitters.triangle_table, scene.triangles, seed,
+                                            ADAPTIVE_STREAM, spent)
         d = target - origin
         front = np.einsum("ij,ij->i", d, n_e) > 0.0
         new = trace_photons(scene, bvh, origin[front], d[front], e[front].astype(np.int32))

@@ -61,17 +61,18 @@ class Photons:
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def points_on_emitters(emitter, offsets, etris, tri_cdf, triangles, seed, stream, first):
-    """Points uniform by area on the given emitters (point i from rng key (seed, stream, first + i)), each
-    nudged off its triangle along the front normal; returns points, unit front normals and the keys."""
+def points_on_emitters(emitter, table, triangles, seed, stream, first):
+    """Points uniform by area on the given emitters (`table` is `EmitterSampler.triangle_table`; point i from
+    rng key (seed, stream, first + i)), each nudged off its triangle along the front normal; returns points,
+    unit front normals and the keys."""
     n = emitter.shape[0]
     org = np.empty((n, 3))
     nrm = np.empty((n, 3))
     keys = np.empty(n, np.uint64)
     for i in prange(n):
         key = make_key(seed, stream, first + i)
-        t, x, y, z = sample_on_emitter(emitter[i], offsets, etris, tri_cdf, triangles, uniform(key, 1),
-                                       uniform(key, 2), uniform(key, 3))
+        t, x, y, z = sample_on_emitter(emitter[i], table, triangles, uniform(key, 1), uniform(key, 2),
+                                       uniform(key, 3))
         nx, ny, nz = unit_normal(triangles, t)
         eps = 1e-9 * (1.0 + max(abs(x), abs(y), abs(z)))
         org[i, 0], org[i, 1], org[i, 2] = x + eps * nx, y + eps * ny, z + eps * nz
@@ -164,6 +165,5 @@ def split_by_power(n, pmf):
 def shoot_photons(scene, bvh, emitters, n, seed):
     """`n` photon rays from the emitters, split by power."""
     emitter = np.repeat(np.arange(scene.n_emitters, dtype=np.int32), split_by_power(n, emitters.emitter_pmf))
-    org, nrm, keys = points_on_emitters(emitter, emitters.offsets, emitters.tris, emitters.tri_cdf,
-                                        scene.triangles, seed, PHOTON_STREAM, 0)
+    org, nrm, keys = points_on_emitters(emitter, emitters.triangle_table, scene.triangles, seed, PHOTON_STREAM, 0)
     return trace_photons(scene, bvh, org, cosine_directions(nrm, keys), emitter)
