@@ -3,25 +3,26 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from probvis.accel import any_hit, any_hit_packets, build_bvh, packet_starts
+from probvis.accel import any_hit, any_hit_packets, build_bvh, occluded_segments
 
 from .test_bvh import brute_closest, random_soup
 
 
-def test_packet_starts_cut_runs_of_equal_points_into_packets_of_at_most_max_size():
-    point = np.array([0, 0, 0, 1, 1, 2, 2, 2, 2, 2, 2, 2, 3])
-    np.testing.assert_array_equal(packet_starts(point, 3), [0, 3, 5, 8, 11, 12, 13])
-    np.testing.assert_array_equal(packet_starts(np.repeat(np.arange(3), 16)), [0, 16, 32, 48])
-    np.testing.assert_array_equal(packet_starts(np.zeros(130, int)), [0, 64, 128, 130])
-    np.testing.assert_array_equal(packet_starts(np.array([5])), [0, 1])
+def runs_of_equal_points(point, max_size=64):
+    """Packet starts cutting at every change of `point` and every `max_size` segments: packets whose rays all
+    share one origin (the traversal's shortcut for them is tested too)."""
+    cut = np.flatnonzero(np.r_[True, point[1:] != point[:-1]])
+    starts = np.concatenate([np.arange(a, b, max_size) for a, b in zip(cut, np.r_[cut[1:], len(point)])])
+    return np.append(starts, len(point))
 
 
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**31), n_tris=st.integers(1, 300), size=st.floats(0.01, 1.0),
-       per_point=st.integers(1, 80), spread=st.floats(0.0, 2.0))
-def test_packets_match_single_rays_and_brute_force(seed, n_tris, size, per_point, spread):
-    """Segments from shared origins towards scattered targets, some parallel to an axis: the same occlusion
-    as brute force, and for every unoccluded segment exactly the tests single-ray traversal makes."""
+       per_point=st.integers(1, 80), spread=st.floats(0.0, 2.0), by_point=st.booleans())
+def test_packets_match_single_rays_and_brute_force(seed, n_tris, size, per_point, spread, by_point):
+    """Segments from shared origins towards scattered targets, some parallel to an axis, in packets of one
+    origin or of 64 consecutive segments: the same occlusion as brute force, and for every unoccluded segment
+    exactly the tests single-ray traversal makes."""
     rng = np.random.default_rng(seed)
     tris = random_soup(rng, n_tris, size=size)
     bvh = build_bvh(tris)
@@ -33,7 +34,10 @@ def test_packets_match_single_rays_and_brute_force(seed, n_tris, size, per_point
     dirs[::7, rng.integers(3)] = 0.0  # axis-parallel segments
     tmin = np.zeros(len(point))
     tmax = rng.choice([1.0, 0.5, np.inf], size=len(point))
-    occ, n_node, n_tri = any_hit_packets(bvh.arrays, org, dirs, tmin, tmax, packet_starts(point))
+    if by_point:
+        occ, n_node, n_tri = any_hit_packets(bvh.arrays, org, dirs, tmin, tmax, runs_of_equal_points(point))
+    else:
+        occ, n_node, n_tri = occluded_segments(bvh, org, dirs, tmax)
     s_occ, s_node, s_tri = any_hit(bvh.arrays, org, dirs, tmin, tmax)
     bprim, _ = brute_closest(tris, org, dirs, tmin, tmax)
     np.testing.assert_array_equal(occ, bprim >= 0)
