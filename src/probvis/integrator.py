@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit, prange
 
 from . import __version__
-from .accel import build_bvh, closest_hit
+from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .errors import ProbvisError
 from .geometry import unit_normals
@@ -329,7 +329,7 @@ def _render_prepared(scene, estimator, progress, warmup=False):
                 check_interrupt()
                 p1 = min(n_pix_total, p0 + per_batch)
                 org, dirs, tmin, tmax, keys = camera_rays(cam, spp, scene.seed, p0, p1)
-                prim, _, b1, b2, cam_node, cam_tri = closest_hit(bvh.arrays, org, dirs, tmin, tmax)
+                prim, _, b1, b2, cam_node, cam_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
                 emitted, pos, nrm, mat = surface(geom, prim, b1, b2, dirs)
                 points = ShadingPoints(pos, nrm, np.where(mat >= 0, prim, -1))
                 cases = estimator.classify(points)

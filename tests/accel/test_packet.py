@@ -3,7 +3,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from probvis.accel import any_hit, any_hit_packets, build_bvh, occluded_segments
+from probvis.accel import any_hit, any_hit_packets, build_bvh, closest_hit, closest_hit_packets, nearest_hits, \
+    occluded_segments
 
 from .test_bvh import brute_closest, random_soup
 
@@ -45,3 +46,37 @@ def test_packets_match_single_rays_and_brute_force(seed, n_tris, size, per_point
     np.testing.assert_array_equal(n_node[~occ], s_node[~occ])
     np.testing.assert_array_equal(n_tri[~occ], s_tri[~occ])
     assert np.all(n_tri[occ] >= 1) and np.all(n_node >= 1)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), n_tris=st.integers(1, 300), size=st.floats(0.01, 1.0),
+       per_point=st.integers(1, 80), spread=st.floats(0.0, 2.0), by_point=st.booleans())
+def test_nearest_hit_packets_match_single_rays_and_brute_force(seed, n_tris, size, per_point, spread, by_point):
+    """Rays from shared origins (as camera rays from a pinhole), some parallel to an axis: the nearest hit of
+    brute force and of single-ray traversal (t, triangle up to ties, barycentrics), with at least one node
+    test per ray and no more triangle tests than triangles."""
+    rng = np.random.default_rng(seed)
+    tris = random_soup(rng, n_tris, size=size)
+    bvh = build_bvh(tris)
+    point = np.repeat(np.arange(12), per_point)
+    org = rng.uniform(-1.5, 1.5, (12, 3))[point]
+    dirs = rng.normal(size=(len(point), 3)) * spread + rng.normal(size=3)
+    dirs[::5, rng.integers(3)] = 0.0
+    tmin = np.zeros(len(point))
+    tmax = rng.choice([np.inf, 1.0, 0.3], size=len(point))
+    if by_point:
+        prim, t, b1, b2, n_node, n_tri = closest_hit_packets(bvh.arrays, org, dirs, tmin, tmax,
+                                                             runs_of_equal_points(point))
+    else:
+        prim, t, b1, b2, n_node, n_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
+    s_prim, s_t, s_b1, s_b2, _, _ = closest_hit(bvh.arrays, org, dirs, tmin, tmax)
+    bprim, bt = brute_closest(tris, org, dirs, tmin, tmax)
+    hit = bprim >= 0
+    np.testing.assert_array_equal(prim >= 0, hit)
+    np.testing.assert_array_equal(t[hit], bt[hit])
+    assert np.all(np.isinf(t[~hit]))
+    same = prim == s_prim  # the same triangle unless two are hit at the same distance
+    assert np.all(same | (t == s_t))
+    np.testing.assert_array_equal(b1[same], s_b1[same])
+    np.testing.assert_array_equal(b2[same], s_b2[same])
+    assert np.all(n_node >= 1) and np.all(n_tri <= n_tris) and np.all(n_tri[hit] >= 1)

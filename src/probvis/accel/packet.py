@@ -1,13 +1,14 @@
-"""Any-hit traversal of ray packets: runs of up to 64 neighbouring shadow segments, traversed together.
+"""Traversal of ray packets: runs of up to 64 neighbouring rays, traversed together.
 
-The integrator orders segments by camera sample, and a pixel's camera samples are consecutive, so a run of
-64 segments leaves a few nearby points towards one emitter: coherent, most BVH nodes are wanted by most of
-them.
+The integrator orders shadow segments by camera sample and camera samples by pixel, so a run of 64 shadow
+segments leaves a few nearby points towards one emitter, and a run of 64 camera rays leaves the camera
+through 4 neighbouring pixels: coherent, most BVH nodes are wanted by most of the packet's rays.
 A packet fetches each node once, tests both child boxes against all of its rays in one loop that LLVM turns
-into SIMD code, and descends with a bit mask of the rays whose boxes were hit. Every ray still makes exactly
-the box and triangle tests it would make alone (a ray only follows the nodes whose boxes it hits, and leaves
-the packet at its first hit), except that the visiting order is the packet's: an occluded ray may find a
-different blocker first. Results are those of `traversal.any_hit`.
+into SIMD code, and descends with a bit mask of the rays whose boxes were hit. Every ray still makes only
+box and triangle tests it would make alone (a ray only follows the nodes whose boxes it hits; in an any-hit
+query it leaves the packet at its first hit), in the packet's visiting order: an occluded ray may find a
+different blocker first, and a nearest-hit ray may test boxes that its own order would have culled. Results
+are those of `traversal.any_hit` and `traversal.closest_hit`.
 """
 import numpy as np
 from numba import njit, prange
@@ -57,10 +58,12 @@ def _child_boxes(b, node, m, rays, shared, t_left, t_right):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left, t_right, visits, stack,
-                  stack_mask, occ, n_node, n_tri):
-    """Any-hit traversal of segments lo..lo+m-1 (m <= 64); fills their `occ`, `n_node` and `n_tri`."""
+                  stack_mask, closest, hit, hit_t, hit_b1, hit_b2, n_node, n_tri):
+    """Traversal of rays lo..lo+m-1 (m <= 64); fills their `hit` (BVH-order triangle or -1), `n_node` and
+    `n_tri`. With `closest` it finds each ray's nearest hit (and fills `hit_t`, `hit_b1`, `hit_b2`), else any
+    hit, a ray leaving the packet at its first one."""
     one = np.uint64(1)
-    shared = True  # all segments leave one point (as the shadow rays of one shading point do)
+    shared = True  # all rays leave one point (camera rays of a pinhole camera, shadow rays of one shading point)
     for r in range(m):
         i = lo + r
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
@@ -71,7 +74,7 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
         rays[6, r], rays[7, r] = tmin[i], tmax[i]
         visits[r] = 0
         shared &= org[i, 0] == org[lo, 0] and org[i, 1] == org[lo, 1] and org[i, 2] == org[lo, 2]
-        occ[i] = False
+        hit[i] = -1
         n_tri[i] = 0
     _child_boxes(root2, 0, m, rays, shared, t_left, t_right)  # the root's box, stored as both children of one record
     alive = np.uint64(0)
@@ -126,11 +129,14 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
                     kx, ky, kz, sx, sy, sz = ray_setup(dirs[lo + r, 0], dirs[lo + r, 1], dirs[lo + r, 2])
                     for p in range(first, first + cnt):
                         n_tri[lo + r] += 1
-                        t, _, _ = hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, rays[6, r], rays[7, r])
+                        t, u, v = hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, rays[6, r], rays[7, r])
                         if t < rays[7, r]:
-                            occ[lo + r] = True
-                            alive &= ~bit
-                            break
+                            hit[lo + r] = p
+                            if not closest:
+                                alive &= ~bit
+                                break
+                            rays[7, r] = t  # later boxes and triangles are culled against the nearer hit
+                            hit_t[lo + r], hit_b1[lo + r], hit_b2[lo + r] = t, u, v
         if sp == 0 or alive == 0:
             break
         sp -= 1
@@ -140,12 +146,16 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
-    """Batched occlusion queries over packets [starts[k], starts[k + 1]) of at most 64 segments: occluded
-    flag, node and triangle tests per segment."""
+def _packets(bvh, org, dirs, tmin, tmax, starts, closest):
+    """Queries over packets [starts[k], starts[k + 1]) of at most 64 rays: BVH-order triangle hit (-1 for
+    none), with `closest` its t (inf for none) and barycentrics (else empty arrays), node and triangle tests."""
     cb, ci, root, tv, prim_ids, depth = bvh
     n = org.shape[0]
-    occ = np.zeros(n, np.bool_)
+    hit = np.empty(n, np.int32)
+    n_out = n if closest else 0
+    hit_t = np.full(n_out, np.inf)
+    hit_b1 = np.zeros(n_out)
+    hit_b2 = np.zeros(n_out)
     n_node = np.zeros(n, np.int32)
     n_tri = np.zeros(n, np.int32)
     n_packets = starts.shape[0] - 1
@@ -163,8 +173,35 @@ def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
         stack_mask = np.empty(depth, np.uint64)
         for k in range(task * PACKETS_PER_TASK, min(n_packets, (task + 1) * PACKETS_PER_TASK)):
             _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays,
-                          t_left, t_right, visits, stack, stack_mask, occ, n_node, n_tri)
-    return occ, n_node, n_tri
+                          t_left, t_right, visits, stack, stack_mask, closest, hit, hit_t, hit_b1, hit_b2,
+                          n_node, n_tri)
+    return hit, hit_t, hit_b1, hit_b2, n_node, n_tri
+
+
+@njit(cache=True, error_model="numpy")
+def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
+    """Occlusion queries over packets [starts[k], starts[k + 1]) of at most 64 segments: occluded flag, node
+    and triangle tests per segment."""
+    hit, _, _, _, n_node, n_tri = _packets(bvh, org, dirs, tmin, tmax, starts, False)
+    return hit >= 0, n_node, n_tri
+
+
+@njit(cache=True, error_model="numpy")
+def closest_hit_packets(bvh, org, dirs, tmin, tmax, starts):
+    """Nearest hits over packets [starts[k], starts[k + 1]) of at most 64 rays, returned as by
+    `traversal.closest_hit`: scene triangle id (-1 on a miss), t, b1, b2, node and triangle tests."""
+    hit, t, b1, b2, n_node, n_tri = _packets(bvh, org, dirs, tmin, tmax, starts, True)
+    prim_ids = bvh[4]
+    prim = np.full(hit.shape[0], -1, np.int32)
+    for i in range(hit.shape[0]):
+        if hit[i] >= 0:
+            prim[i] = prim_ids[hit[i]]
+    return prim, t, b1, b2, n_node, n_tri
+
+
+def runs_of(n):
+    """Packet starts cutting n consecutive rays into runs of 64 (order the rays coherently)."""
+    return np.append(np.arange(0, n, MAX_PACKET), n)
 
 
 def occluded_segments(bvh, origin, direction, tmax):
@@ -172,5 +209,10 @@ def occluded_segments(bvh, origin, direction, tmax):
     order them coherently: by shading point, points in image order): occluded flag, node and triangle tests
     per segment. Packing the shadow rays of 4 camera samples, not of one, is 11% faster on cornell-bunny."""
     n = len(tmax)
-    starts = np.append(np.arange(0, n, MAX_PACKET), n)
-    return any_hit_packets(bvh.arrays, origin, direction, np.zeros(n), tmax, starts)
+    return any_hit_packets(bvh.arrays, origin, direction, np.zeros(n), tmax, runs_of(n))
+
+
+def nearest_hits(bvh, org, dirs, tmin, tmax):
+    """Nearest hits of rays traversed in packets of 64 consecutive rays (order them coherently, as camera
+    rays by pixel): as `traversal.closest_hit`."""
+    return closest_hit_packets(bvh.arrays, org, dirs, tmin, tmax, runs_of(len(tmax)))
