@@ -66,19 +66,19 @@ def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, 
             deferred[n_deferred, 0], deferred[n_deferred, 1], deferred[n_deferred, 2] = node, start, end
             n_deferred += 1
             continue
-        # node bounds and centroid bounds
-        for k in range(3):
-            bounds[node, k] = np.inf
-            bounds[node, k + 3] = -np.inf
-            box[k] = np.inf
-            box[k + 3] = -np.inf
+        # node bounds and centroid bounds, accumulated in scalars: min/max into array elements would be a
+        # chain of stores and reloads (LLVM cannot keep them in registers past the loads of tri_lo)
+        lx = ly = lz = cx0 = cy0 = cz0 = np.inf
+        hx = hy = hz = cx1 = cy1 = cz1 = -np.inf
         for i in range(start, end):
             t = idx[i]
-            for k in range(3):
-                bounds[node, k] = min(bounds[node, k], tri_lo[t, k])
-                bounds[node, k + 3] = max(bounds[node, k + 3], tri_hi[t, k])
-                box[k] = min(box[k], cent[t, k])
-                box[k + 3] = max(box[k + 3], cent[t, k])
+            lx, ly, lz = min(lx, tri_lo[t, 0]), min(ly, tri_lo[t, 1]), min(lz, tri_lo[t, 2])
+            hx, hy, hz = max(hx, tri_hi[t, 0]), max(hy, tri_hi[t, 1]), max(hz, tri_hi[t, 2])
+            cx0, cy0, cz0 = min(cx0, cent[t, 0]), min(cy0, cent[t, 1]), min(cz0, cent[t, 2])
+            cx1, cy1, cz1 = max(cx1, cent[t, 0]), max(cy1, cent[t, 1]), max(cz1, cent[t, 2])
+        bounds[node, 0], bounds[node, 1], bounds[node, 2] = lx, ly, lz
+        bounds[node, 3], bounds[node, 4], bounds[node, 5] = hx, hy, hz
+        box[0], box[1], box[2], box[3], box[4], box[5] = cx0, cy0, cz0, cx1, cy1, cz1
         count = end - start
         if count <= 1:
             node_index[node], node_count[node] = start, count
