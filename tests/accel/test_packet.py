@@ -4,17 +4,22 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from probvis.accel import any_hit, any_hit_packets, build_bvh, closest_hit, closest_hit_packets, nearest_hits, \
-    occluded_segments
+    occluded_segments, packet_starts
 
 from .test_bvh import brute_closest, random_soup
 
 
-def runs_of_equal_points(point, max_size=64):
-    """Packet starts cutting at every change of `point` and every `max_size` segments: packets whose rays all
-    share one origin (the traversal's shortcut for them is tested too)."""
-    cut = np.flatnonzero(np.r_[True, point[1:] != point[:-1]])
-    starts = np.concatenate([np.arange(a, b, max_size) for a, b in zip(cut, np.r_[cut[1:], len(point)])])
-    return np.append(starts, len(point))
+def test_packet_starts_cut_runs_of_equal_points_into_packets_of_at_most_max_size():
+    point = np.array([0, 0, 0, 1, 1, 2, 2, 2, 2, 2, 2, 2, 3])
+    np.testing.assert_array_equal(packet_starts(point, 3), [0, 3, 5, 8, 11, 12, 13])
+    np.testing.assert_array_equal(packet_starts(np.repeat(np.arange(3), 16)), [0, 16, 32, 48])
+    np.testing.assert_array_equal(packet_starts(np.zeros(130, int)), [0, 64, 128, 130])
+    np.testing.assert_array_equal(packet_starts(np.array([5])), [0, 1])
+
+
+def runs_of_64(n):
+    """Packets of 64 consecutive rays, whatever their origins (the traversal's general case)."""
+    return np.append(np.arange(0, n, 64), n)
 
 
 @settings(max_examples=25, deadline=None)
@@ -36,9 +41,9 @@ def test_packets_match_single_rays_and_brute_force(seed, n_tris, size, per_point
     tmin = np.zeros(len(point))
     tmax = rng.choice([1.0, 0.5, np.inf], size=len(point))
     if by_point:
-        occ, n_node, n_tri = any_hit_packets(bvh.arrays, org, dirs, tmin, tmax, runs_of_equal_points(point))
+        occ, n_node, n_tri = occluded_segments(bvh, org, dirs, tmax, point)
     else:
-        occ, n_node, n_tri = occluded_segments(bvh, org, dirs, tmax)
+        occ, n_node, n_tri = any_hit_packets(bvh.arrays, org, dirs, tmin, tmax, runs_of_64(len(point)))
     s_occ, s_node, s_tri = any_hit(bvh.arrays, org, dirs, tmin, tmax)
     bprim, _ = brute_closest(tris, org, dirs, tmin, tmax)
     np.testing.assert_array_equal(occ, bprim >= 0)
@@ -65,8 +70,7 @@ def test_nearest_hit_packets_match_single_rays_and_brute_force(seed, n_tris, siz
     tmin = np.zeros(len(point))
     tmax = rng.choice([np.inf, 1.0, 0.3], size=len(point))
     if by_point:
-        prim, t, b1, b2, n_node, n_tri = closest_hit_packets(bvh.arrays, org, dirs, tmin, tmax,
-                                                             runs_of_equal_points(point))
+        prim, t, b1, b2, n_node, n_tri = closest_hit_packets(bvh.arrays, org, dirs, tmin, tmax, packet_starts(point))
     else:
         prim, t, b1, b2, n_node, n_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
     s_prim, s_t, s_b1, s_b2, _, _ = closest_hit(bvh.arrays, org, dirs, tmin, tmax)

@@ -1,7 +1,7 @@
 """Acceleration: a SAH BVH over the scene's triangles and counted ray queries against it."""
 from .bvh import BVH, build_bvh
-from .packet import any_hit_packets, closest_hit_packets, nearest_hits, occluded_segments
+from .packet import any_hit_packets, closest_hit_packets, nearest_hits, occluded_segments, packet_starts
 from .traversal import all_hits, any_hit, closest_hit
 
 __all__ = ["BVH", "all_hits", "any_hit", "any_hit_packets", "build_bvh", "closest_hit", "closest_hit_packets",
-           "nearest_hits", "occluded_segments"]
+           "nearest_hits", "occluded_segments", "packet_starts"]

@@ -1,14 +1,14 @@
-"""Traversal of ray packets: runs of up to 64 neighbouring rays, traversed together.
+"""Traversal of ray packets: up to 64 coherent rays, traversed together.
 
-The integrator orders shadow segments by camera sample and camera samples by pixel, so a run of 64 shadow
-segments leaves a few nearby points towards one emitter, and a run of 64 camera rays leaves the camera
-through 4 neighbouring pixels: coherent, most BVH nodes are wanted by most of the packet's rays.
-A packet fetches each node once, tests both child boxes against all of its rays in one loop that LLVM turns
-into SIMD code, and descends with a bit mask of the rays whose boxes were hit. Every ray still makes only
-box and triangle tests it would make alone (a ray only follows the nodes whose boxes it hits; in an any-hit
-query it leaves the packet at its first hit), in the packet's visiting order: an occluded ray may find a
-different blocker first, and a nearest-hit ray may test boxes that its own order would have culled. Results
-are those of `traversal.any_hit` and `traversal.closest_hit`.
+A packet is either the shadow segments of one shading point (towards one emitter: nearly parallel, one
+origin) or a run of 64 camera rays (4 neighbouring pixels' samples, all from the camera's origin). A packet
+fetches each node once, tests both child boxes against all of its rays in one loop that LLVM turns into SIMD
+code (computing box-minus-origin once when all rays share their origin), and descends with a bit mask of the
+rays whose boxes were hit. Every ray still makes only box and triangle tests it would make alone (a ray only
+follows the nodes whose boxes it hits; in an any-hit query it leaves the packet at its first hit), in the
+packet's visiting order: an occluded ray may find a different blocker first, and a nearest-hit ray may test
+boxes that its own order would have culled. Results are those of `traversal.any_hit` and
+`traversal.closest_hit`.
 """
 import numpy as np
 from numba import njit, prange
@@ -19,6 +19,23 @@ from .traversal import _BOX_SLACK, hit_triangle, ray_setup
 MAX_PACKET = 64  # rays per packet: one bit each in a uint64 mask
 PACKETS_PER_TASK = 8
 _BIG = 1e300  # reciprocal of a zero direction component: finite, so an axis-parallel ray gives no NaN
+
+
+@njit(cache=True, error_model="numpy")
+def packet_starts(point, max_size=MAX_PACKET):
+    """Packet boundaries for segments sorted by shading point: a packet is a run of equal `point` values,
+    cut every `max_size` segments. Returns (packets + 1,) int64 offsets."""
+    n = point.shape[0]
+    starts = np.empty(n + 1, np.int64)
+    k = 0
+    first = 0
+    for i in range(n):
+        if i == 0 or point[i] != point[i - 1] or i - first == max_size:
+            starts[k] = i
+            k += 1
+            first = i
+    starts[k] = n
+    return starts[:k + 1].copy()
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -58,10 +75,11 @@ def _child_boxes(b, node, m, rays, shared, t_left, t_right):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left, t_right, visits, stack,
-                  stack_mask, closest, hit, hit_t, hit_b1, hit_b2, n_node, n_tri):
-    """Traversal of rays lo..lo+m-1 (m <= 64); fills their `hit` (BVH-order triangle or -1), `n_node` and
-    `n_tri`. With `closest` it finds each ray's nearest hit (and fills `hit_t`, `hit_b1`, `hit_b2`), else any
-    hit, a ray leaving the packet at its first one."""
+                  stack_mask, closest, occ, hit, hit_t, hit_b1, hit_b2, n_node, n_tri):
+    """Traversal of rays lo..lo+m-1 (m <= 64); fills their `n_node` and `n_tri`. With `closest` (a constant
+    in each caller, so the other case compiles away) it finds each ray's nearest hit and fills `hit` (BVH-order
+    triangle or -1), `hit_t` (inf for none), `hit_b1` and `hit_b2`; else it fills `occ`, a ray leaving the
+    packet at its first hit. The arrays of the other case are not touched."""
     one = np.uint64(1)
     shared = True  # all rays leave one point (camera rays of a pinhole camera, shadow rays of one shading point)
     for r in range(m):
@@ -74,7 +92,10 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
         rays[6, r], rays[7, r] = tmin[i], tmax[i]
         visits[r] = 0
         shared &= org[i, 0] == org[lo, 0] and org[i, 1] == org[lo, 1] and org[i, 2] == org[lo, 2]
-        hit[i] = -1
+        if closest:
+            hit[i], hit_t[i] = -1, np.inf
+        else:
+            occ[i] = False
         n_tri[i] = 0
     _child_boxes(root2, 0, m, rays, shared, t_left, t_right)  # the root's box, stored as both children of one record
     alive = np.uint64(0)
@@ -131,12 +152,12 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
                         n_tri[lo + r] += 1
                         t, u, v = hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, rays[6, r], rays[7, r])
                         if t < rays[7, r]:
-                            hit[lo + r] = p
                             if not closest:
+                                occ[lo + r] = True
                                 alive &= ~bit
                                 break
                             rays[7, r] = t  # later boxes and triangles are culled against the nearer hit
-                            hit_t[lo + r], hit_b1[lo + r], hit_b2[lo + r] = t, u, v
+                            hit[lo + r], hit_t[lo + r], hit_b1[lo + r], hit_b2[lo + r] = p, t, u, v
         if sp == 0 or alive == 0:
             break
         sp -= 1
@@ -145,74 +166,83 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
         n_node[lo + r] = 1 + 2 * np.int64(visits[r])
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def _packets(bvh, org, dirs, tmin, tmax, starts, closest):
-    """Queries over packets [starts[k], starts[k + 1]) of at most 64 rays: BVH-order triangle hit (-1 for
-    none), with `closest` its t (inf for none) and barycentrics (else empty arrays), node and triangle tests."""
-    cb, ci, root, tv, prim_ids, depth = bvh
-    n = org.shape[0]
-    hit = np.empty(n, np.int32)
-    n_out = n if closest else 0
-    hit_t = np.full(n_out, np.inf)
-    hit_b1 = np.zeros(n_out)
-    hit_b2 = np.zeros(n_out)
-    n_node = np.zeros(n, np.int32)
-    n_tri = np.zeros(n, np.int32)
-    n_packets = starts.shape[0] - 1
+@njit(cache=True, error_model="numpy", inline="always")
+def _scratch(depth):
+    """Per-task work arrays of the packet kernels: ray constants, child entry distances, visit counts, and
+    the node and mask stacks."""
+    return (np.empty((8, MAX_PACKET)), np.empty(MAX_PACKET), np.empty(MAX_PACKET), np.empty(MAX_PACKET, np.uint64),
+            np.empty(depth, np.int64), np.empty(depth, np.uint64))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _root_record(root):
+    """The root's box stored as both children of one record, so the first test uses the node-pair code."""
     root2 = np.empty((1, 12))
     root2[0, :6] = root[0]
     root2[0, 6:] = root[0]
-    n_tasks = (n_packets + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
-    for it in prange(n_tasks):
-        task = spread(it, n_tasks)
-        rays = np.empty((8, MAX_PACKET))
-        t_left = np.empty(MAX_PACKET)
-        t_right = np.empty(MAX_PACKET)
-        visits = np.empty(MAX_PACKET, np.uint64)
-        stack = np.empty(depth, np.int64)
-        stack_mask = np.empty(depth, np.uint64)
-        for k in range(task * PACKETS_PER_TASK, min(n_packets, (task + 1) * PACKETS_PER_TASK)):
-            _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays,
-                          t_left, t_right, visits, stack, stack_mask, closest, hit, hit_t, hit_b1, hit_b2,
-                          n_node, n_tri)
-    return hit, hit_t, hit_b1, hit_b2, n_node, n_tri
+    return root2
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     """Occlusion queries over packets [starts[k], starts[k + 1]) of at most 64 segments: occluded flag, node
     and triangle tests per segment."""
-    hit, _, _, _, n_node, n_tri = _packets(bvh, org, dirs, tmin, tmax, starts, False)
-    return hit >= 0, n_node, n_tri
+    cb, ci, root, tv, prim_ids, depth = bvh
+    n = org.shape[0]
+    occ = np.empty(n, np.bool_)
+    n_node = np.empty(n, np.int32)
+    n_tri = np.empty(n, np.int32)
+    root2 = _root_record(root)
+    n_packets = starts.shape[0] - 1
+    n_tasks = (n_packets + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
+    for it in prange(n_tasks):
+        task = spread(it, n_tasks)
+        rays, t_left, t_right, visits, stack, stack_mask = _scratch(depth)
+        for k in range(task * PACKETS_PER_TASK, min(n_packets, (task + 1) * PACKETS_PER_TASK)):
+            _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays,
+                          t_left, t_right, visits, stack, stack_mask, False, occ, stack, t_left, t_left, t_left,
+                          n_node, n_tri)
+    return occ, n_node, n_tri
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def closest_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     """Nearest hits over packets [starts[k], starts[k + 1]) of at most 64 rays, returned as by
     `traversal.closest_hit`: scene triangle id (-1 on a miss), t, b1, b2, node and triangle tests."""
-    hit, t, b1, b2, n_node, n_tri = _packets(bvh, org, dirs, tmin, tmax, starts, True)
-    prim_ids = bvh[4]
-    prim = np.full(hit.shape[0], -1, np.int32)
-    for i in range(hit.shape[0]):
+    cb, ci, root, tv, prim_ids, depth = bvh
+    n = org.shape[0]
+    hit = np.empty(n, np.int64)
+    t = np.empty(n)
+    b1 = np.zeros(n)
+    b2 = np.zeros(n)
+    n_node = np.empty(n, np.int32)
+    n_tri = np.empty(n, np.int32)
+    no_occ = np.empty(0, np.bool_)
+    root2 = _root_record(root)
+    n_packets = starts.shape[0] - 1
+    n_tasks = (n_packets + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
+    for it in prange(n_tasks):
+        task = spread(it, n_tasks)
+        rays, t_left, t_right, visits, stack, stack_mask = _scratch(depth)
+        for k in range(task * PACKETS_PER_TASK, min(n_packets, (task + 1) * PACKETS_PER_TASK)):
+            _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays,
+                          t_left, t_right, visits, stack, stack_mask, True, no_occ, hit, t, b1, b2, n_node, n_tri)
+    prim = np.full(n, -1, np.int32)
+    for i in prange(n):
         if hit[i] >= 0:
             prim[i] = prim_ids[hit[i]]
     return prim, t, b1, b2, n_node, n_tri
 
 
-def runs_of(n):
-    """Packet starts cutting n consecutive rays into runs of 64 (order the rays coherently)."""
-    return np.append(np.arange(0, n, MAX_PACKET), n)
-
-
-def occluded_segments(bvh, origin, direction, tmax):
-    """Occlusion of shadow segments (t in (0, tmax)), traversed in packets of 64 consecutive segments (so
-    order them coherently: by shading point, points in image order): occluded flag, node and triangle tests
-    per segment. Packing the shadow rays of 4 camera samples, not of one, is 11% faster on cornell-bunny."""
-    n = len(tmax)
-    return any_hit_packets(bvh.arrays, origin, direction, np.zeros(n), tmax, runs_of(n))
+def occluded_segments(bvh, origin, direction, tmax, point):
+    """Occlusion of shadow segments (t in (0, tmax)), traversed in packets of equal `point` (the segments of
+    one shading point; contiguous runs are packed, so sort by point): occluded flag, node and triangle tests
+    per segment."""
+    return any_hit_packets(bvh.arrays, origin, direction, np.zeros(len(tmax)), tmax, packet_starts(point))
 
 
 def nearest_hits(bvh, org, dirs, tmin, tmax):
     """Nearest hits of rays traversed in packets of 64 consecutive rays (order them coherently, as camera
     rays by pixel): as `traversal.closest_hit`."""
-    return closest_hit_packets(bvh.arrays, org, dirs, tmin, tmax, runs_of(len(tmax)))
+    n = len(tmax)
+    return closest_hit_packets(bvh.arrays, org, dirs, tmin, tmax, np.append(np.arange(0, n, MAX_PACKET), n))

@@ -183,7 +183,8 @@ class OcclusionMapVisibility(VisibilityEstimator):
         on_bvh = (case == CASE_UNKNOWN) | ((case == CASE_PENUMBRA) if self.penumbra == "bvh" else False)
         idx = np.flatnonzero(on_bvh)
         if len(idx):
-            occ, a, b = occluded_segments(self.bvh, query.origin[idx], query.direction[idx], query.tmax[idx])
+            occ, a, b = occluded_segments(self.bvh, query.origin[idx], query.direction[idx], query.tmax[idx],
+                                          query.point[idx])
             value[idx], n_node[idx], n_tri[idx] = 1.0 - occ, a, b
         self._stats["unknown_shadow_rays"] += int((case == CASE_UNKNOWN).sum())
         self._stats["penumbra_shadow_rays"] += int((case == CASE_PENUMBRA).sum())
