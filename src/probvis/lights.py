@@ -58,7 +58,7 @@ def alias_table(weights):
         prob[s] = scaled[s]
         alias[s] = g
         scaled[g] -= 1.0 - scaled[s]
-        if scaled[g] < 1.0:  # g has given away enough: it becomes a column of its own
+        if scaled[g] < 1.0:  # g now falls short itself: it joins the small ones, to be topped up
             nl -= 1
             small[ns] = g
             ns += 1
