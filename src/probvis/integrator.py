@@ -7,10 +7,7 @@ with a Lambertian BRDF; one-sided diffuse surfaces are black from behind and emi
 front side only, as in Mitsuba 3.
 """
 import math
-import signal
-import threading
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numba
@@ -22,6 +19,7 @@ from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .errors import ProbvisError
 from .geometry import unit_normals
+from .interrupts import deferred_interrupts
 from .lights import build_emitter_sampler, choose_emitter, emitter_irradiance, sample_on_emitter, sampled_share
 from .parallel import spread
 from .rng import mix64, uniform
@@ -262,27 +260,6 @@ def scene_arrays(scene):
 _warmed = set()
 
 
-@contextmanager
-def _interrupt_between_batches():
-    """Hold Ctrl-C while a kernel runs and raise KeyboardInterrupt at the next batch boundary instead:
-    interrupting a Numba kernel mid-call leaves Python in an error state."""
-    if threading.current_thread() is not threading.main_thread():
-        yield lambda: None
-        return
-    pending = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: pending.append(signum))
-
-    def check():
-        if pending:
-            raise KeyboardInterrupt
-
-    try:
-        yield check
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    check()
-
-
 def _warm_up(estimator_name, options):
     """Compile (or load from numba's cache) every kernel of the pipeline on a tiny scene; returns seconds."""
     key = (estimator_name, repr(sorted(options.items())))
@@ -323,7 +300,7 @@ def _render_prepared(scene, estimator, progress, warmup=False):
         from tqdm import tqdm
 
         bar = tqdm(total=n_pix_total, unit="px", unit_scale=True, desc=f"render {scene.name}", leave=False)
-    with _interrupt_between_batches() as check_interrupt:
+    with deferred_interrupts() as check_interrupt:  # Ctrl-C stops between batches, not inside a kernel
         try:
             for p0 in range(0, n_pix_total, per_batch):
                 check_interrupt()

@@ -10,6 +10,7 @@ import hashlib
 import json
 import logging
 import os
+import signal
 import sys
 import warnings
 from dataclasses import dataclass, field
@@ -19,6 +20,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import ProbvisError
+from ..interrupts import deferred_interrupts
 from ..io.image import atomic_path, read_exr, write_exr
 from ..scene import load_scene
 from .config import MethodSpec
@@ -119,6 +121,9 @@ class Cache:
             Path(tmp).write_text(json.dumps(render.stats))
 
 
+POLL_SECONDS = 0.2  # how often the render loop looks for Ctrl-C / SIGTERM while renders run
+
+
 def _open_client(workers, scheduler):
     """A Dask client: to `scheduler` when given, else to an embedded LocalCluster of `workers` processes."""
     from dask.distributed import Client, LocalCluster
@@ -128,10 +133,12 @@ def _open_client(workers, scheduler):
             return Client(scheduler, timeout="10s"), None
         except (OSError, TimeoutError, ValueError) as exc:
             raise ProbvisError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+    # The embedded cluster is ours alone: its logs are muted (a worker closed mid-heartbeat at the end of an
+    # interrupted run logs a traceback at ERROR); failed renders still reach the user through their futures.
     with warnings.catch_warnings():  # "port 8787 in use": another cluster's status page; ours needs none
         warnings.filterwarnings("ignore", message="Port .* is already in use")
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+                               silence_logs=logging.CRITICAL)
     return Client(cluster), cluster
 
 
@@ -202,27 +209,47 @@ def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log
 
 
 def _compute(todo, scenes, cache, workers, scheduler, progress, log):
-    from dask.distributed import as_completed
+    """Render `todo` on Dask and cache each render as it finishes. Ctrl-C and SIGTERM are deferred to the
+    polling loop (`deferred_interrupts`): raised inside a Dask client call they leave a half-cancelled call
+    whose clean-up logs a traceback."""
+    with deferred_interrupts((signal.SIGINT, signal.SIGTERM)) as check_interrupt:
+        client, cluster = _open_client(workers, scheduler)
+        try:
+            _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt)
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+
+
+def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt):
+    """Submit the renders and store each as it finishes, checking for an interrupt every POLL_SECONDS."""
+    from dask.distributed import wait
     from tqdm import tqdm
 
-    client, cluster = _open_client(workers, scheduler)
+    n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) or workers
+    threads = None if scheduler else max(1, (os.cpu_count() or 1) // workers)
+    log(f"computing {len(todo)} renders on {'scheduler ' + scheduler if scheduler else 'a LocalCluster'} "
+        f"with {n_workers} worker{'s' if n_workers > 1 else ''}"
+        + (f" x {threads} thread{'s' if threads > 1 else ''}" if threads else ""))
+    shared = {name: client.scatter(scene, broadcast=True) for name, scene in scenes.items()}
+    futures = {}
+    for t in todo:
+        f = client.submit(render_task, shared[t.scene], t.method.visibility, t.method.options, t.spp,
+                          t.shadow_rays, t.seed, threads, key=f"{'ref' if t.reference else 'cell'}-{t.key}",
+                          priority=1 if t.reference else 0, pure=False)
+        futures[f] = t
     failures = []
-    try:
-        n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) or workers
-        threads = None if scheduler else max(1, (os.cpu_count() or 1) // workers)
-        log(f"computing {len(todo)} renders on {'scheduler ' + scheduler if scheduler else 'a LocalCluster'} "
-            f"with {n_workers} worker{'s' if n_workers > 1 else ''}"
-            + (f" x {threads} thread{'s' if threads > 1 else ''}" if threads else ""))
-        shared = {name: client.scatter(scene, broadcast=True) for name, scene in scenes.items()}
-        futures = {}
-        for t in todo:
-            f = client.submit(render_task, shared[t.scene], t.method.visibility, t.method.options, t.spp,
-                              t.shadow_rays, t.seed, threads, key=f"{'ref' if t.reference else 'cell'}-{t.key}",
-                              priority=1 if t.reference else 0, pure=False)
-            futures[f] = t
-        bar = tqdm(total=len(todo), desc="renders", unit="render", disable=not (progress and sys.stderr.isatty()))
-        try:
-            for f in as_completed(futures):
+    pending = set(futures)
+    with tqdm(total=len(todo), desc="renders", unit="render",
+              disable=not (progress and sys.stderr.isatty())) as bar:
+        while pending:
+            check_interrupt()
+            try:
+                done, pending = wait(pending, timeout=POLL_SECONDS, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                continue
+            for f in done:
                 t = futures[f]
                 try:
                     stats, image, tests = f.result()
@@ -231,11 +258,5 @@ def _compute(todo, scenes, cache, workers, scheduler, progress, log):
                 else:
                     cache.store(t.key, Render(stats, image, tests))
                 bar.update(1)
-        finally:
-            bar.close()
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
     if failures:
         raise ProbvisError(f"{len(failures)} render(s) failed (finished ones are cached): " + "; ".join(failures))
