@@ -167,11 +167,20 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _scratch(depth):
-    """Per-task work arrays of the packet kernels: ray constants, child entry distances, visit counts, and
-    the node and mask stacks."""
-    return (np.empty((8, MAX_PACKET)), np.empty(MAX_PACKET), np.empty(MAX_PACKET), np.empty(MAX_PACKET, np.uint64),
-            np.empty(depth, np.int64), np.empty(depth, np.uint64))
+def _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, task, closest, occ, hit, hit_t, hit_b1, hit_b2, n_node,
+                n_tri):
+    """Packets task * PACKETS_PER_TASK onwards (one parallel work item), with their own work arrays: ray
+    constants, child entry distances, visit counts, and the node and mask stacks."""
+    cb, ci, _, tv, _, depth = bvh
+    rays = np.empty((8, MAX_PACKET))
+    t_left = np.empty(MAX_PACKET)
+    t_right = np.empty(MAX_PACKET)
+    visits = np.empty(MAX_PACKET, np.uint64)
+    stack = np.empty(depth, np.int64)
+    stack_mask = np.empty(depth, np.uint64)
+    for k in range(task * PACKETS_PER_TASK, min(starts.shape[0] - 1, (task + 1) * PACKETS_PER_TASK)):
+        _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays, t_left,
+                      t_right, visits, stack, stack_mask, closest, occ, hit, hit_t, hit_b1, hit_b2, n_node, n_tri)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -187,21 +196,15 @@ def _root_record(root):
 def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     """Occlusion queries over packets [starts[k], starts[k + 1]) of at most 64 segments: occluded flag, node
     and triangle tests per segment."""
-    cb, ci, root, tv, prim_ids, depth = bvh
     n = org.shape[0]
     occ = np.empty(n, np.bool_)
     n_node = np.empty(n, np.int32)
     n_tri = np.empty(n, np.int32)
-    root2 = _root_record(root)
-    n_packets = starts.shape[0] - 1
-    n_tasks = (n_packets + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
-    for it in prange(n_tasks):
-        task = spread(it, n_tasks)
-        rays, t_left, t_right, visits, stack, stack_mask = _scratch(depth)
-        for k in range(task * PACKETS_PER_TASK, min(n_packets, (task + 1) * PACKETS_PER_TASK)):
-            _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays,
-                          t_left, t_right, visits, stack, stack_mask, False, occ, stack, t_left, t_left, t_left,
-                          n_node, n_tri)
+    root2 = _root_record(bvh[2])
+    n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
+    for it in prange(n_tasks):  # the unused nearest-hit arrays are stand-ins of the right types
+        _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), False, occ, n_node, tmax, tmax,
+                    tmax, n_node, n_tri)
     return occ, n_node, n_tri
 
 
@@ -209,7 +212,7 @@ def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
 def closest_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     """Nearest hits over packets [starts[k], starts[k + 1]) of at most 64 rays, returned as by
     `traversal.closest_hit`: scene triangle id (-1 on a miss), t, b1, b2, node and triangle tests."""
-    cb, ci, root, tv, prim_ids, depth = bvh
+    prim_ids = bvh[4]
     n = org.shape[0]
     hit = np.empty(n, np.int64)
     t = np.empty(n)
@@ -218,15 +221,11 @@ def closest_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     n_node = np.empty(n, np.int32)
     n_tri = np.empty(n, np.int32)
     no_occ = np.empty(0, np.bool_)
-    root2 = _root_record(root)
-    n_packets = starts.shape[0] - 1
-    n_tasks = (n_packets + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
+    root2 = _root_record(bvh[2])
+    n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
     for it in prange(n_tasks):
-        task = spread(it, n_tasks)
-        rays, t_left, t_right, visits, stack, stack_mask = _scratch(depth)
-        for k in range(task * PACKETS_PER_TASK, min(n_packets, (task + 1) * PACKETS_PER_TASK)):
-            _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays,
-                          t_left, t_right, visits, stack, stack_mask, True, no_occ, hit, t, b1, b2, n_node, n_tri)
+        _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), True, no_occ, hit, t, b1, b2,
+                    n_node, n_tri)
     prim = np.full(n, -1, np.int32)
     for i in prange(n):
         if hit[i] >= 0:
