@@ -5,6 +5,7 @@ import pytest
 
 import probvis
 from probvis import ProbvisError
+from probvis.visibility import ExactVisibility
 from tests.conftest import sensor, write_scene
 
 
@@ -71,6 +72,44 @@ def test_same_image_whatever_the_thread_count_and_seed_matters():
     np.testing.assert_array_equal(one.aovs["triangle_tests"], two.aovs["triangle_tests"])
     other = probvis.render(scene, seed=6)
     assert not np.array_equal(one.image, other.image)
+
+
+class StagedExact(ExactVisibility):
+    """Exact visibility through the staged path (slots, compaction, `evaluate`, accumulate)."""
+
+    any_hit_only = False
+
+
+@pytest.mark.parametrize("two_lights, shadow_rays", [(False, 3), (True, 70)])
+def test_fused_exact_path_matches_the_staged_path(tmp_path, two_lights, shadow_rays):
+    """The integrator's fused kernel for exact visibility gives the staged path's image, moments, per-pixel
+    counts and totals bit for bit: one light and short packets, and two lights (an emitter choice per sample)
+    with 70 shadow rays, more than one packet per shading point."""
+    if two_lights:
+        body = sensor(origin="0, 0, 0.9", target="0, 0, 0", fov=60, spp=3, sr=shadow_rays) + """
+            <shape type="rectangle"><transform name="to_world"><scale value="2"/></transform>
+                <bsdf type="diffuse"/></shape>
+            <shape type="cube"><transform name="to_world"><scale value="0.15"/><translate z="0.4"/></transform>
+                <bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.6, 0.3"/></bsdf></shape>
+            <shape type="rectangle"><transform name="to_world"><scale value="0.4"/><rotate x="1" angle="180"/>
+                <translate z="1.0"/></transform><emitter type="area"><rgb name="radiance" value="4"/></emitter></shape>
+            <shape type="rectangle"><transform name="to_world"><scale value="0.2"/><rotate x="1" angle="150"/>
+                <translate x="0.6" z="0.8"/></transform>
+                <emitter type="area"><rgb name="radiance" value="9, 3, 1"/></emitter></shape>"""
+        scene = probvis.load_scene(write_scene(tmp_path / "two.xml", body))
+    else:
+        scene = probvis.load_scene("cornell-box", res=24, spp=4, shadow_rays=shadow_rays)
+    fused = probvis.render(scene, seed=11)
+    staged = probvis.render(scene, seed=11, visibility=StagedExact())
+    np.testing.assert_array_equal(fused.image, staged.image)
+    for name in ("triangle_tests", "node_tests", "second_moment"):
+        np.testing.assert_array_equal(fused.aovs[name], staged.aovs[name])
+    for key in ("shadow_rays", "camera_hits", "intersection_tests", "negative_estimates"):
+        assert fused.stats[key] == staged.stats[key]
+    assert fused.stats["shadow_rays"] > 0 and fused.stats["intersection_tests"]["shadow"]["triangle"] > 0
+    if two_lights:
+        assert fused.stats["emitters"] == 2  # and some shading point has more than 64 segments:
+        assert fused.stats["shadow_rays"] > 64 * fused.stats["camera_hits"]
 
 
 def test_stats_and_test_count_image_add_up():

@@ -2,6 +2,9 @@
 
 camera rays -> closest hits -> shading points and emitter samples -> visibility estimator -> film.
 
+Exact visibility takes a fused last stage instead (`shade_exact`: sample, trace and sum a shading point's
+segments while they are in cache), with the staged path's numbers bit for bit.
+
 Each camera sample emits `shadow_rays` emitter samples (emitter by power, triangle by area, uniform point)
 with a Lambertian BRDF; one-sided diffuse surfaces are black from behind and emitters emit from their
 front side only, as in Mitsuba 3.
@@ -15,7 +18,7 @@ import numpy as np
 from numba import njit, prange
 
 from . import __version__
-from .accel import build_bvh, nearest_hits
+from .accel import MAX_PACKET, build_bvh, nearest_hits, occluded_packet, packet_work, root_record
 from .camera import camera_params, camera_rays
 from .errors import ProbvisError
 from .geometry import unit_normals
@@ -30,6 +33,7 @@ SHADOW_EPSILON = 1e-6  # segments stop this fraction short of the emitter point
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
 POINTS_PER_BLOCK = 64  # shading points per parallel work item of the emitter sampling
 N_COUNTS = 5  # per-pixel counts kept by `accumulate`
+PIXELS_PER_BLOCK = 4  # pixels per parallel work item of `shade_exact`
 
 
 @dataclass
@@ -102,64 +106,83 @@ def _emitter_segment(slot, le, scale, rgb, u, table, triangles, fnormals, p, s, 
     active[slot] = (dot_x > 0.0) & (dot_y > 0.0)
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s_dir, contrib, s_emit, active):
-    """Direct light at the shading points, per emitter as the visibility estimator's `cases` say:
+@njit(cache=True, error_model="numpy", inline="always")
+def _point_samples(i, triangles, fnormals, refl, radiance, pmf, area, table, prim, pos, nrm, mat, cases, keys,
+                   n_shadow, base, s_org, s_dir, contrib, s_emit, active, dense):
+    """Direct light at shading point `i`, per emitter as the visibility estimator's `cases` say:
 
     lit (case 1) emitters are integrated analytically (Lambert's polygon formula, no noise, no rays),
-    shadowed (case 2) ones contribute nothing, and the others are sampled: `n_shadow` emitter samples per
-    point (emitter by power among the sampled ones, point uniform by area), slot = point * n_shadow + j.
-    Returns the analytic radiance per point and fills, per slot, segment origin and direction, the unoccluded
-    contribution (already divided by pdf and n_shadow), the emitter id and the active flag (the other
-    outputs of an inactive slot are meaningless).
+    shadowed (case 2) ones contribute nothing, and the others are sampled: `n_shadow` emitter samples (emitter
+    by power among the sampled ones, point uniform by area) in slots base..base + n_shadow - 1. Fills, per
+    slot, segment origin and direction, the unoccluded contribution (already divided by pdf and n_shadow), the
+    emitter id and the active flag (the other outputs of an inactive slot are meaningless). With `dense` (a
+    constant in each caller) only the active samples are kept, in slots base..base + m - 1, and `active`
+    needs one spare slot. Returns the analytic radiance and m (0 without `dense`).
     """
+    offsets, etris = table[0], table[1]
+    inv_pi = 1.0 / math.pi
+    a0 = a1 = a2 = 0.0
+    m = 0
+    mi = mat[i]
+    if mi < 0:
+        for j in range(n_shadow):
+            active[base + j] = False
+        return a0, a1, a2, m
+    tri = prim[i]
+    p = (pos[i, 0], pos[i, 1], pos[i, 2])
+    s = (nrm[i, 0], nrm[i, 1], nrm[i, 2])
+    for e in range(pmf.shape[0]):
+        if cases[i, e] == CASE_LIT:
+            f = emitter_irradiance(e, offsets, etris, triangles, p[0], p[1], p[2], s[0], s[1], s[2]) * inv_pi
+            a0 += refl[mi, 0] * radiance[e, 0] * f
+            a1 += refl[mi, 1] * radiance[e, 1] * f
+            a2 += refl[mi, 2] * radiance[e, 2] * f
+    total, only = sampled_share(pmf, cases, i)
+    if total <= 0.0:
+        for j in range(n_shadow):
+            active[base + j] = False
+        return a0, a1, a2, m
+    gn = (fnormals[tri, 0], fnormals[tri, 1], fnormals[tri, 2])
+    eps = 1e-9 * (1.0 + max(abs(p[0]), abs(p[1]), abs(p[2])))
+    key = keys[i]
+    if only >= 0:  # a single emitter: no choice (its random dimension is simply not drawn)
+        scale = area[only] * inv_pi / n_shadow
+        rgb = (refl[mi, 0] * radiance[only, 0], refl[mi, 1] * radiance[only, 1], refl[mi, 2] * radiance[only, 2])
+        for j in range(n_shadow):
+            u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
+            slot = base + m if dense else base + j
+            _emitter_segment(slot, only, scale, rgb, u, table, triangles, fnormals, p, s, gn, eps, contrib, s_org,
+                             s_dir, s_emit, active)
+            if dense:
+                m += active[slot]
+        return a0, a1, a2, m
+    for j in range(n_shadow):
+        le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
+        rgb = (refl[mi, 0] * radiance[le, 0], refl[mi, 1] * radiance[le, 1], refl[mi, 2] * radiance[le, 2])
+        u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
+        slot = base + m if dense else base + j
+        _emitter_segment(slot, le, area[le] * inv_pi / (p_e * n_shadow), rgb, u, table, triangles, fnormals, p, s,
+                         gn, eps, contrib, s_org, s_dir, s_emit, active)
+        if dense:
+            m += active[slot]
+    return a0, a1, a2, m
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s_dir, contrib, s_emit, active):
+    """`_point_samples` of every shading point, point i in slots i * n_shadow onwards; returns the analytic
+    radiance per point."""
     triangles, vnormals, fnormals, tri_mat, tri_emit, refl, twosided, radiance = geom
     pmf, area, table = es
-    offsets, etris = table[0], table[1]
     n = prim.shape[0]
-    n_emit = pmf.shape[0]
     analytic = np.zeros((n, 3))
-    inv_pi = 1.0 / math.pi
     n_blocks = (n + POINTS_PER_BLOCK - 1) // POINTS_PER_BLOCK
     for it in prange(n_blocks):
         blk = spread(it, n_blocks)
         for i in range(blk * POINTS_PER_BLOCK, min(n, (blk + 1) * POINTS_PER_BLOCK)):
-            mi = mat[i]
-            if mi < 0:
-                for j in range(n_shadow):
-                    active[i * n_shadow + j] = False
-                continue
-            tri = prim[i]
-            p = (pos[i, 0], pos[i, 1], pos[i, 2])
-            s = (nrm[i, 0], nrm[i, 1], nrm[i, 2])
-            for e in range(n_emit):
-                if cases[i, e] == CASE_LIT:
-                    f = emitter_irradiance(e, offsets, etris, triangles, p[0], p[1], p[2], s[0], s[1], s[2]) * inv_pi
-                    for k in range(3):
-                        analytic[i, k] += refl[mi, k] * radiance[e, k] * f
-            total, only = sampled_share(pmf, cases, i)
-            if total <= 0.0:
-                for j in range(n_shadow):
-                    active[i * n_shadow + j] = False
-                continue
-            gn = (fnormals[tri, 0], fnormals[tri, 1], fnormals[tri, 2])
-            eps = 1e-9 * (1.0 + max(abs(p[0]), abs(p[1]), abs(p[2])))
-            key = keys[i]
-            if only >= 0:  # a single emitter: no choice (its random dimension is simply not drawn)
-                scale = area[only] * inv_pi / n_shadow
-                rgb = (refl[mi, 0] * radiance[only, 0], refl[mi, 1] * radiance[only, 1],
-                       refl[mi, 2] * radiance[only, 2])
-                for j in range(n_shadow):
-                    u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
-                    _emitter_segment(i * n_shadow + j, only, scale, rgb, u, table, triangles, fnormals, p, s, gn,
-                                     eps, contrib, s_org, s_dir, s_emit, active)
-                continue
-            for j in range(n_shadow):
-                le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
-                rgb = (refl[mi, 0] * radiance[le, 0], refl[mi, 1] * radiance[le, 1], refl[mi, 2] * radiance[le, 2])
-                u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
-                _emitter_segment(i * n_shadow + j, le, area[le] * inv_pi / (p_e * n_shadow), rgb, u, table,
-                                 triangles, fnormals, p, s, gn, eps, contrib, s_org, s_dir, s_emit, active)
+            analytic[i, 0], analytic[i, 1], analytic[i, 2] = _point_samples(
+                i, triangles, fnormals, refl, radiance, pmf, area, table, prim, pos, nrm, mat, cases, keys,
+                n_shadow, i * n_shadow, s_org, s_dir, contrib, s_emit, active, False)[:3]
     return analytic
 
 
@@ -230,6 +253,64 @@ def accumulate(emitted, contrib, active, offsets, value, cam_node, cam_tri, sh_n
     return img, m2, counts
 
 
+@njit(cache=True, parallel=True, error_model="numpy")
+def shade_exact(geom, es, bvh, prim, pos, nrm, mat, cases, keys, emitted, cam_node, cam_tri, spp, n_shadow, n_pix):
+    """`sample_lights`, exact visibility and `accumulate` fused, pixel by pixel: a shading point's segments are
+    made, traced as packets and summed while they are in cache, with no batch-sized slot or segment arrays.
+    The arithmetic and the packets are those of the staged path, so image and counts are identical.
+    Returns `accumulate`'s outputs and the number of segments per pixel."""
+    triangles, vnormals, fnormals, tri_mat, tri_emit, refl, twosided, radiance = geom
+    pmf, area, table = es
+    root2 = root_record(bvh[2])
+    depth = bvh[5]
+    img = np.zeros((n_pix, 3))
+    m2 = np.zeros((n_pix, 3))
+    counts = np.zeros((n_pix, N_COUNTS), np.int64)
+    n_seg = np.zeros(n_pix, np.int64)
+    n_blocks = (n_pix + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
+    for it in prange(n_blocks):
+        blk = spread(it, n_blocks)
+        org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
+        s_emit = np.empty(n_shadow, np.int32)
+        active = np.empty(n_shadow + 1, np.bool_)
+        tmin = np.zeros(n_shadow)
+        tmax = np.full(n_shadow, 1.0 - SHADOW_EPSILON)
+        occ = np.empty(n_shadow, np.bool_)
+        sh_node = np.empty(n_shadow, np.int32)
+        sh_tri = np.empty(n_shadow, np.int32)
+        work = packet_work(depth)
+        for q in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
+            for s in range(spp):
+                i = q * spp + s
+                counts[q, 0] += cam_tri[i]
+                counts[q, 1] += cam_node[i]
+                a0, a1, a2, m = _point_samples(i, triangles, fnormals, refl, radiance, pmf, area, table, prim, pos,
+                                               nrm, mat, cases, keys, n_shadow, 0, org, dirs, contrib, s_emit, active,
+                                               True)
+                for lo in range(0, m, MAX_PACKET):
+                    occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, min(MAX_PACKET, m - lo), work, occ,
+                                    sh_node, sh_tri)
+                l0, l1, l2 = emitted[i, 0] + a0, emitted[i, 1] + a1, emitted[i, 2] + a2
+                for k in range(m):
+                    v = 1.0 - np.float64(occ[k])
+                    l0 += contrib[k, 0] * v
+                    l1 += contrib[k, 1] * v
+                    l2 += contrib[k, 2] * v
+                    counts[q, 2] += sh_tri[k]
+                    counts[q, 3] += sh_node[k]
+                n_seg[q] += m
+                img[q, 0] += l0
+                img[q, 1] += l1
+                img[q, 2] += l2
+                m2[q, 0] += l0 * l0
+                m2[q, 1] += l1 * l1
+                m2[q, 2] += l2 * l2
+            for c in range(3):
+                img[q, c] /= spp
+                m2[q, c] /= spp
+    return img, m2, counts, n_seg
+
+
 class _Buffers:
     """Shadow-slot and segment arrays reused by every batch of a render: fresh multi-megabyte arrays per
     batch cost more in page faults than the kernels that fill them."""
@@ -289,7 +370,9 @@ def _render_prepared(scene, estimator, progress, warmup=False):
     n_pix_total = width * height
     spp, n_shadow = scene.spp, scene.shadow_rays
     per_batch = max(1, min(n_pix_total, TARGET_SLOTS // (spp * n_shadow)))
-    buffers = _Buffers(per_batch * spp * n_shadow)
+    # exact visibility samples, traces and sums in one kernel; other estimators get batches of segments
+    fused = estimator.any_hit_only
+    buffers = None if fused else _Buffers(per_batch * spp * n_shadow)
     image = np.zeros((n_pix_total, 3))
     moment2 = np.zeros((n_pix_total, 3))
     counts = np.zeros((n_pix_total, N_COUNTS), np.int64)
@@ -320,17 +403,22 @@ def _render_prepared(scene, estimator, progress, warmup=False):
                     for c in range(N_CASES):
                         case_counts[p0:p1, :, c] = (per_px == c).sum(axis=1)
                         totals["cases"][c] += int((cases[shaded] == c).sum())
-                s_org, s_dir, contrib, s_emit, active = buffers.slots(len(prim) * n_shadow)
-                emitted += sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow,
-                                         s_org, s_dir, contrib, s_emit, active)
-                offsets = compact(active, s_org, s_dir, s_emit, keys, n_shadow, *buffers.segments())
-                n_q = int(offsets[-1])
-                query = ShadowQuery(origin=buffers.org[:n_q], direction=buffers.dirs[:n_q], tmax=buffers.tmax[:n_q],
-                                    point=buffers.point[:n_q], emitter=buffers.emit[:n_q], key=buffers.key[:n_q],
-                                    points=points)
-                res = estimator.evaluate(query)
-                img, m2, cnt = accumulate(emitted, contrib, active, offsets, res.value, cam_node, cam_tri,
-                                          res.node_tests, res.triangle_tests, spp, n_shadow, p1 - p0)
+                if fused:
+                    img, m2, cnt, n_seg = shade_exact(geom, es, bvh.arrays, prim, pos, nrm, mat, cases, keys, emitted,
+                                                      cam_node, cam_tri, spp, n_shadow, p1 - p0)
+                    n_q = int(n_seg.sum())
+                else:
+                    s_org, s_dir, contrib, s_emit, active = buffers.slots(len(prim) * n_shadow)
+                    emitted += sample_lights(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow,
+                                             s_org, s_dir, contrib, s_emit, active)
+                    offsets = compact(active, s_org, s_dir, s_emit, keys, n_shadow, *buffers.segments())
+                    n_q = int(offsets[-1])
+                    query = ShadowQuery(origin=buffers.org[:n_q], direction=buffers.dirs[:n_q],
+                                        tmax=buffers.tmax[:n_q], point=buffers.point[:n_q],
+                                        emitter=buffers.emit[:n_q], key=buffers.key[:n_q], points=points)
+                    res = estimator.evaluate(query)
+                    img, m2, cnt = accumulate(emitted, contrib, active, offsets, res.value, cam_node, cam_tri,
+                                              res.node_tests, res.triangle_tests, spp, n_shadow, p1 - p0)
                 image[p0:p1], moment2[p0:p1], counts[p0:p1] = img, m2, cnt
                 totals["shadow_rays"] += n_q
                 totals["camera_hits"] += int((prim >= 0).sum())

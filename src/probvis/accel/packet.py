@@ -167,24 +167,36 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def packet_work(depth):
+    """Work arrays of packet traversals, made once per parallel work item: ray constants, child entry
+    distances, visit counts, and the node and mask stacks of a BVH of that depth."""
+    return (np.empty((8, MAX_PACKET)), np.empty(MAX_PACKET), np.empty(MAX_PACKET), np.empty(MAX_PACKET, np.uint64),
+            np.empty(depth, np.int64), np.empty(depth, np.uint64))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, m, work, occ, n_node, n_tri):
+    """Any-hit traversal of the packet of segments lo..lo+m-1 (m <= 64): fills their `occ`, `n_node` and
+    `n_tri`. `root2` is `root_record(bvh[2])` and `work` is `packet_work(bvh[5])`."""
+    cb, ci, _, tv, _, _ = bvh
+    rays, t_left, t_right, visits, stack, stack_mask = work
+    _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left, t_right, visits, stack, stack_mask,
+                  False, occ, n_node, tmax, tmax, tmax, n_node, n_tri)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, task, closest, occ, hit, hit_t, hit_b1, hit_b2, n_node,
                 n_tri):
-    """Packets task * PACKETS_PER_TASK onwards (one parallel work item), with their own work arrays: ray
-    constants, child entry distances, visit counts, and the node and mask stacks."""
+    """Packets task * PACKETS_PER_TASK onwards (one parallel work item), with their own work arrays."""
     cb, ci, _, tv, _, depth = bvh
-    rays = np.empty((8, MAX_PACKET))
-    t_left = np.empty(MAX_PACKET)
-    t_right = np.empty(MAX_PACKET)
-    visits = np.empty(MAX_PACKET, np.uint64)
-    stack = np.empty(depth, np.int64)
-    stack_mask = np.empty(depth, np.uint64)
+    rays, t_left, t_right, visits, stack, stack_mask = packet_work(depth)
     for k in range(task * PACKETS_PER_TASK, min(starts.shape[0] - 1, (task + 1) * PACKETS_PER_TASK)):
         _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays, t_left,
                       t_right, visits, stack, stack_mask, closest, occ, hit, hit_t, hit_b1, hit_b2, n_node, n_tri)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _root_record(root):
+def root_record(root):
     """The root's box stored as both children of one record, so the first test uses the node-pair code."""
     root2 = np.empty((1, 12))
     root2[0, :6] = root[0]
@@ -200,7 +212,7 @@ def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     occ = np.empty(n, np.bool_)
     n_node = np.empty(n, np.int32)
     n_tri = np.empty(n, np.int32)
-    root2 = _root_record(bvh[2])
+    root2 = root_record(bvh[2])
     n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
     for it in prange(n_tasks):  # the unused nearest-hit arrays are stand-ins of the right types
         _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), False, occ, n_node, tmax, tmax,
@@ -221,7 +233,7 @@ def closest_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     n_node = np.empty(n, np.int32)
     n_tri = np.empty(n, np.int32)
     no_occ = np.empty(0, np.bool_)
-    root2 = _root_record(bvh[2])
+    root2 = root_record(bvh[2])
     n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
     for it in prange(n_tasks):
         _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), True, no_occ, hit, t, b1, b2,

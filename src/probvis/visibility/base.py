@@ -46,6 +46,7 @@ class VisibilityEstimator(abc.ABC):
     """Subclass, give it a `name`, implement `evaluate`, and register it in `probvis.visibility`."""
 
     name = "abstract"
+    any_hit_only = False  # True if `evaluate` is 1 - `accel.occluded_segments`: the integrator then traces itself
 
     def prepare(self, scene, bvh, emitters):
         """Build whatever per-scene structure the estimator needs (timed as part of 'build')."""

@@ -6,6 +6,7 @@ from .base import VisibilityEstimator, VisibilityResult
 
 class ExactVisibility(VisibilityEstimator):
     name = "exact"
+    any_hit_only = True  # the integrator may trace the segments in its fused kernel: same numbers, less traffic
 
     def evaluate(self, query):
         occluded, n_node, n_tri = occluded_segments(self.bvh, query.origin, query.direction, query.tmax, query.point)
