@@ -116,8 +116,8 @@ def _point_samples(i, triangles, fnormals, refl, radiance, pmf, area, table, pri
     by power among the sampled ones, point uniform by area) in slots base..base + n_shadow - 1. Fills, per
     slot, segment origin and direction, the unoccluded contribution (already divided by pdf and n_shadow), the
     emitter id and the active flag (the other outputs of an inactive slot are meaningless). With `dense` (a
-    constant in each caller) only the active samples are kept, in slots base..base + m - 1, and `active`
-    needs one spare slot. Returns the analytic radiance and m (0 without `dense`).
+    constant in each caller) only the active samples are kept, in slots base..base + m - 1 (a sample is
+    written at base + m and kept by advancing m). Returns the analytic radiance and m (0 without `dense`).
     """
     offsets, etris = table[0], table[1]
     inv_pi = 1.0 / math.pi
@@ -216,6 +216,25 @@ def compact(active, s_org, s_dir, s_emit, keys, n_shadow, org, dirs, point, emit
     return offsets
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _add_sample(img, m2, q, l0, l1, l2):
+    """Add one camera sample's radiance to pixel q's sum and sum of squares."""
+    img[q, 0] += l0
+    img[q, 1] += l1
+    img[q, 2] += l2
+    m2[q, 0] += l0 * l0
+    m2[q, 1] += l1 * l1
+    m2[q, 2] += l2 * l2
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _pixel_mean(img, m2, q, spp):
+    """Turn pixel q's sums over its spp samples into means (box filter)."""
+    for c in range(3):
+        img[q, c] /= spp
+        m2[q, c] /= spp
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def accumulate(emitted, contrib, active, offsets, value, cam_node, cam_tri, sh_node, sh_tri, spp, n_shadow, n_pix):
     """Pixel means (box filter), per-pixel second moment of the sample radiance, and per-pixel counts:
@@ -241,15 +260,8 @@ def accumulate(emitted, contrib, active, offsets, value, cam_node, cam_tri, sh_n
                     counts[q, 3] += sh_node[k]
                     counts[q, 4] += v < 0.0
                     k += 1
-            img[q, 0] += l0
-            img[q, 1] += l1
-            img[q, 2] += l2
-            m2[q, 0] += l0 * l0
-            m2[q, 1] += l1 * l1
-            m2[q, 2] += l2 * l2
-        for c in range(3):
-            img[q, c] /= spp
-            m2[q, c] /= spp
+            _add_sample(img, m2, q, l0, l1, l2)
+        _pixel_mean(img, m2, q, spp)
     return img, m2, counts
 
 
@@ -272,7 +284,7 @@ def shade_exact(geom, es, bvh, prim, pos, nrm, mat, cases, keys, emitted, cam_no
         blk = spread(it, n_blocks)
         org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
         s_emit = np.empty(n_shadow, np.int32)
-        active = np.empty(n_shadow + 1, np.bool_)
+        active = np.empty(n_shadow, np.bool_)
         tmin = np.zeros(n_shadow)
         tmax = np.full(n_shadow, 1.0 - SHADOW_EPSILON)
         occ = np.empty(n_shadow, np.bool_)
@@ -299,15 +311,8 @@ def shade_exact(geom, es, bvh, prim, pos, nrm, mat, cases, keys, emitted, cam_no
                     counts[q, 2] += sh_tri[k]
                     counts[q, 3] += sh_node[k]
                 n_seg[q] += m
-                img[q, 0] += l0
-                img[q, 1] += l1
-                img[q, 2] += l2
-                m2[q, 0] += l0 * l0
-                m2[q, 1] += l1 * l1
-                m2[q, 2] += l2 * l2
-            for c in range(3):
-                img[q, c] /= spp
-                m2[q, c] /= spp
+                _add_sample(img, m2, q, l0, l1, l2)
+            _pixel_mean(img, m2, q, spp)
     return img, m2, counts, n_seg
 
 
