@@ -1,4 +1,4 @@
-"""Renderer-core benchmark (issue 2), run by hand: `python3 bench/bench_core.py [--runs 5]`.
+"""Renderer-core benchmark, run by hand: `python3 bench/bench_core.py [--runs 5]`.
 
 1. cornell-bunny at 256x256, 16 spp x 16 shadow rays, exact visibility: probvis and Mitsuba 3 alternately
    in this process (Mitsuba `llvm_ad_rgb`, else `scalar_rgb`, said so); median seconds (scene load + render,
@@ -66,13 +66,13 @@ def main():
     t0 = time.perf_counter()
     time_mitsuba(mi, scene_path, 0, res=args.res)  # Mitsuba's JIT warm-up
     mitsuba_warmup = time.perf_counter() - t0
-    first = probvis.render(scene_path, res=args.res, seed=0)
+    first = probvis.render(scene_path, seed=0, defines={"res": args.res})
     ours, theirs, rays = [], [], []
     for run in range(args.runs):
         t = time_mitsuba(mi, scene_path, run + 1, res=args.res)[0]
         theirs.append(t)
-        r = probvis.render(scene_path, res=args.res, seed=run + 1)
-        ours.append(r.stats["seconds"]["load"] + r.stats["seconds"]["build"] + r.stats["seconds"]["render"])
+        r = probvis.render(scene_path, seed=run + 1, defines={"res": args.res})
+        ours.append(sum(r.stats["seconds"][k] for k in ("load", "bvh", "prepare", "render")))
         rays.append(r.stats["shadow_rays_per_second"])
         print(f"run {run}: probvis {ours[-1]:.2f} s (render {r.stats['seconds']['render']:.2f}), "
               f"mitsuba {variant} {t:.2f} s")
@@ -114,8 +114,8 @@ def main():
     print("\nrelMSE against the Mitsuba references (128 px, 16 spp x 16 shadow rays, mean of 3 seeds):")
     for name in ("cornell-bunny", "city", "leaves"):
         ref = read_exr(SHARED / "reference" / f"{name}-128.exr").astype(np.float64)
-        errs = [relmse(probvis.render(SHARED / "scenes" / f"{name}.xml", res=128, spp=16, shadow_rays=16,
-                                      seed=s).image, ref) for s in (1, 2, 3)]
+        errs = [relmse(probvis.render(SHARED / "scenes" / f"{name}.xml", spp=16, shadow_rays=16, seed=s,
+                                      defines={"res": 128}).image, ref) for s in (1, 2, 3)]
         floor = float(np.mean(floors[name]["relmse_16spp_16sr"]))
         out["reference"][name] = {"relmse": float(np.mean(errs)), "floor": floor,
                                   "ratio": float(np.mean(errs)) / floor}

@@ -1,4 +1,4 @@
-"""Occlusion-map benchmark (issue 3), run by hand: `python3 bench/bench_occlusion_map.py [--runs 3]`.
+"""Occlusion-map benchmark, run by hand: `python3 bench/bench_occlusion_map.py [--runs 3]`.
 
 For ../shared/scenes cornell-bunny, city and leaves at 128x128, 16 spp x 16 shadow rays: exact visibility
 against the occlusion map with list and bvh penumbra (and bvh with adaptive photons). Per method: median
@@ -21,8 +21,8 @@ METHODS = {
     "exact": ("exact", {}),
     "om-list": ("occlusion-map", {"penumbra": "list"}),
     "om-bvh": ("occlusion-map", {"penumbra": "bvh"}),
-    "om-bvh-adaptive": ("occlusion-map", {"penumbra": "bvh", "adaptive": True}),
-    "om-list-adaptive": ("occlusion-map", {"penumbra": "list", "adaptive": True}),
+    "om-bvh-adaptive": ("occlusion-map", {"penumbra": "bvh", "adaptive_photons": True}),
+    "om-list-adaptive": ("occlusion-map", {"penumbra": "list", "adaptive_photons": True}),
 }
 
 
@@ -32,15 +32,15 @@ def relmse(x, ref):
 
 def run(scene, method, seed):
     vis, opts = METHODS[method]
-    r = probvis.render(SHARED / "scenes" / f"{scene}.xml", res=128, spp=16, shadow_rays=16, seed=seed,
+    r = probvis.render(SHARED / "scenes" / f"{scene}.xml", spp=16, shadow_rays=16, seed=seed, defines={"res": 128},
                        visibility=vis, visibility_options=opts)
     s = r.stats
     est = s["estimator"] or {}
     sec = est.get("seconds", {})
-    photon = sec.get("photons", 0.0) + sec.get("adaptive", 0.0) + sec.get("map_build", 0.0)
+    photon = sec.get("photons", 0.0) + sec.get("adaptive_photons", 0.0) + sec.get("map_build", 0.0)
     pt = est.get("photon_tests", {"triangle": 0, "node": 0})
     return r.image, {
-        "total": s["seconds"]["total"] - s["seconds"]["compile"], "build": s["seconds"]["build"],
+        "total": s["seconds"]["total"] - s["seconds"]["compile"], "build": s["seconds"]["bvh"] + s["seconds"]["prepare"],
         "render": s["seconds"]["render"], "photon_and_map": photon, "lookup": sec.get("lookup", 0.0),
         "shadow_rays": s["shadow_rays"],
         "triangle_tests": s["intersection_tests"]["shadow"]["triangle"] + pt["triangle"],

@@ -1,4 +1,4 @@
-"""Probabilistic-visibility benchmark (issue 4), run by hand:
+"""Probabilistic-visibility benchmark, run by hand:
 `python3 bench/bench_probvis.py [--shadow-rays 1,4,16,64,256] [--runs 1]`.
 
 For ../shared/scenes city, leaves and cornell-bunny at 128x128, 16 spp: the occlusion map without probvis
@@ -51,7 +51,7 @@ def main():
             base = None
             for method in args.methods.split(","):
                 vis, opts = METHODS[method]
-                runs = [probvis.render(path, res=128, spp=16, shadow_rays=sr, seed=seed, visibility=vis,
+                runs = [probvis.render(path, spp=16, shadow_rays=sr, seed=seed, defines={"res": 128}, visibility=vis,
                                        visibility_options=opts) for seed in range(args.runs)]
                 sec = statistics.median(r.stats["seconds"]["total"] - r.stats["seconds"]["compile"] for r in runs)
                 tri = statistics.median(r.stats["intersection_tests"]["shadow"]["triangle"] for r in runs)

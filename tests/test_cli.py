@@ -76,17 +76,71 @@ def test_occlusion_map_options_and_case_image(tmp_path, capsys):
     out, cases, stats = tmp_path / "o.exr", tmp_path / "cases.png", tmp_path / "s.json"
     code = main(["render", "quad-shadow", "-D", "res=16", "--spp", "2", "--shadow-rays", "2", "-o", str(out),
                  "--visibility", "occlusion-map", "--photons", "20000", "--neighbours", "16", "--radius", "0.2",
-                 "--penumbra", "list", "--no-adaptive", "--case-image", str(cases), "--stats", str(stats)])
+                 "--penumbra", "list", "--no-adaptive-photons", "--case-image", str(cases), "--stats", str(stats)])
     assert code == 0 and cases.stat().st_size > 0
     s = json.loads(stats.read_text())
     assert s["visibility"] == {"name": "occlusion-map", "photons": 20000, "neighbours": 16, "radius": 0.2,
-                               "penumbra": "list", "adaptive": False, "volumetric": True}
+                               "penumbra": "list", "adaptive_photons": False, "volumetric": True}
     assert abs(sum(c["share"] for c in s["cases"].values()) - 1) < 1e-9
     assert s["estimator"]["list_length"]["max"] >= 2
     capsys.readouterr()
     for argv, message in ((["--photons", "5"], "does not apply to --visibility exact"),
                           (["--case-image", str(tmp_path / "c.png")], "--case-image needs"),
                           (["--visibility", "occlusion-map", "--estimator", "shifted"],
-                           "--estimator applies to --visibility probvis only")):
+                           "--estimator does not apply to --visibility occlusion-map (it is an option of probvis")):
         assert main(["render", "quad-shadow", "-o", str(out)] + argv) == 2
         assert message in capsys.readouterr().err
+
+
+def _stats_of(argv, tmp_path):
+    stats = tmp_path / "s.json"
+    assert main(argv + ["-o", str(tmp_path / "d.exr"), "--stats", str(stats), "-q"]) == 0
+    return json.loads(stats.read_text())
+
+
+def test_defines_set_any_scene_parameter_and_explicit_flags_win(tmp_path):
+    """-D spp / shadow_rays / seed / res work as in Mitsuba on an XML scene that declares them and on a built-in
+    scene; --spp, --shadow-rays and --seed win over -D."""
+    defaults = ('<default name="spp" value="8"/><default name="sr" value="8"/><default name="res" value="20"/>'
+                '<default name="seed" value="0"/>')
+    body = sensor(spp="$spp", sr="$sr", w="$res", h="$res").replace(
+        '<integer name="sample_count" value="$spp"/>',
+        '<integer name="sample_count" value="$spp"/><integer name="seed" value="$seed"/>') + """
+        <shape type="rectangle"><transform name="to_world"><scale value="2"/></transform><bsdf type="diffuse"/></shape>
+        <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="180"/><translate z="1"/></transform>
+            <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>"""
+    xml = write_scene(tmp_path / "d.xml", body, defaults)
+    for scene, rays in ((str(xml), "sr"), ("quad-shadow", "shadow_rays")):
+        s = _stats_of(["render", scene, "-D", "res=12", "-D", "spp=2", "-D", f"{rays}=3", "-D", "seed=7"], tmp_path)
+        assert (s["width"], s["height"], s["spp"], s["shadow_rays_per_sample"], s["seed"]) == (12, 12, 2, 3, 7), scene
+        s = _stats_of(["render", scene, "-D", "res=12", "-D", "spp=2", "--spp", "3", "--shadow-rays", "1",
+                       "--seed", "9"], tmp_path)
+        assert (s["spp"], s["shadow_rays_per_sample"], s["seed"]) == (3, 1, 9), scene
+
+
+def test_defines_on_a_shared_scene(shared, tmp_path):
+    """The usage ../shared/README.md documents: 32x32 at 2 spp x 2 shadow rays."""
+    s = _stats_of(["render", str(shared / "scenes" / "cornell-bunny.xml"), "-D", "res=32", "-D", "spp=2",
+                   "-D", "shadow_rays=2"], tmp_path)
+    assert (s["width"], s["height"], s["spp"], s["shadow_rays_per_sample"]) == (32, 32, 2, 2)
+
+
+def test_unknown_define_on_an_xml_scene_is_a_warning(tmp_path, capsys):
+    xml = write_scene(tmp_path / "w.xml", sensor() + """
+        <shape type="rectangle"><bsdf type="diffuse"/></shape>
+        <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="180"/><translate z="1"/></transform>
+            <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""")
+    assert main(["render", str(xml), "-D", "spp=2", "-o", str(tmp_path / "w.exr"), "-q"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "-D spp: the scene declares no such parameter" in err[0]
+
+
+def test_estimators_lists_every_estimator_with_its_options(capsys):
+    assert main(["estimators", "--json"]) == 0
+    listed = {d["name"]: d for d in json.loads(capsys.readouterr().out)}
+    assert set(listed) >= {"exact", "occlusion-map", "probvis"}
+    flags = {o["flag"] for o in listed["probvis"]["options"]}
+    assert {"--estimator", "--grouping", "--photons", "--adaptive-photons"} <= flags and "--penumbra" not in flags
+    assert listed["exact"]["fused_any_hit"] and listed["exact"]["options"] == []
+    assert [a["name"] for a in listed["occlusion-map"]["aovs"]] == ["cases"]
+    assert {p["name"] for p in listed["probvis"]["phases"]} >= {"photons", "lookup", "grouping"}

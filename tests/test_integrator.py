@@ -5,7 +5,7 @@ import pytest
 
 import probvis
 from probvis import ProbvisError
-from probvis.visibility import ExactVisibility
+from probvis.visibility.exact import ExactVisibility
 from tests.conftest import sensor, write_scene
 
 
@@ -77,7 +77,7 @@ def test_same_image_whatever_the_thread_count_and_seed_matters():
 class StagedExact(ExactVisibility):
     """Exact visibility through the staged path (slots, compaction, `evaluate`, accumulate)."""
 
-    any_hit_only = False
+    fused_any_hit = False
 
 
 @pytest.mark.parametrize("two_lights, shadow_rays", [(False, 3), (True, 70)])
@@ -116,7 +116,7 @@ def test_stats_and_test_count_image_add_up():
     r = probvis.render("quad-shadow", spp=2, shadow_rays=2, resolution=(12, 10))
     s = r.stats
     assert r.image.shape == (10, 12, 3)
-    for key in ("total", "load", "build", "compile", "render"):
+    for key in ("total", "load", "bvh", "prepare", "compile", "render"):
         assert s["seconds"][key] >= 0
     assert s["camera_rays"] == 12 * 10 * 2
     it = s["intersection_tests"]
@@ -150,6 +150,6 @@ def test_shared_scenes_within_noise_floor(shared):
     floors = json.loads((shared / "reference" / "floors.json").read_text())
     for name in ("cornell-bunny", "city", "leaves"):
         ref = read_exr(shared / "reference" / f"{name}-128.exr").astype(np.float64)
-        err = np.mean([relmse(probvis.render(shared / "scenes" / f"{name}.xml", res=128, spp=16,
-                                             shadow_rays=16, seed=s).image, ref) for s in (1, 2)])
+        err = np.mean([relmse(probvis.render(shared / "scenes" / f"{name}.xml", spp=16, shadow_rays=16,
+                                             seed=s, defines={"res": 128}).image, ref) for s in (1, 2)])
         assert err <= 1.5 * np.mean(floors[name]["relmse_16spp_16sr"]), name

@@ -1,4 +1,6 @@
-"""Primary rays of a Mitsuba perspective camera with a box pixel filter."""
+"""Stage 1 of a render: primary rays of a Mitsuba perspective camera with a box pixel filter."""
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit, prange
 
@@ -7,12 +9,23 @@ from .rng import make_key, uniform
 STREAM_CAMERA = 1  # rng stream of camera paths
 
 
+class CameraParams(NamedTuple):
+    """A `scene.Camera` as the kernel takes it: half-extents of the image plane at distance 1."""
+
+    to_world: np.ndarray
+    tan_x: float
+    tan_y: float
+    width: int
+    height: int
+    near_clip: float
+    far_clip: float
+
+
 def camera_params(cam):
-    """Packed camera constants for the kernels."""
-    tan_x = np.tan(np.radians(cam.fov_x) / 2.0)
-    tan_y = tan_x * cam.height / cam.width
-    return (np.ascontiguousarray(cam.to_world, dtype=np.float64), tan_x, tan_y, cam.width, cam.height,
-            float(cam.near_clip), float(cam.far_clip))
+    """The kernel's `CameraParams` of a `scene.Camera`."""
+    tan_x = float(np.tan(np.radians(cam.fov_x) / 2.0))
+    return CameraParams(np.ascontiguousarray(cam.to_world, dtype=np.float64), tan_x, tan_x * cam.height / cam.width,
+                        int(cam.width), int(cam.height), float(cam.near_clip), float(cam.far_clip))
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -21,7 +34,8 @@ def camera_rays(cam, spp, seed, pixel0, pixel1):
 
     Returns origins, unit directions, tmin, tmax and the rng key of each camera sample.
     """
-    m, tan_x, tan_y, width, height, near, far = cam
+    m, tan_x, tan_y, width, height, near, far = cam.to_world, cam.tan_x, cam.tan_y, cam.width, cam.height, \
+        cam.near_clip, cam.far_clip
     n = (pixel1 - pixel0) * spp
     org = np.empty((n, 3))
     dirs = np.empty((n, 3))

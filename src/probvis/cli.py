@@ -70,51 +70,73 @@ def _seed_list(text):
     return v
 
 
-PROBVIS_OPTIONS = ("estimator", "probabilities", "shifts", "power", "grouping", "levels", "cells")
-VISIBILITY_OPTIONS = ("photons", "neighbours", "radius", "penumbra", "adaptive", "volumetric") + PROBVIS_OPTIONS
-
-
 _positive = _int_at_least(1)
 _non_negative = _int_at_least(0)
 
 
-def _parser():
-    p = argparse.ArgumentParser(prog="probvis", description="Direct illumination with measurable visibility.")
+class _Parser(argparse.ArgumentParser):
+    """argparse with the project's one-line error format."""
+
+    def error(self, message):
+        raise ProbvisError(message)
+
+
+def _add_option(group, opt):
+    """The command-line flag of an estimator's `Option`."""
+    help_text = opt.help + ("" if opt.default is None else f" (default {_show(opt.default)})")
+    if opt.type is bool:
+        group.add_argument(opt.flag, dest=opt.name, action=argparse.BooleanOptionalAction, default=None,
+                           help=help_text)
+    else:
+        group.add_argument(opt.flag, dest=opt.name, type=_option_type(opt), metavar=opt.metavar or
+                           (None if opt.choices else opt.name.upper()), choices=None, help=help_text)
+
+
+def _show(value):
+    return ",".join(f"{x:g}" for x in value) if isinstance(value, tuple) else str(value).lower() \
+        if isinstance(value, bool) else str(value)
+
+
+def _option_type(opt):
+    def parse(text):
+        try:
+            return opt.parse(text)
+        except ProbvisError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    parse.__name__ = opt.name
+    return parse
+
+
+def _parser(estimator=None):
+    """The command-line parser; `render` gets the flags of `estimator` (a class) when given."""
+    from .visibility import available_names
+
+    p = _Parser(prog="probvis", description="Direct illumination with measurable visibility.")
     p.add_argument("--version", action="version", version=f"probvis {__version__}")
-    sub = p.add_subparsers(dest="command", required=True)
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     r = sub.add_parser("render", help="render a scene to EXR/PFM/PNG and report its statistics")
     r.add_argument("scene", help="Mitsuba XML file or built-in scene name (see `probvis scenes`)")
     r.add_argument("-o", "--output", action="append", metavar="OUT",
                    help="output image (.exr, .pfm, .png); repeat for several (default: SCENE.exr)")
-    r.add_argument("--spp", type=_positive, help="camera samples per pixel")
-    r.add_argument("--shadow-rays", type=_positive, help="emitter samples (shadow rays) per camera sample")
-    r.add_argument("-D", dest="defines", action="append", metavar="NAME=VALUE", help="override a <default>")
+    r.add_argument("--spp", type=_positive, help="camera samples per pixel (wins over -D spp=...)")
+    r.add_argument("--shadow-rays", type=_positive, help="emitter samples (shadow rays) per camera sample (wins over "
+                                                         "-D shadow_rays=...)")
+    r.add_argument("-D", dest="defines", action="append", metavar="NAME=VALUE",
+                   help="set a scene parameter (a <default> of an XML scene; res, spp, shadow_rays or seed of a "
+                        "built-in one)")
     r.add_argument("--seed", type=_non_negative, help="random seed (default: the scene's sampler seed)")
-    r.add_argument("--visibility", default="exact",
-                   help="visibility estimator: exact, occlusion-map, probvis (default: exact)")
-    om = r.add_argument_group("occlusion map (--visibility occlusion-map)")
-    om.add_argument("--photons", type=_positive, help="photon rays of the first pass (default: 0.5 per camera "
-                                                         "sample, at least 100,000)")
-    om.add_argument("--neighbours", type=_positive, help="photons looked up per shading point (default 32)")
-    om.add_argument("--radius", type=_positive_float, help="look-up radius (default: from the photon density)")
-    om.add_argument("--penumbra", choices=("list", "bvh"), help="test penumbra shadow rays against the candidate "
-                                                                 "blocker list or the whole BVH (default bvh)")
-    om.add_argument("--adaptive", action=argparse.BooleanOptionalAction, default=None,
-                    help="aim extra photons at uncertain regions (default off)")
-    om.add_argument("--volumetric", action=argparse.BooleanOptionalAction, default=None,
-                    help="cull closed meshes' triangles facing away from the light end (list mode; default on)")
-    om.add_argument("--case-image", metavar="OUT", help="write the per-pixel case shares (R penumbra, G lit, "
-                                                        "B shadowed, grey unknown), one image per emitter")
-    pv = r.add_argument_group("probabilistic visibility (--visibility probvis; also takes the occlusion-map options)")
-    pv.add_argument("--estimator", choices=("standard", "shifted", "power", "adaptive"),
-                    help="decomposition of V = V_A V_B (default standard)")
-    pv.add_argument("--probabilities", type=_triple, metavar="P1,P2,P3", help="term probabilities (default 1/3 each)")
-    pv.add_argument("--shifts", type=_triple, metavar="A,B,G", help="shifts of the shifted estimator (sum 1)")
-    pv.add_argument("--power", type=_positive, help="exponent of the power estimator (default 8)")
-    pv.add_argument("--grouping", choices=("solid-angle", "count", "random"), help="A/B split (default solid-angle)")
-    pv.add_argument("--levels", type=_positive, help="recursive subdivision depth (default 1: one A/B split)")
-    pv.add_argument("--cells", type=_positive, help="groups along the ray whose estimates multiply (default 1)")
+    r.add_argument("--visibility", default="exact", metavar="NAME",
+                   help=f"visibility estimator: {', '.join(available_names())} or module:Class (default exact; "
+                        "`probvis estimators` lists each one's options)")
+    r.add_argument("--case-image", metavar="OUT", help="write the per-pixel case shares (R penumbra, G lit, "
+                                                      "B shadowed, grey unknown), one image per emitter (for "
+                                                      "estimators that classify points)")
+    if estimator is not None:
+        group = r.add_argument_group(f"options of --visibility {estimator.name}")
+        for opt in estimator.options:
+            _add_option(group, opt)
     r.add_argument("--clamp-negative", action="store_true",
                    help="clamp negative pixels to zero (biased: too bright on average; the bias is reported)")
     r.add_argument("--stats", metavar="OUT.json", help="write the statistics as JSON")
@@ -129,6 +151,10 @@ def _parser():
     i.add_argument("--json", action="store_true", help="print JSON")
 
     sub.add_parser("scenes", help="list the built-in scenes")
+
+    v = sub.add_parser("estimators", help="list the visibility estimators with their options, phases and AOVs")
+    v.add_argument("name", nargs="?", help="one estimator (a name or module:Class)")
+    v.add_argument("--json", action="store_true", help="print JSON")
 
     t = sub.add_parser("tables", help="per decomposition: term values and variance in the four configurations")
     t.add_argument("--json", action="store_true", help="print JSON")
@@ -154,23 +180,19 @@ def _cmd_render(args):
     from .integrator import render
     from .io import check_writable, summary, write_case_images, write_exr, write_image, write_stats
 
+    cls = args.estimator_class
     outputs = args.output or [f"{Path(args.scene).stem}.exr"]
     for path in outputs + [x for x in (args.stats, args.tests_image, args.case_image) if x]:
         check_writable(path)
     if args.tests_image and not args.tests_image.lower().endswith(".exr"):
         raise ProbvisError("--tests-image must be an .exr file")
-    options = {k: getattr(args, k) for k in VISIBILITY_OPTIONS if getattr(args, k) is not None}
-    if options and args.visibility == "exact":
-        raise ProbvisError(f"--{next(iter(options)).replace('_', '-')} does not apply to --visibility exact")
-    probvis_only = [k for k in options if k in PROBVIS_OPTIONS]
-    if probvis_only and args.visibility != "probvis":
-        raise ProbvisError(f"--{probvis_only[0]} applies to --visibility probvis only")
-    if args.case_image and args.visibility == "exact":
-        raise ProbvisError("--case-image needs a visibility that classifies points (e.g. occlusion-map)")
-    result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed,
-                    visibility=args.visibility, visibility_options=options, threads=args.threads,
-                    clamp_negative=args.clamp_negative,
-                    progress=not args.quiet and sys.stderr.isatty(), **_defines(args.defines))
+    if args.case_image and not any(a.kind == "cases" for a in cls.aovs):
+        raise ProbvisError(f"--case-image needs an estimator that classifies points (e.g. occlusion-map), not "
+                           f"'{cls.name}'")
+    options = {o.name: getattr(args, o.name) for o in cls.options if getattr(args, o.name) is not None}
+    result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed, threads=args.threads,
+                    visibility=cls, visibility_options=options, defines=_defines(args.defines),
+                    clamp_negative=args.clamp_negative, progress=not args.quiet and sys.stderr.isatty())
     for path in outputs:
         write_image(path, result.image, args.exposure)
     if args.tests_image:
@@ -188,11 +210,47 @@ def _cmd_render(args):
     return 0
 
 
+def _describe(cls):
+    """An estimator's declarations as a JSON-serialisable dict."""
+    return {
+        "name": cls.name, "class": f"{cls.__module__}:{cls.__qualname__}", "summary": cls.summary,
+        "fused_any_hit": cls.fused_any_hit,
+        "options": [{"name": o.name, "flag": o.flag, "type": o.describe_type(),
+                     "default": list(o.default) if isinstance(o.default, tuple) else o.default, "help": o.help}
+                    for o in cls.options],
+        "phases": [{"name": p.name, "stage": p.stage, "help": p.help} for p in cls.phases],
+        "aovs": [{"name": a.name, "kind": a.kind, "help": a.help} for a in cls.aovs],
+    }
+
+
+def _cmd_estimators(args):
+    from .visibility import available_names, estimator_class
+
+    classes = [estimator_class(args.name)] if args.name else [estimator_class(n) for n in available_names()]
+    described = [_describe(c) for c in classes]
+    if args.json:
+        print(json.dumps(described, indent=1))
+        return 0
+    for d in described:
+        print(f"{d['name']}  —  {d['summary']}")
+        print(f"    class {d['class']}" + ("; exact any-hit: the integrator may fuse it" if d["fused_any_hit"] else ""))
+        for o in d["options"]:
+            default = "automatic" if o["default"] is None else o["default"]
+            print(f"    {o['flag']:<22} {o['type']:<24} default {default}")
+            print(f"        {o['help']}")
+        if d["phases"]:
+            print("    phases: " + ", ".join(f"{p['name']} ({p['stage']})" for p in d["phases"]))
+        if d["aovs"]:
+            print("    AOVs:   " + ", ".join(a["name"] for a in d["aovs"]))
+        print()
+    return 0
+
+
 def _cmd_info(args):
     import numpy as np
 
     from .accel import build_bvh
-    from .lights import build_emitter_sampler
+    from .emitters import build_emitter_sampler
     from .scene import load_scene
 
     scene = load_scene(args.scene, **_defines(args.defines))
@@ -213,8 +271,8 @@ def _cmd_info(args):
                      for e in range(scene.n_emitters)],
         "camera": {"width": cam.width, "height": cam.height, "fov_x": cam.fov_x,
                    "origin": cam.to_world[:3, 3].tolist()},
-        "spp": scene.spp,
-        "shadow_rays_per_sample": scene.shadow_rays,
+        "spp": scene.defaults.spp,
+        "shadow_rays_per_sample": scene.defaults.shadow_rays,
         "bvh": bvh.stats(),
     }
     if args.json:
@@ -224,8 +282,8 @@ def _cmd_info(args):
     print(f"triangles  {info['triangles']:,}" + (f" ({scene.dropped_degenerate} degenerate dropped)"
                                                 if scene.dropped_degenerate else ""))
     print(f"bounds     {np.round(lo, 4).tolist()} .. {np.round(hi, 4).tolist()}")
-    print(f"camera     {cam.width}x{cam.height}, fov_x {cam.fov_x:.4g} deg, {scene.spp} spp x "
-          f"{scene.shadow_rays} shadow rays")
+    print(f"camera     {cam.width}x{cam.height}, fov_x {cam.fov_x:.4g} deg, {scene.defaults.spp} spp x "
+          f"{scene.defaults.shadow_rays} shadow rays")
     for e, em in enumerate(info["emitters"]):
         print(f"emitter {e}  radiance {em['radiance']}, area {em['area']:.4g}, power {em['power']:.4g}, "
               f"p {em['selection_probability']:.3f}")
@@ -247,7 +305,7 @@ def _cmd_scenes(args):
 
 
 def _cmd_tables(args):
-    from .visibility.probvis import power, shifted, standard
+    from .visibility.probabilistic import power, shifted, standard
 
     p = args.probabilities or (1 / 3, 1 / 3, 1 / 3)
     try:
@@ -304,12 +362,57 @@ def _warning_line(message, category, filename, lineno, file=None, line=None):
     print(f"probvis: warning: {message}", file=sys.stderr)
 
 
+def _visibility_arg(argv):
+    """The value of render's --visibility in `argv`, if any (read before parsing: it decides the flags)."""
+    for i, a in enumerate(argv):
+        if a == "--visibility" and i + 1 < len(argv):
+            return argv[i + 1]
+        if a.startswith("--visibility="):
+            return a.split("=", 1)[1]
+    return "exact"
+
+
+def _foreign_flags(argv, cls):
+    """Estimator flags in `argv` that `cls` does not declare: (flag, names of the estimators that do)."""
+    from .visibility import available_names, estimator_class
+
+    own = {o.flag for o in cls.options} | {"--no-" + o.flag[2:] for o in cls.options if o.type is bool}
+    owners = {}
+    for name in available_names():
+        for o in estimator_class(name).options:
+            for flag in (o.flag, "--no-" + o.flag[2:]):
+                owners.setdefault(flag, []).append(name)
+    for a in argv:
+        flag = a.split("=", 1)[0]
+        if flag in owners and flag not in own:
+            return flag, owners[flag]
+    return None
+
+
+def _parse(argv):
+    """Parse `argv`; for `render`, with the flags of the estimator its --visibility names."""
+    cls = None
+    if argv and argv[0] == "render":
+        from .visibility import estimator_class
+
+        cls = estimator_class(_visibility_arg(argv), what="--visibility")
+        foreign = _foreign_flags(argv, cls)
+        if foreign:
+            flag, owners = foreign
+            raise ProbvisError(f"{flag} does not apply to --visibility {cls.name} (it is an option of "
+                               f"{', '.join(owners)}; see `probvis estimators`)")
+    args = _parser(cls).parse_args(argv)
+    args.estimator_class = cls
+    return args
+
+
 def main(argv=None):
-    args = _parser().parse_args(argv)
-    args.argv = list(sys.argv[1:] if argv is None else argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
     warnings.showwarning = _warning_line
     try:
-        return {"render": _cmd_render, "info": _cmd_info, "scenes": _cmd_scenes,
+        args = _parse(argv)
+        args.argv = argv
+        return {"render": _cmd_render, "info": _cmd_info, "scenes": _cmd_scenes, "estimators": _cmd_estimators,
                 "tables": _cmd_tables, "experiment": _cmd_experiment}[args.command](args)
     except ProbvisError as exc:
         print(f"probvis: error: {exc}", file=sys.stderr)

@@ -1,5 +1,8 @@
 """Counter-based random numbers: every sample is a pure function of (seed, stream, index, dimension).
 
+A shadow segment's `ShadowQuery.key` is such a path key: an estimator draws its own numbers as `uniform(key, dim)`
+(or `uniforms(keys, dim)` for an array), so its estimates, too, depend only on the seed.
+
 Renders are therefore identical whatever the thread count or batch size.
 """
 import numpy as np
@@ -34,3 +37,12 @@ def make_key(seed, stream, index):
 def uniform(key, dim):
     """Uniform double in [0, 1) for dimension `dim` of the path with `key`."""
     return np.float64(mix64(key + (np.uint64(dim) + np.uint64(1)) * _GOLD) >> _S11) * _INV53
+
+
+@njit(cache=True, error_model="numpy")
+def uniforms(keys, dim):
+    """`uniform(key, dim)` of every key of an array: for estimators written in NumPy."""
+    out = np.empty(keys.shape[0])
+    for i in range(keys.shape[0]):
+        out[i] = uniform(keys[i], dim)
+    return out

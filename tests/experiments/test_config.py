@@ -44,7 +44,7 @@ def test_defaults_and_baseline():
     ({"scenes": [{"name": "q"}]}, "scenes[0]: missing key 'source'"),
     ({"methods": [{"name": "m", "visibility": "magic"}]}, "unknown visibility 'magic'"),
     ({"methods": [{"name": "m", "visibility": "probvis", "options": {"estimator": "nope"}}]}, "method 'm'"),
-    ({"methods": [{"name": "m", "visibility": "probvis", "options": {"colour": 3}}]}, "bad options"),
+    ({"methods": [{"name": "m", "visibility": "probvis", "options": {"colour": 3}}]}, "has no option 'colour'"),
     ({"methods": [{"name": "m", "visibility": "exact"}, {"name": "m", "visibility": "exact"}]},
      "repeated method name 'm'"),
     ({"methods": [{"name": "a", "visibility": "exact", "baseline": True},

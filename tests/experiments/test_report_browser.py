@@ -56,7 +56,7 @@ def test_quick_report_in_chromium(quick_report):
             page.on("requestfailed", lambda r: problems.append(f"failed to load {r.url}"))
             page.goto((quick_report / "index.html").as_uri())
             page.wait_for_load_state("load")
-            assert page.locator("#seed-table tbody tr").count() == 2
+            assert page.locator("#paper-table tbody tr").count() == 2
             broken = page.evaluate("Array.from(document.images).filter(i => !(i.complete && i.naturalWidth > 0))"
                                    ".map(i => i.src)")
             assert broken == []

@@ -32,14 +32,14 @@ def test_document_order_composition_and_defaults(tmp_path):
     </shape>""" + LIGHT
     path = write_scene(tmp_path / "s.xml", body, '<default name="spp" value="8"/><default name="z" value="-1"/>')
     s = probvis.load_scene(path)
-    assert s.spp == 8 and s.shadow_rays == 4
+    assert s.defaults.spp == 8 and s.defaults.shadow_rays == 4
     floor = s.triangles[: s.shapes[0].n_triangles].reshape(-1, 3)
     # scale, then rotate about x by 90 (y -> z), then translate z by -1
     assert np.allclose(floor[:, 1], 0.0) and np.isclose(np.abs(floor[:, 0]).max(), 2.0)
     assert np.allclose(np.abs(floor[:, 2] + 1.0), 1.0)
     np.testing.assert_allclose(s.reflectance[s.tri_material[0]], [0.2, 0.4, 0.6])
     s2 = probvis.load_scene(path, spp=3, z=5)
-    assert s2.spp == 3 and np.isclose(s2.triangles[: 2].reshape(-1, 3)[:, 2].mean(), 5.0)
+    assert s2.defaults.spp == 3 and np.isclose(s2.triangles[: 2].reshape(-1, 3)[:, 2].mean(), 5.0)
 
 
 def test_rectangle_faces_plus_z_and_emitter_is_attached(tmp_path):
@@ -130,4 +130,4 @@ def test_shared_scenes_load(shared):
     for name, tris in (("cornell-bunny", 69463), ("city", 30074), ("leaves", 4004)):
         s = probvis.load_scene(shared / "scenes" / f"{name}.xml", res=32)
         assert s.n_triangles + s.dropped_degenerate == tris
-        assert s.camera.width == 32 and s.spp == 16 and s.shadow_rays == 16
+        assert s.camera.width == 32 and s.defaults.spp == 16 and s.defaults.shadow_rays == 16

@@ -1,9 +1,17 @@
-"""Acceleration: a SAH BVH over the scene's triangles and counted ray queries against it."""
-from .bvh import BVH, build_bvh
+"""Acceleration: a SAH BVH over the scene's triangles and counted ray queries against it.
+
+Public interface: `build_bvh` and `BVH`/`BVHArrays`; packet queries for the renderer (`nearest_hits`,
+`occluded_segments`, and `occluded_packet` for kernels that trace their own packets); `all_hits` for photons;
+the candidate-list test (`first_blocker`, `visibility_from_lists`, `culled`); the watertight triangle test
+(`ray_setup`, `hit_triangle`). `closest_hit` and `any_hit` trace one ray at a time: test oracles.
+"""
+from .bvh import BVH, BVHArrays, build_bvh
+from .candidates import culled, first_blocker, visibility_from_lists
 from .packet import (MAX_PACKET, any_hit_packets, closest_hit_packets, nearest_hits, occluded_packet, occluded_segments,
                      packet_starts, packet_work, root_record)
-from .traversal import all_hits, any_hit, closest_hit
+from .traversal import CHUNK, all_hits, any_hit, closest_hit, hit_triangle, ray_setup
 
-__all__ = ["BVH", "MAX_PACKET", "all_hits", "any_hit", "any_hit_packets", "build_bvh", "closest_hit",
-           "closest_hit_packets", "nearest_hits", "occluded_packet", "occluded_segments", "packet_starts", "packet_work",
-           "root_record"]
+__all__ = ["BVH", "BVHArrays", "CHUNK", "MAX_PACKET", "all_hits", "any_hit", "any_hit_packets", "build_bvh",
+           "closest_hit", "closest_hit_packets", "culled", "first_blocker", "hit_triangle", "nearest_hits",
+           "occluded_packet", "occluded_segments", "packet_starts", "packet_work", "ray_setup", "root_record",
+           "visibility_from_lists"]

@@ -8,6 +8,7 @@ Triangle vertices are stored in BVH order in `tri_v`; `prim_ids` maps BVH order 
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -179,6 +180,18 @@ def _depth_stats(node_index, node_count):
     return max_depth
 
 
+class BVHArrays(NamedTuple):
+    """What the traversal kernels take: float and int64 views of the same node records (see `_pack`), the root
+    box as a (1, 6) array, triangle vertices and scene triangle ids in BVH order, and the stack depth needed."""
+
+    records: np.ndarray
+    ints: np.ndarray
+    root: np.ndarray
+    tri_v: np.ndarray
+    prim_ids: np.ndarray
+    stack_depth: int
+
+
 @dataclass
 class BVH:
     bounds: np.ndarray
@@ -196,10 +209,9 @@ class BVH:
 
     @property
     def arrays(self):
-        """The tuple handed to the traversal kernels: float and int views of the same node records, the root
-        box as a (1, 6) array, triangles, primitive ids and the stack depth."""
-        return (self.packed, self.packed.view(np.int64), self.bounds[:1].copy(), self.tri_v, self.prim_ids,
-                self.max_depth + 2)
+        """The `BVHArrays` handed to the traversal kernels."""
+        return BVHArrays(self.packed, self.packed.view(np.int64), self.bounds[:1].copy(), self.tri_v, self.prim_ids,
+                         self.max_depth + 2)
 
     def stats(self):
         leaves = self.node_count > 0

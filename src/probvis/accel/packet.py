@@ -177,19 +177,18 @@ def packet_work(depth):
 @njit(cache=True, error_model="numpy", inline="always")
 def occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, m, work, occ, n_node, n_tri):
     """Any-hit traversal of the packet of segments lo..lo+m-1 (m <= 64): fills their `occ`, `n_node` and
-    `n_tri`. `root2` is `root_record(bvh[2])` and `work` is `packet_work(bvh[5])`."""
-    cb, ci, _, tv, _, _ = bvh
+    `n_tri`. `root2` is `root_record(bvh.root)` and `work` is `packet_work(bvh.stack_depth)`."""
     rays, t_left, t_right, visits, stack, stack_mask = work
-    _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left, t_right, visits, stack, stack_mask,
-                  False, occ, n_node, tmax, tmax, tmax, n_node, n_tri)
+    _trace_packet(bvh.records, bvh.ints, root2, bvh.tri_v, org, dirs, tmin, tmax, lo, m, rays, t_left, t_right, visits,
+                  stack, stack_mask, False, occ, n_node, tmax, tmax, tmax, n_node, n_tri)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, task, closest, occ, hit, hit_t, hit_b1, hit_b2, n_node,
                 n_tri):
     """Packets task * PACKETS_PER_TASK onwards (one parallel work item), with their own work arrays."""
-    cb, ci, _, tv, _, depth = bvh
-    rays, t_left, t_right, visits, stack, stack_mask = packet_work(depth)
+    rays, t_left, t_right, visits, stack, stack_mask = packet_work(bvh.stack_depth)
+    cb, ci, tv = bvh.records, bvh.ints, bvh.tri_v
     for k in range(task * PACKETS_PER_TASK, min(starts.shape[0] - 1, (task + 1) * PACKETS_PER_TASK)):
         _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays, t_left,
                       t_right, visits, stack, stack_mask, closest, occ, hit, hit_t, hit_b1, hit_b2, n_node, n_tri)
@@ -212,7 +211,7 @@ def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     occ = np.empty(n, np.bool_)
     n_node = np.empty(n, np.int32)
     n_tri = np.empty(n, np.int32)
-    root2 = root_record(bvh[2])
+    root2 = root_record(bvh.root)
     n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
     for it in prange(n_tasks):  # the unused nearest-hit arrays are stand-ins of the right types
         _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), False, occ, n_node, tmax, tmax,
@@ -224,7 +223,7 @@ def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
 def closest_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     """Nearest hits over packets [starts[k], starts[k + 1]) of at most 64 rays, returned as by
     `traversal.closest_hit`: scene triangle id (-1 on a miss), t, b1, b2, node and triangle tests."""
-    prim_ids = bvh[4]
+    prim_ids = bvh.prim_ids
     n = org.shape[0]
     hit = np.empty(n, np.int64)
     t = np.empty(n)
@@ -233,7 +232,7 @@ def closest_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     n_node = np.empty(n, np.int32)
     n_tri = np.empty(n, np.int32)
     no_occ = np.empty(0, np.bool_)
-    root2 = root_record(bvh[2])
+    root2 = root_record(bvh.root)
     n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
     for it in prange(n_tasks):
         _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), True, no_occ, hit, t, b1, b2,

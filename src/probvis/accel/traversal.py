@@ -1,6 +1,11 @@
-"""Ray queries against a `BVH`, each counting its ray-node and ray-triangle tests.
+"""Ray queries against a `BVH`, one ray at a time, each counting its ray-node and ray-triangle tests.
 
-`bvh` is the tuple `BVH.arrays`. Rays are (origin, direction, tmin, tmax); a shadow segment from p to q is the
+The renderer traces camera rays and shadow segments in packets (`packet`); `closest_hit` and `any_hit` here are
+the single-ray reference traversals the packet kernels are tested against (test oracles), and `all_hits`
+serves the occlusion map's photon pass. `ray_setup` and `hit_triangle` are the watertight triangle test every
+query shares, the candidate-list test (`candidates`) included.
+
+`bvh` is a `BVHArrays`. Rays are (origin, direction, tmin, tmax); a shadow segment from p to q is the
 ray (p, q - p) with tmax just below 1. The ray-triangle test is the watertight test of Woop, Benthin and
 Wald (JCGT 2013) in double precision: rays through shared edges and vertices never slip between triangles.
 """

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ..errors import ProbvisError
 from ..scene import BUILTINS
-from ..visibility import make_estimator
+from ..visibility import estimator_class
 
 TOP_KEYS = {"name", "description", "spp", "shadow_rays", "seeds", "resolution", "target_relmse", "table_shadow_rays",
             "reference", "scenes", "methods"}
@@ -122,18 +122,28 @@ def _scene(where, table, base):
     return SceneSpec(name, source, {k: str(v) for k, v in defines.items()}, reference)
 
 
-def _method(where, table):
+def _visibility(vis, base):
+    """An estimator name as the workers will load it: a `file.py:Class` made absolute against `base`."""
+    module, _, cls = vis.rpartition(":")
+    if module.endswith(".py"):
+        return f"{(base / module).resolve()}:{cls}"
+    return vis
+
+
+def _method(where, table, base):
     _check_keys(where, table, METHOD_KEYS)
     for key in ("name", "visibility"):
         if key not in table:
             _fail(where, f"missing key '{key}'")
-    name, vis = _str(f"{where}.name", table["name"]), _str(f"{where}.visibility", table["visibility"])
+    name = _str(f"{where}.name", table["name"])
+    vis = _visibility(_str(f"{where}.visibility", table["visibility"]), base)
     options = {k: tuple(v) if isinstance(v, list) else v
                for k, v in _table(f"{where}.options", table.get("options", {})).items()}
     if not isinstance(table.get("baseline", False), bool):
         _fail(f"{where}.baseline", f"expected true or false, got {table['baseline']!r}")
     try:
-        make_estimator(vis, **options)
+        cls = estimator_class(vis)
+        cls(**options)  # the estimator's own checks too, not only each option's
     except ProbvisError as exc:
         _fail(f"method '{name}'", str(exc))
     return MethodSpec(name, vis, options)
@@ -150,7 +160,7 @@ def parse_experiment(data, base=Path("."), source=""):
     if not isinstance(methods, list) or not methods:
         _fail(where, "needs at least one [[methods]] entry")
     scene_specs = tuple(_scene(f"scenes[{i}]", s, base) for i, s in enumerate(scenes))
-    method_specs = tuple(_method(f"methods[{i}]", m) for i, m in enumerate(methods))
+    method_specs = tuple(_method(f"methods[{i}]", m, base) for i, m in enumerate(methods))
     for kind, specs in (("scene", scene_specs), ("method", method_specs)):
         names = [s.name for s in specs]
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -167,7 +177,7 @@ def parse_experiment(data, base=Path("."), source=""):
         seed=_int("reference.seed", ref.get("seed", ReferenceSettings.seed), 0),
         visibility=_str("reference.visibility", ref.get("visibility", "exact")))
     try:
-        make_estimator(reference.visibility)
+        estimator_class(reference.visibility)()
     except ProbvisError as exc:
         _fail("reference.visibility", str(exc))
     resolution = data.get("resolution")

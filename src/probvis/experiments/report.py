@@ -64,7 +64,7 @@ def _pyplot():
 
 
 def _summary_cells(r, baseline):
-    """A summary row's seconds, tests, relMSE and efficiency as the seed-style table shows them."""
+    """A summary row's seconds, tests, relMSE and efficiency as the paper-style table shows them."""
     if baseline:
         return f"{r['seconds']:.2f}", _fmt(r["triangle_tests"]), _fmt(r["relmse"]), _fmt(r["efficiency_time"])
     return (f"{r['seconds']:.2f} ({_change(r['seconds_change'])})",
@@ -216,7 +216,7 @@ class Report:
         _write_text(self.folder / "results.json", json.dumps(_finite(doc), indent=1, allow_nan=False))
 
     def _markdown(self):
-        """The seed-style table as Markdown, per scene and method at the table's shadow-ray count."""
+        """The paper-style table as Markdown, per scene and method at the table's shadow-ray count."""
         exp, rays = self.exp, self.exp.table_shadow_rays
         lines = [f"At {exp.spp} spp × {rays} shadow rays per camera sample; seconds exclude JIT compilation, tests "
                  f"are shadow-ray triangle tests, efficiency = 1/(relMSE × seconds); changes against "
@@ -239,7 +239,7 @@ class Report:
         sec = st["seconds"]["total"] - st["seconds"]["compile"]
         return f"{html.escape(r.visibility)}, {r.spp} spp × {r.shadow_rays} rays, {sec:.1f} s"
 
-    def _seed_table(self):
+    def _paper_table(self):
         exp, rays = self.exp, self.exp.table_shadow_rays
         others = [m for m in exp.methods if m.name != exp.baseline]
         e = html.escape
@@ -255,7 +255,7 @@ class Report:
             for m in others:
                 cells += _summary_cells(self.results.summary_row(s, m.name, rays), False)
             body.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
-        return (f"<div class=wide><table class=seed id=seed-table><caption>At {exp.spp} spp × {rays} shadow rays: "
+        return (f"<div class=wide><table class=paper id=paper-table><caption>At {exp.spp} spp × {rays} shadow rays: "
                 f"render seconds "
                 f"(JIT excluded) and shadow-ray triangle tests with their change against the baseline, relMSE "
                 f"against the reference, and efficiency 1/(relMSE × seconds) with its ratio to the baseline's."
@@ -332,7 +332,7 @@ shadow rays; seconds exclude JIT compilation. Command: <code>{e(self.command)}</
 Data: <a href=results.csv>results.csv</a>, <a href=results.json>results.json</a>,
 <a href=results.md>results.md</a>.</p>
 <ul>{methods}</ul>
-<h2>Results</h2>{self._seed_table()}
+<h2>Results</h2>{self._paper_table()}
 {''.join(sections)}
 <script src=viewer.js></script></body></html>
 """

@@ -3,10 +3,9 @@ import json
 import statistics
 from dataclasses import dataclass
 
+from ..visibility import estimator_class
 from . import metrics
 
-SETUP_PHASES = ("photons", "adaptive", "map_build")  # estimator phases timed inside the render's "build"
-BATCH_PHASES = ("lookup", "grouping")  # estimator phases timed inside the render's "render"
 
 
 @dataclass
@@ -23,17 +22,21 @@ class Results:
                      (scene, method, shadow_rays)), None)
 
 
-def phases(stats):
-    """Seconds per phase of a render, splitting its time without JIT compile: scene load, BVH build, the
-    estimator's own phases (photons, map build, look-ups, grouping) and the rest of rendering."""
+def phases(stats, visibility):
+    """Seconds per phase of a render without JIT compile: scene load, BVH build, the estimator's preparation
+    and per-batch phases as its class declares them, the rest of its preparation and the rest of rendering."""
     sec = stats["seconds"]
-    est = stats.get("estimator") or {}
-    own = dict(est.get("seconds") or {})
-    if "grouping_seconds" in est:
-        own["grouping"] = est["grouping_seconds"]
-    setup = sum(own.get(k, 0.0) for k in SETUP_PHASES)
-    batch = sum(own.get(k, 0.0) for k in BATCH_PHASES)
-    return {"load": sec["load"], "bvh_build": sec["build"] - setup, **own, "render": sec["render"] - batch}
+    own = (stats.get("estimator") or {}).get("seconds") or {}
+    declared = estimator_class(visibility).phases
+    prepare = {p.name: own.get(p.name, 0.0) for p in declared if p.stage == "prepare"}
+    batch = {p.name: own.get(p.name, 0.0) for p in declared if p.stage == "batch"}
+    out = {"load": sec["load"], "bvh_build": sec["bvh"], **prepare}
+    rest = sec["prepare"] - sum(prepare.values())
+    if rest > 0 and prepare:
+        out["prepare_other"] = rest
+    elif not prepare:
+        out["prepare"] = sec["prepare"]
+    return {**out, **batch, "render": sec["render"] - sum(batch.values())}
 
 
 def cell_row(task, render, reference, baseline_name):
@@ -45,7 +48,8 @@ def cell_row(task, render, reference, baseline_name):
         "scene": task.scene, "method": task.method.name, "visibility": task.method.visibility,
         "options": json.dumps(task.method.options, sort_keys=True, default=list),
         "baseline": task.method.name == baseline_name, "shadow_rays": task.shadow_rays, "spp": task.spp,
-        "seed": task.seed, "seconds": seconds, "seconds_phases": phases(s), "camera_rays": s["camera_rays"],
+        "seed": task.seed, "seconds": seconds, "seconds_phases": phases(s, task.method.visibility),
+        "camera_rays": s["camera_rays"],
         "shadow_rays_traced": s["shadow_rays"], "triangle_tests": tests,
         "node_tests": s["intersection_tests"]["shadow"]["node"],
         "triangle_tests_total": s["intersection_tests"]["triangle"],

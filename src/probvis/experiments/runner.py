@@ -7,6 +7,7 @@ key, so a study gives the same results whichever worker runs which cell.
 """
 import functools
 import hashlib
+import inspect
 import json
 import logging
 import os
@@ -80,9 +81,20 @@ def code_fingerprint():
     return h.hexdigest()
 
 
+def estimator_fingerprint(visibility):
+    """SHA-256 of the source file of an estimator from outside probvis ('' for probvis's own): editing it
+    invalidates its cached renders."""
+    from ..visibility import BUILTIN, estimator_class
+
+    if visibility in BUILTIN:
+        return ""
+    path = inspect.getsourcefile(estimator_class(visibility))
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest() if path else ""
+
+
 def task_key(scene_hash, method, spp, shadow_rays, seed):
-    blob = json.dumps([code_fingerprint(), scene_hash, method.visibility, sorted(method.options.items()), spp,
-                       shadow_rays, seed], default=list)
+    blob = json.dumps([code_fingerprint(), estimator_fingerprint(method.visibility), scene_hash, method.visibility,
+                       sorted(method.options.items()), spp, shadow_rays, seed], default=list)
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 
@@ -150,7 +162,7 @@ def _load_scenes(exp):
         except ProbvisError as exc:
             raise ProbvisError(f"scene '{spec.name}': {exc}") from None
         if exp.resolution is not None:
-            scene = scene.with_settings(width=exp.resolution[0], height=exp.resolution[1])
+            scene = scene.with_resolution(*exp.resolution)
         scenes[spec.name] = scene
     return scenes
 

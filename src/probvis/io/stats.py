@@ -18,7 +18,7 @@ def summary(stats):
         f"scene       {stats['scene']}  {stats['width']}x{stats['height']}, {stats['spp']} spp x "
         f"{stats['shadow_rays_per_sample']} shadow rays, seed {stats['seed']}, visibility {stats['visibility']['name']}",
         f"seconds     total {s['total']:.2f} = load {s['load']:.2f} + compile {s['compile']:.2f} + "
-        f"build {s['build']:.2f} + render {s['render']:.2f}",
+        f"bvh {s['bvh']:.2f} + prepare {s['prepare']:.2f} + render {s['render']:.2f}",
         f"rays        camera {stats['camera_rays']:,}  shadow {stats['shadow_rays']:,}"
         + (f"  ({stats['shadow_rays_per_second'] / 1e6:.2f} M/s)" if stats["shadow_rays_per_second"] else ""),
         f"tests       triangle {it['triangle']:,}  node {it['node']:,}  "

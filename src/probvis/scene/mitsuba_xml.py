@@ -12,6 +12,7 @@ import defusedxml.sax
 import numpy as np
 
 from ..errors import ProbvisError
+from ..settings import RenderSettings
 from . import shapes as shp
 from . import transform as tf
 from .scene import Camera, SceneBuilder
@@ -71,6 +72,7 @@ class _Reader:
         self.path = Path(path)
         self.overrides = {k: str(v) for k, v in overrides.items()}
         self.defaults = {}
+        self.used = set()  # overridden parameters the scene refers to
         self.ids = {}
 
     # --- errors and values -------------------------------------------------------------------
@@ -87,6 +89,7 @@ class _Reader:
         def sub(m):
             name = m.group(1)
             if name in self.overrides:
+                self.used.add(name)
                 return self.overrides[name]
             if name in self.defaults:
                 return self.defaults[name]
@@ -428,7 +431,14 @@ class _Reader:
                 self.fail(ch, "unsupported element")
         if camera is None:
             raise ProbvisError(f"{self.path}: the scene has no <sensor>")
-        return builder.build(camera, spp, shadow_rays, seed)
+        unused = sorted(set(self.overrides) - self.used - set(self.defaults))
+        if unused:
+            warnings.warn(f"{self.path}: -D {', '.join(unused)}: the scene declares no such parameter "
+                          f"(its parameters: {', '.join(sorted(self.defaults)) or 'none'})", stacklevel=2)
+        try:
+            return builder.build(camera, RenderSettings(spp, shadow_rays, seed))
+        except ProbvisError as exc:
+            raise ProbvisError(f"{self.path}: {exc}") from None
 
 
 def read_scene(path, **overrides):

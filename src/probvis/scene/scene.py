@@ -1,9 +1,11 @@
-"""The scene as flat arrays: triangles, materials, emitters, a camera and the render settings."""
+"""The scene as flat arrays: triangles, materials, emitters and a camera (with its film's resolution)."""
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import ProbvisError
+from ..settings import RenderSettings
 from . import transform as tf
 
 
@@ -40,9 +42,7 @@ class Scene:
     twosided: np.ndarray  # (n_materials,) bool
     emitter_radiance: np.ndarray  # (n_emitters, 3)
     camera: Camera
-    spp: int
-    shadow_rays: int
-    seed: int = 0
+    defaults: RenderSettings = RenderSettings()  # the settings the scene file declares (sampler, integrator)
     name: str = "scene"
     source: str = ""
     shapes: list = field(default_factory=list)
@@ -60,27 +60,18 @@ class Scene:
         flat = self.triangles.reshape(-1, 3)
         return flat.min(axis=0), flat.max(axis=0)
 
-    def with_settings(self, spp=None, shadow_rays=None, seed=None, width=None, height=None):
-        """A copy with some render settings replaced (geometry arrays are shared, not copied)."""
-        import dataclasses
-
+    def with_resolution(self, width=None, height=None):
+        """A copy whose film has another size (geometry arrays are shared, not copied)."""
         cam = self.camera
-        if width is not None or height is not None:
-            cam = dataclasses.replace(cam, width=cam.width if width is None else width,
-                                      height=cam.height if height is None else height)
-        out = dataclasses.replace(
-            self,
-            camera=cam,
-            spp=self.spp if spp is None else spp,
-            shadow_rays=self.shadow_rays if shadow_rays is None else shadow_rays,
-            seed=self.seed if seed is None else seed,
-        )
-        out.validate_settings()
+        cam = dataclasses.replace(cam, width=cam.width if width is None else width,
+                                  height=cam.height if height is None else height)
+        out = dataclasses.replace(self, camera=cam)
+        out.validate_camera()
         return out
 
     def content_hash(self):
-        """SHA-256 of what the image depends on apart from spp, shadow rays and seed: geometry, materials,
-        emitters and camera (including the resolution). Used to cache renders across runs."""
+        """SHA-256 of the scene: geometry, materials, emitters and camera (including the resolution), not the
+        render settings. Used to cache renders across runs."""
         import hashlib
 
         h = hashlib.sha256()
@@ -93,18 +84,15 @@ class Scene:
         h.update(repr((float(c.fov_x), int(c.width), int(c.height), float(c.near_clip), float(c.far_clip))).encode())
         return h.hexdigest()
 
-    def validate_settings(self):
+    def validate_camera(self):
         c = self.camera
-        for what, val, hi in (("width", c.width, 1 << 15), ("height", c.height, 1 << 15),
-                              ("spp", self.spp, 1 << 20), ("shadow_rays", self.shadow_rays, 1 << 16)):
-            if int(val) != val or val < 1 or val > hi:
-                raise ProbvisError(f"{what} must be an integer between 1 and {hi}, got {val}")
+        for what, val in (("width", c.width), ("height", c.height)):
+            if int(val) != val or not 1 <= val <= 1 << 15:
+                raise ProbvisError(f"{what} must be a whole number from 1 to {1 << 15}, got {val}")
         if not 0.0 < c.fov_x < 180.0:
             raise ProbvisError(f"field of view must be between 0 and 180 degrees, got {c.fov_x:g}")
         if not 0.0 < c.near_clip < c.far_clip:
             raise ProbvisError("near_clip must be positive and smaller than far_clip")
-        if self.seed < 0:
-            raise ProbvisError(f"seed must be non-negative, got {self.seed}")
 
 
 class SceneBuilder:
@@ -172,7 +160,8 @@ class SceneBuilder:
         self._n += len(tris)
         return len(tris)
 
-    def build(self, camera, spp, shadow_rays, seed=0):
+    def build(self, camera, defaults=RenderSettings()):
+        """The `Scene`; `defaults` are the render settings the scene declares."""
         if self._n == 0:
             raise ProbvisError(f"scene '{self.name}' contains no (non-degenerate) triangles")
         if not self.emitter_radiance:
@@ -187,15 +176,13 @@ class SceneBuilder:
             twosided=np.array([k[1] for k, _ in mats], dtype=np.bool_),
             emitter_radiance=np.array(self.emitter_radiance, dtype=np.float64).reshape(-1, 3),
             camera=camera,
-            spp=int(spp),
-            shadow_rays=int(shadow_rays),
-            seed=int(seed),
+            defaults=defaults.validate(),
             name=self.name,
             source=self.source,
             shapes=self.shapes,
             dropped_degenerate=self.dropped,
         )
-        scene.validate_settings()
+        scene.validate_camera()
         return scene
 
 

@@ -50,10 +50,6 @@ def apply_points(m, p):
     return p @ m[:3, :3].T + m[:3, 3]
 
 
-def apply_vectors(m, v):
-    return v @ m[:3, :3].T
-
-
 def apply_normals(m, n):
     """Normals transform with the inverse transpose; the result is normalised."""
     out = n @ np.linalg.inv(m[:3, :3])

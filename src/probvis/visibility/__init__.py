@@ -1,24 +1,98 @@
-"""Visibility estimators behind one interface; `make_estimator(name, **options)` builds one by name."""
-from ..errors import ProbvisError
-from .base import (CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES, ShadingPoints,
-                   ShadowQuery, VisibilityEstimator, VisibilityResult)
-from .exact import ExactVisibility
-from .occlusion_map import OcclusionMapVisibility
-from .probvis import ProbvisVisibility
+"""Visibility estimators, found by name: the built-ins, classes of installed packages registered under the
+entry-point group `probvis.visibility`, and any importable class given as `package.module:Class` (or
+`path/to/file.py:Class`)."""
+import importlib
+import importlib.util
+import sys
+from importlib.metadata import entry_points
+from pathlib import Path
 
-ESTIMATORS = {cls.name: cls for cls in (ExactVisibility, OcclusionMapVisibility, ProbvisVisibility)}
+from ..errors import ProbvisError
+from .base import (CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES, Aov, Option, Phase,
+                   ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult)
+
+ENTRY_POINT_GROUP = "probvis.visibility"
+BUILTIN = {
+    "exact": "probvis.visibility.exact:ExactVisibility",
+    "occlusion-map": "probvis.visibility.occlusion_map:OcclusionMapVisibility",
+    "probvis": "probvis.visibility.probabilistic:ProbabilisticVisibility",
+}
+
+
+def _load(spec, what):
+    """The class named by `module:Class` or `file.py:Class`."""
+    module_name, _, class_name = spec.rpartition(":")
+    if not module_name or not class_name:
+        raise ProbvisError(f"{what}: expected a name ({', '.join(available_names())}) or module:Class, got '{spec}'")
+    try:
+        if module_name.endswith(".py"):
+            path = Path(module_name).resolve()
+            if not path.is_file():
+                raise ProbvisError(f"{what}: no file {path}")
+            name = "probvis_plugin_" + path.stem
+            module = sys.modules.get(name)
+            if module is None or getattr(module, "__file__", None) != str(path):
+                mspec = importlib.util.spec_from_file_location(name, path)
+                module = importlib.util.module_from_spec(mspec)
+                sys.modules[name] = module
+                mspec.loader.exec_module(module)
+        else:
+            if "" not in sys.path and str(Path.cwd()) not in sys.path:
+                sys.path.append(str(Path.cwd()))  # as `python -m` would: modules beside the user
+            module = importlib.import_module(module_name)
+    except ProbvisError:
+        raise
+    except Exception as exc:  # an import error of any kind in the user's module
+        raise ProbvisError(f"{what}: cannot import '{module_name}': {type(exc).__name__}: {exc}") from None
+    cls = getattr(module, class_name, None)
+    if not (isinstance(cls, type) and issubclass(cls, VisibilityEstimator)):
+        raise ProbvisError(f"{what}: '{spec}' is not a probvis.visibility.VisibilityEstimator subclass")
+    if not cls.name:
+        raise ProbvisError(f"{what}: '{spec}' declares no name")
+    return cls
+
+
+def _entry_points():
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def available_names():
+    """Names of the built-in and installed estimators."""
+    return list(BUILTIN) + [n for n in _entry_points() if n not in BUILTIN]
+
+
+def estimator_class(name, what="visibility"):
+    """The estimator class for a built-in or installed name, `module:Class` or `file.py:Class` (or a class)."""
+    if isinstance(name, type):
+        if not issubclass(name, VisibilityEstimator):
+            raise ProbvisError(f"{what}: {name!r} is not a VisibilityEstimator subclass")
+        return name
+    if not isinstance(name, str):
+        raise ProbvisError(f"{what}: expected an estimator name, got {name!r}")
+    if name in BUILTIN:
+        return _load(BUILTIN[name], what)
+    eps = _entry_points()
+    if name in eps:
+        try:
+            cls = eps[name].load()
+        except Exception as exc:
+            raise ProbvisError(f"{what}: cannot load installed estimator '{name}' ({eps[name].value}): "
+                               f"{type(exc).__name__}: {exc}") from None
+        return _load(f"{cls.__module__}:{cls.__qualname__}", what)
+    if ":" in name:
+        return _load(name, what)
+    raise ProbvisError(f"unknown {what} '{name}' (available: {', '.join(available_names())}, or module:Class)")
 
 
 def make_estimator(name, **options):
+    """An estimator instance from a name (see `estimator_class`) and its options; an instance is returned as is."""
     if isinstance(name, VisibilityEstimator):
+        if options:
+            raise ProbvisError("options apply to an estimator name or class, not to an instance")
         return name
-    if name not in ESTIMATORS:
-        raise ProbvisError(f"unknown visibility '{name}' (available: {', '.join(ESTIMATORS)})")
-    try:
-        return ESTIMATORS[name](**options)
-    except TypeError as exc:
-        raise ProbvisError(f"bad options for visibility '{name}': {exc}") from None
+    return estimator_class(name)(**options)
 
 
-__all__ = ["CASE_LIT", "CASE_NAMES", "CASE_PENUMBRA", "CASE_SHADOWED", "CASE_UNKNOWN", "ESTIMATORS", "N_CASES", "ShadingPoints", "ShadowQuery", "VisibilityEstimator", "VisibilityResult",
-           "make_estimator"]
+__all__ = ["BUILTIN", "CASE_LIT", "CASE_NAMES", "CASE_PENUMBRA", "CASE_SHADOWED", "CASE_UNKNOWN", "ENTRY_POINT_GROUP",
+           "N_CASES", "Aov", "Option", "Phase", "ShadingPoints", "ShadowQuery", "VisibilityEstimator",
+           "VisibilityResult", "available_names", "estimator_class", "make_estimator"]

@@ -1,16 +1,147 @@
-"""The visibility interface: one call that turns a batch of shadow segments into real-valued visibility.
+"""The visibility interface: an estimator turns a batch of shadow segments into real-valued visibility.
 
-An estimator may return any real number per segment (probabilistic estimators return negative values);
-the integrator multiplies it with the unoccluded contribution, so an estimator is unbiased exactly when
-the expectation of its value is the binary visibility of the segment.
+An estimator may return any real number per segment (probabilistic estimators return negative values); the
+integrator multiplies it with the segment's unoccluded contribution, so an estimator is unbiased exactly when
+the expectation of its value is the segment's binary visibility. `docs/writing-an-estimator.md` walks through
+writing one.
+
+An estimator class declares, the way a Mitsuba plugin does, its `name`, a one-line `summary`, its `options`
+(name, type, default, help and validation: the CLI's flags, `probvis estimators` and experiment files all come
+from them), the `phases` it times and the `aovs` it adds to the render.
 """
 import abc
-from dataclasses import dataclass
+import math
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+from typing import ClassVar
 
 import numpy as np
 
 from ..cases import CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES  # noqa: F401
+from ..errors import ProbvisError
 
+_TYPE_NAMES = {int: "integer", float: "number", str: "string", bool: "true/false", tuple: "numbers"}
+
+
+@dataclass(frozen=True)
+class Option:
+    """A setting of an estimator. `type` is int, float, str, bool or tuple (`count` comma-separated numbers);
+    `default` None means the estimator picks a value itself (say how in `help`). Numbers are checked against
+    `minimum` and `maximum`, strings against `choices`; `check(value)` may return an error message, which
+    follows the option's name ("must be positive")."""
+
+    name: str
+    type: type
+    default: object = None
+    help: str = ""
+    choices: tuple = ()
+    minimum: float | None = None
+    maximum: float | None = None
+    count: int | None = None
+    check: object = None
+    metavar: str | None = None
+
+    @property
+    def flag(self):
+        """The command-line flag, e.g. `--adaptive-photons` for `adaptive_photons`."""
+        return "--" + self.name.replace("_", "-")
+
+    def describe_type(self):
+        if self.choices:
+            return " | ".join(self.choices)
+        if self.type is tuple:
+            return f"{self.count} numbers"
+        return _TYPE_NAMES[self.type]
+
+    def parse(self, value):
+        """The option's value from a command-line string or a Python/TOML value; ProbvisError if invalid."""
+        v = self._convert(value)
+        if self.choices and v not in self.choices:
+            raise ProbvisError(f"{self.name} must be one of {', '.join(self.choices)}, got {value!r}")
+        for x in (v if isinstance(v, tuple) else (v,)):
+            if isinstance(x, (int, float)) and not isinstance(x, bool):
+                if self.minimum is not None and x < self.minimum or self.maximum is not None and x > self.maximum:
+                    raise ProbvisError(f"{self.name} must be {self._range()}, got {value!r}")
+        if self.check is not None:
+            message = self.check(v)
+            if message:
+                raise ProbvisError(f"{self.name} {message}")
+        return v
+
+    def _range(self):
+        lo, hi = self.minimum, self.maximum
+        if hi is None:
+            return f"at least {_show(lo)}"
+        if lo is None:
+            return f"at most {_show(hi)}"
+        return f"from {_show(lo)} to {_show(hi)}"
+
+    def _convert(self, value):
+        bad = ProbvisError(f"{self.name} expects {self.describe_type()}, got {value!r}")
+        if self.type is bool:
+            if isinstance(value, bool):
+                return value
+            if isinstance(value, str) and value.lower() in ("true", "false", "1", "0", "yes", "no", "on", "off"):
+                return value.lower() in ("true", "1", "yes", "on")
+            raise bad
+        if self.type is str:
+            if isinstance(value, str):
+                return value
+            raise bad
+        if self.type is tuple:
+            items = value.split(",") if isinstance(value, str) else value
+            if not isinstance(items, (list, tuple)) or len(items) != self.count:
+                raise bad
+            return tuple(_number(x, float, bad) for x in items)
+        return _number(value, self.type, bad)
+
+
+def _show(x):
+    return f"{int(x):,}" if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
+
+
+def _number(value, kind, bad):
+    """`value` (string or number) as a finite int or float; `bad` is raised otherwise."""
+    if isinstance(value, bool):
+        raise bad
+    if isinstance(value, str):
+        try:
+            value = float(value) if kind is float else int(value.strip())
+        except ValueError:
+            try:  # "1e5" for an integer is fine when it is whole
+                value = float(value)
+            except ValueError:
+                raise bad from None
+    if not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise bad
+    if kind is int:
+        if value != int(value):
+            raise bad
+        return int(value)
+    return float(value)
+
+
+@dataclass(frozen=True)
+class Phase:
+    """A part of the estimator's work that it times: `stage` "prepare" (once per render, before the batches) or
+    "batch" (summed over the batches)."""
+
+    name: str
+    stage: str
+    help: str = ""
+
+
+@dataclass(frozen=True)
+class Aov:
+    """An image the estimator adds to `RenderResult.aovs`. `kind` "cases": per pixel and emitter the share of
+    camera samples in each occlusion case (from `classify`); "segment": per pixel the mean over camera
+    samples of the sum of a per-segment value the estimator returns in `VisibilityResult.aovs[name]`."""
+
+    name: str
+    help: str = ""
+    kind: str = "segment"
 
 
 @dataclass
@@ -19,7 +150,7 @@ class ShadingPoints:
 
     position: np.ndarray  # (m, 3)
     normal: np.ndarray  # (m, 3)
-    triangle: np.ndarray  # (m,) scene triangle id, -1 where the camera ray escaped
+    triangle: np.ndarray  # (m,) scene triangle id, -1 where nothing is shaded (a miss, a one-sided back face)
 
 
 @dataclass
@@ -29,10 +160,9 @@ class ShadowQuery:
     origin: np.ndarray  # (n, 3), already offset off the surface
     direction: np.ndarray  # (n, 3), emitter point minus origin
     tmax: np.ndarray  # (n,)
-    point: np.ndarray  # (n,) index into `points`
+    point: np.ndarray  # (n,) shading point (index into the batch's `ShadingPoints`), non-decreasing
     emitter: np.ndarray  # (n,) emitter id of the sampled point
-    key: np.ndarray  # (n,) uint64 rng key, unique per segment, for stochastic estimators
-    points: ShadingPoints
+    key: np.ndarray  # (n,) uint64 rng key, unique per segment, for stochastic estimators (see `probvis.rng`)
 
 
 @dataclass
@@ -40,31 +170,73 @@ class VisibilityResult:
     value: np.ndarray  # (n,) float64, the visibility estimate of each segment
     node_tests: np.ndarray  # (n,) ray-node tests made for the segment
     triangle_tests: np.ndarray  # (n,) ray-triangle tests made for the segment
+    aovs: dict = field(default_factory=dict)  # name -> (n,) per-segment values of the declared "segment" AOVs
 
 
 class VisibilityEstimator(abc.ABC):
-    """Subclass, give it a `name`, implement `evaluate`, and register it in `probvis.visibility`."""
+    """Subclass it, declare `name`, `summary`, `options`, `phases` and `aovs`, and implement `evaluate`.
 
-    name = "abstract"
-    any_hit_only = False  # True if `evaluate` is 1 - `accel.occluded_segments`: the integrator then traces itself
+    Life of an estimator in a render: `__init__(**options)` validates the options into `self.params`;
+    `prepare` runs once with the scene, its BVH, the emitter sampler and the render settings; then, per batch
+    of pixels, `classify` (optional) sees the shading points before their segments are made and `evaluate`
+    estimates the segments' visibility. `stats` adds the estimator's measurements to the render's stats.
+    """
 
-    def prepare(self, scene, bvh, emitters):
-        """Build whatever per-scene structure the estimator needs (timed as part of 'build')."""
-        self.scene, self.bvh, self.emitters = scene, bvh, emitters
+    name: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+    options: ClassVar[tuple] = ()
+    phases: ClassVar[tuple] = ()
+    aovs: ClassVar[tuple] = ()
+    # True if `evaluate` returns exactly 1 - (any hit against the scene's BVH, traversed in packets of a shading
+    # point's segments): the integrator may then run its fused kernel (`fused_exact`), same numbers, less traffic
+    fused_any_hit: ClassVar[bool] = False
+
+    def __init__(self, **options):
+        self.params = SimpleNamespace(**self.parse_options(options))
+        self.seconds = {p.name: 0.0 for p in self.phases}
+
+    @classmethod
+    def parse_options(cls, options):
+        """Validate a dict of option values (strings or Python values) into the full dict of settings."""
+        declared = {o.name: o for o in cls.options}
+        unknown = sorted(set(options) - set(declared))
+        if unknown:
+            allowed = ", ".join(declared) or "none"
+            raise ProbvisError(f"visibility '{cls.name}' has no option {', '.join(map(repr, unknown))} "
+                               f"(its options: {allowed})")
+        out = {}
+        for name, opt in declared.items():
+            value = options.get(name)
+            out[name] = opt.default if value is None else opt.parse(value)
+        return out
+
+    def settings(self):
+        """The estimator's settings, as reported in the render stats."""
+        return dict(vars(self.params))
+
+    @contextmanager
+    def timed(self, phase):
+        """Add the block's wall time to declared phase `phase`."""
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[phase] += time.perf_counter() - t0
+
+    def prepare(self, scene, bvh, emitters, settings):
+        """Build per-scene structures (timed as the render's "prepare" phase); keep what `evaluate` needs."""
+        self.scene, self.bvh, self.emitters, self.render_settings = scene, bvh, emitters, settings
 
     def classify(self, points: ShadingPoints):
-        """Optionally an (m, n_emitters) int8 array of CASE_* per shading point and emitter, computed before
-        the batch's shadow segments are made; `evaluate` of the same batch follows. None samples everything."""
+        """Optionally an (m, n_emitters) int8 array of CASE_* per shading point and emitter: lit ones are
+        integrated analytically, shadowed ones skipped, the others sampled (see `probvis.cases`). Called per
+        batch before the batch's segments are made; `evaluate` of the same batch follows. None samples all."""
         return None
 
     @abc.abstractmethod
     def evaluate(self, query: ShadowQuery) -> VisibilityResult:
         """Visibility estimates for a batch of segments."""
 
-    def options(self):
-        """The estimator's settings, reported in the render stats."""
-        return {}
-
     def stats(self):
-        """Estimator-specific measurements accumulated over the render."""
-        return {}
+        """Measurements accumulated over the render: at least the seconds of each declared phase."""
+        return {"seconds": dict(self.seconds)}

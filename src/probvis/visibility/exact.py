@@ -6,7 +6,8 @@ from .base import VisibilityEstimator, VisibilityResult
 
 class ExactVisibility(VisibilityEstimator):
     name = "exact"
-    any_hit_only = True  # the integrator may trace the segments in its fused kernel: same numbers, less traffic
+    summary = "every shadow segment against the whole scene's BVH (the reference)"
+    fused_any_hit = True
 
     def evaluate(self, query):
         occluded, n_node, n_tri = occluded_segments(self.bvh, query.origin, query.direction, query.tmax, query.point)

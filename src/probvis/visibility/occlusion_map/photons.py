@@ -11,10 +11,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from ..accel import all_hits
-from ..geometry import unit_normal
-from ..lights import sample_on_emitter
-from ..rng import make_key, uniform
+from ...accel import all_hits
+from ...geometry import unit_normal
+from ...emitters import sample_on_emitter
+from ...rng import make_key, uniform
 
 MAX_HITS = 16
 PHOTON_STREAM = 0x5048  # rng stream of photon rays, apart from the camera's
@@ -61,8 +61,8 @@ class Photons:
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def points_on_emitters(emitter, table, triangles, seed, stream, first):
-    """Points uniform by area on the given emitters (`table` is `EmitterSampler.triangle_table`; point i from
+def points_on_emitters(emitter, es, triangles, seed, stream, first):
+    """Points uniform by area on the given emitters (`es` is the `EmitterArrays`; point i from
     rng key (seed, stream, first + i)), each nudged off its triangle along the front normal; returns points,
     unit front normals and the keys."""
     n = emitter.shape[0]
@@ -71,7 +71,7 @@ def points_on_emitters(emitter, table, triangles, seed, stream, first):
     keys = np.empty(n, np.uint64)
     for i in prange(n):
         key = make_key(seed, stream, first + i)
-        t, x, y, z = sample_on_emitter(emitter[i], table, triangles, uniform(key, 1), uniform(key, 2),
+        t, x, y, z = sample_on_emitter(emitter[i], es, triangles, uniform(key, 1), uniform(key, 2),
                                        uniform(key, 3))
         nx, ny, nz = unit_normal(triangles, t)
         eps = 1e-9 * (1.0 + max(abs(x), abs(y), abs(z)))
@@ -165,5 +165,5 @@ def split_by_power(n, pmf):
 def shoot_photons(scene, bvh, emitters, n, seed):
     """`n` photon rays from the emitters, split by power."""
     emitter = np.repeat(np.arange(scene.n_emitters, dtype=np.int32), split_by_power(n, emitters.emitter_pmf))
-    org, nrm, keys = points_on_emitters(emitter, emitters.triangle_table, scene.triangles, seed, PHOTON_STREAM, 0)
+    org, nrm, keys = points_on_emitters(emitter, emitters.arrays, scene.triangles, seed, PHOTON_STREAM, 0)
     return trace_photons(scene, bvh, org, cosine_directions(nrm, keys), emitter)

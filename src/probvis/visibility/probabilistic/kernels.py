@@ -2,16 +2,15 @@
 
 A penumbra pair's candidate list is reordered into `cells * 2**levels` consecutive leaves: `cells` groups
 along the ray (by distance from the point), each split recursively `levels` times into A and B. With
-cells = levels = 1 that is the seed's single split into A and B.
+cells = levels = 1 that is the 2013 paper's single split into A and B.
 """
 import math
 
 import numpy as np
 from numba import njit, prange
 
-from ...accel.traversal import CHUNK, hit_triangle, ray_setup
+from ...accel import CHUNK, first_blocker, ray_setup
 from ...rng import mix64, uniform
-from ..occlusion_map import culled
 from .decomposition import MODE_A, MODE_AB_BLOCKED, MODE_B, MODE_BOTH, MODE_EXACT
 
 GROUP_SOLID_ANGLE, GROUP_COUNT, GROUP_RANDOM = 0, 1, 2
@@ -120,16 +119,11 @@ def group_lists(triangles, pos, offsets, tris, n_rep, method, levels, cells, see
 
 @njit(cache=True, error_model="numpy")
 def _leaf_visible(triangles, orientation, fnormal, o, d, rs, tmax, tris, lo, hi, tests):
-    kx, ky, kz, sx, sy, sz = rs
-    for c in range(lo, hi):
-        t = tris[c]
-        if culled(orientation, fnormal, t, d[0], d[1], d[2]):
-            tests[1] += 1
-            continue
-        tests[0] += 1
-        if hit_triangle(triangles, t, o, kx, ky, kz, sx, sy, sz, 0.0, tmax)[0] < np.inf:
-            return 0.0
-    return 1.0
+    """Binary visibility against one leaf group; adds its triangle tests and culled candidates to `tests`."""
+    blocked, n_tri, n_cull = first_blocker(triangles, orientation, fnormal, o, d, rs, tmax, tris, lo, hi)
+    tests[0] += n_tri
+    tests[1] += n_cull
+    return 0.0 if blocked else 1.0
 
 
 @njit(cache=True, error_model="numpy")

@@ -8,19 +8,19 @@ import probvis
 from probvis import ProbvisError
 from probvis.accel import build_bvh, closest_hit
 from probvis.cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED
-from probvis.lights import build_emitter_sampler, triangle_irradiance
-from probvis.occlusion_map import closed_orientation
+from probvis.emitters import build_emitter_sampler, triangle_irradiance
+from probvis.visibility.occlusion_map import closed_orientation
 from probvis.scene import SceneBuilder, load_scene
 from probvis.scene import shapes as shp
 from probvis.visibility import ShadingPoints, make_estimator
 from probvis.geometry import unit_normals
-from probvis.visibility.occlusion_map import visibility_from_lists
+from probvis.accel import visibility_from_lists
 from tests.conftest import sensor, write_scene
 
 
 def prepared(scene, **options):
     est = make_estimator("occlusion-map", **options)
-    est.prepare(scene, build_bvh(scene.triangles), build_emitter_sampler(scene))
+    est.prepare(scene, build_bvh(scene.triangles), build_emitter_sampler(scene), scene.defaults)
     return est
 
 
@@ -92,7 +92,7 @@ def closed_scene():
     b.add_mesh("box", "cube", v, f, np.diag([0.7, 0.3, 0.5, 1.0]) + np.array(
         [[0, 0, 0, 2.0], [0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]]), b.material(0.5))
     b.add_mesh("light", "rectangle", *shp.rectangle(), None, None, radiance=1.0)
-    return b.build(load_scene("quad-shadow").camera, 1, 1)
+    return b.build(load_scene("quad-shadow").camera)
 
 
 def test_closed_components_are_found_and_culling_keeps_visibility_identical():
@@ -130,7 +130,7 @@ def test_volumetric_culling_does_not_change_the_image():
 
 def test_deterministic_for_a_seed_whatever_the_thread_count():
     kw = dict(visibility="occlusion-map", resolution=(24, 24), spp=2, shadow_rays=4, seed=7,
-              visibility_options=dict(penumbra="list", adaptive=True))
+              visibility_options=dict(penumbra="list", adaptive_photons=True))
     prev = numba.get_num_threads()
     try:
         a = probvis.render("quad-shadow", threads=1, **kw)
@@ -155,11 +155,13 @@ def test_matches_exact_visibility_within_the_noise():
 
 
 @pytest.mark.parametrize("options, message", [
-    (dict(photons=0), "photons must be a positive integer"),
-    (dict(neighbours=-3), "neighbours must be a positive integer"),
-    (dict(radius=-1.0), "radius must be a positive number"),
-    (dict(radius=float("nan")), "radius must be a positive number"),
-    (dict(penumbra="grid"), "penumbra must be 'list' or 'bvh'"),
+    (dict(photons=0), "photons must be from 1 to 1,073,741,824, got 0"),
+    (dict(neighbours=-3), "neighbours must be from 1 to 1,024"),
+    (dict(neighbours=2.5), "neighbours expects integer, got 2.5"),
+    (dict(radius=-1.0), "radius must be positive"),
+    (dict(radius=float("nan")), "radius expects number, got nan"),
+    (dict(penumbra="grid"), "penumbra must be one of bvh, list, got 'grid'"),
+    (dict(pneumbra="list"), "visibility 'occlusion-map' has no option 'pneumbra'"),
 ])
 def test_bad_options_are_clear_errors(options, message):
     with pytest.raises(ProbvisError, match=message):

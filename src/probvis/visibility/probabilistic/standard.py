@@ -1,4 +1,4 @@
-"""The seed's decomposition: V_A V_B = V_A + V_B + (V̄_A V̄_B - 1)."""
+"""The 2013 paper's standard decomposition: V_A V_B = V_A + V_B + (V̄_A V̄_B - 1)."""
 import numpy as np
 
 from .decomposition import MODE_A, MODE_AB_BLOCKED, MODE_B, Decomposition, probabilities, table

@@ -1,5 +1,4 @@
 """The occlusion map: photons of each emitter in a kd-tree, looked up in batches to classify shading points."""
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,7 +49,6 @@ class OcclusionMap:
     in a candidate list (see `volumetric.blocker_groups`)."""
 
     def __init__(self, photons: Photons, n_emitters, neighbours, groups, radius=None):
-        t0 = time.perf_counter()
         self.photons = photons
         self.groups = groups
         self.n_emitters = n_emitters
@@ -58,7 +56,6 @@ class OcclusionMap:
         self.ids = [np.flatnonzero(photons.emitter == e) for e in range(n_emitters)]
         self.trees = [cKDTree(photons.position[ids]) if len(ids) else None for ids in self.ids]
         self.radius = float(radius) if radius is not None else self._auto_radius()
-        self.build_seconds = time.perf_counter() - t0
 
     def _auto_radius(self):
         dists = []

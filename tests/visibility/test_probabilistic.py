@@ -10,10 +10,10 @@ from probvis import ProbvisError
 from probvis.cli import main
 from probvis.rng import make_key
 from probvis.visibility import make_estimator
-from probvis.visibility.probvis import power, shifted, standard
-from probvis.visibility.probvis.adaptive import choose
-from probvis.visibility.probvis.decomposition import CONFIGS
-from probvis.visibility.probvis.kernels import (GROUP_COUNT, GROUP_SOLID_ANGLE, evaluate_segments, group_lists,
+from probvis.visibility.probabilistic import power, shifted, standard
+from probvis.visibility.probabilistic.mixture import choose
+from probvis.visibility.probabilistic.decomposition import CONFIGS
+from probvis.visibility.probabilistic.kernels import (GROUP_COUNT, GROUP_SOLID_ANGLE, evaluate_segments, group_lists,
                                                solid_angle)
 
 
@@ -151,14 +151,14 @@ def test_clamping_negative_pixels_is_reported_as_a_bias():
 
 
 @pytest.mark.parametrize("options, message", [
-    (dict(estimator="magic"), "unknown probvis estimator"),
+    (dict(estimator="magic"), "estimator must be one of standard, shifted, power, adaptive"),
     (dict(grouping="colour"), "grouping must be"),
     (dict(probabilities=(0.5, 0.5, 0.5)), "summing to 1"),
     (dict(estimator="shifted", shifts=(1, 1, 1)), "summing to 1"),
     (dict(shifts=(0.2, 0.3, 0.5)), "shifted estimator only"),
     (dict(levels=0), "levels must be"),
     (dict(estimator="adaptive", levels=2), "adaptive estimator"),
-    (dict(penumbra="bvh"), "drop --penumbra"),
+    (dict(penumbra="bvh"), "visibility .probvis. has no option .penumbra."),
 ])
 def test_bad_probvis_options(options, message):
     with pytest.raises(ProbvisError, match=message):

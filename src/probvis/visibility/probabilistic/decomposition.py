@@ -10,7 +10,6 @@ from dataclasses import dataclass
 import numpy as np
 
 MODE_A, MODE_B, MODE_AB_BLOCKED, MODE_BOTH, MODE_EXACT = 0, 1, 2, 3, 4
-MODE_NAMES = ("A", "B", "A, then B if A blocks", "A and B", "A, then B if A is visible")
 CONFIGS = ((0, 0), (0, 1), (1, 0), (1, 1))
 
 

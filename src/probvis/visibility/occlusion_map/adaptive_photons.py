@@ -8,7 +8,7 @@ uncertain, or when the budget is spent.
 """
 import numpy as np
 
-from ..cases import CASE_PENUMBRA
+from ...cases import CASE_PENUMBRA
 from .map import OcclusionMap
 from .photons import ADAPTIVE_STREAM, Photons, points_on_emitters, trace_photons
 
@@ -58,7 +58,7 @@ def refine(scene, bvh, emitters, photons: Photons, neighbours, groups, radius, b
         rad = omap.radius * np.sqrt(rng.random(n_new))
         phi = 2 * np.pi * rng.random(n_new)
         target = pos[pick] + rad[:, None] * (np.cos(phi)[:, None] * t1 + np.sin(phi)[:, None] * t2)
-        origin, n_e, _ = points_on_emitters(e.astype(np.int32), emitters.triangle_table, scene.triangles, seed,
+        origin, n_e, _ = points_on_emitters(e.astype(np.int32), emitters.arrays, scene.triangles, seed,
                                             ADAPTIVE_STREAM, spent)
         d = target - origin
         front = np.einsum("ij,ij->i", d, n_e) > 0.0

@@ -11,7 +11,7 @@ Blockers are gathered as *groups*: `group[t]` names the set of triangles a recor
 import numpy as np
 from numba import njit, prange
 
-from ..cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN
+from ...cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN
 
 
 @njit(cache=True, error_model="numpy", inline="always")

@@ -1,5 +1,5 @@
 """Shifted decomposition: (V_A - α) + (V_B - β) + (V̄_A V̄_B - γ) with α + β + γ = 1. With α = β = γ = 1/3 and
-p = 1/3 each this is the seed's "alternative decomposition", of variance 2 in every configuration."""
+p = 1/3 each this is the 2013 paper's "alternative decomposition", of variance 2 in every configuration."""
 import numpy as np
 
 from .decomposition import MODE_A, MODE_AB_BLOCKED, MODE_B, Decomposition, probabilities, table

@@ -1,33 +1,51 @@
-"""Area emitters: choose an emitter by power, a triangle by area (alias table), a point uniformly on it."""
+"""Stage 3 of a render: emitter sampling. Area emitters; an emitter is chosen by power, a triangle of it by area
+(alias table), a point uniformly on that triangle. Also the analytic irradiance of an emitter (Lambert's
+polygon formula) for shading points the visibility estimator declares fully lit.
+
+`sample_emitters` fills, for every shading point, `shadow_rays` slots of shadow segments with their
+unoccluded contributions; `point_samples` is its per-point body, shared with the fused exact kernel.
+"""
+import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-from .cases import CASE_PENUMBRA, CASE_UNKNOWN
+from .cases import CASE_LIT, CASE_PENUMBRA, CASE_UNKNOWN
 from .errors import ProbvisError
+from .parallel import spread
+from .rng import uniform
 
 _LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
+POINTS_PER_BLOCK = 64  # shading points per parallel work item of `sample_emitters`
 
 
-@dataclass
-class EmitterSampler:
-    emitter_pmf: np.ndarray  # (e,)
-    emitter_area: np.ndarray  # (e,)
+class EmitterArrays(NamedTuple):
+    """The emitter sampler as the kernels take it."""
+
+    pmf: np.ndarray  # (e,) selection probability of each emitter (by power)
+    area: np.ndarray  # (e,) its area
     offsets: np.ndarray  # (e + 1,) range of each emitter in `tris`
     tris: np.ndarray  # scene triangle ids of all emitting triangles, grouped by emitter
     tri_prob: np.ndarray  # alias table of each emitter's triangles by area: keep probability of column k ...
     tri_alias: np.ndarray  # ... and the column (index within the emitter) taken otherwise
+
+
+@dataclass
+class EmitterSampler:
+    """How emitters are sampled (`arrays`, for the kernels) and their emitted flux (`power`)."""
+
+    arrays: EmitterArrays
     power: np.ndarray  # (e,) emitted flux (luminance of radiance x pi x area)
 
     @property
-    def triangle_table(self):
-        """What `sample_on_emitter` needs: (offsets, tris, tri_prob, tri_alias)."""
-        return self.offsets, self.tris, self.tri_prob, self.tri_alias
+    def emitter_pmf(self):
+        return self.arrays.pmf
 
     @property
-    def arrays(self):
-        return self.emitter_pmf, self.emitter_area, self.triangle_table
+    def emitter_area(self):
+        return self.arrays.area
 
 
 @njit(cache=True, error_model="numpy")
@@ -66,6 +84,7 @@ def alias_table(weights):
 
 
 def build_emitter_sampler(scene):
+    """The `EmitterSampler` of a scene's area emitters."""
     e = scene.n_emitters
     tri_area = 0.5 * np.linalg.norm(np.cross(scene.triangles[:, 1] - scene.triangles[:, 0],
                                              scene.triangles[:, 2] - scene.triangles[:, 0]), axis=1)
@@ -83,7 +102,7 @@ def build_emitter_sampler(scene):
     if not np.any(power > 0):
         raise ProbvisError(f"scene '{scene.name}' has emitters, but all of them have zero power")
     pmf = power / power.sum()
-    return EmitterSampler(pmf, area, offsets, order.astype(np.int64), tri_prob, tri_alias, power)
+    return EmitterSampler(EmitterArrays(pmf, area, offsets, order.astype(np.int64), tri_prob, tri_alias), power)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -124,14 +143,14 @@ def choose_emitter(pmf, cases, i, total, u):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def sample_on_emitter(e, table, triangles, u1, u2, u3):
-    """A point uniform on emitter `e` (`table` is `EmitterSampler.triangle_table`): (scene triangle id, x, y,
-    z); its pdf per unit area is 1 / area[e].
+def sample_on_emitter(e, es, triangles, u1, u2, u3):
+    """A point uniform on emitter `e` (`es` is the `EmitterArrays`): (scene triangle id, x, y, z); its pdf per
+    unit area is 1 / area[e].
 
     The triangle comes from the alias table in O(1) with no branch on u1 (a binary search over the area CDF
     mispredicted half its branches), the point from Heitz's low-distortion square-to-triangle map of (u2, u3)
     (JCGT 2019): uniform, and without the square root of the usual map."""
-    offsets, tris, prob, alias = table
+    offsets, tris, prob, alias = es.offsets, es.tris, es.tri_prob, es.tri_alias
     lo = offsets[e]
     n = offsets[e + 1] - lo
     x = u1 * n
@@ -206,9 +225,112 @@ def triangle_irradiance(triangles, t, px, py, pz, nx, ny, nz):
 
 
 @njit(cache=True, error_model="numpy")
-def emitter_irradiance(e, offsets, tris, triangles, px, py, pz, nx, ny, nz):
+def emitter_irradiance(e, es, triangles, px, py, pz, nx, ny, nz):
     """Cosine-weighted solid angle of all of emitter `e`'s front-facing triangles above p's horizon."""
     total = 0.0
-    for k in range(offsets[e], offsets[e + 1]):
-        total += triangle_irradiance(triangles, tris[k], px, py, pz, nx, ny, nz)
+    for k in range(es.offsets[e], es.offsets[e + 1]):
+        total += triangle_irradiance(triangles, es.tris[k], px, py, pz, nx, ny, nz)
     return total
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _emitter_segment(slot, le, scale, rgb, u, es, triangles, fnormals, p, s, gn, eps, contrib, s_org, s_dir,
+                     s_emit, active):
+    """Fill shadow slot `slot` with a point sampled on emitter `le` (random numbers `u`) seen from shading
+    point p (shading normal s, geometric normal gn): segment, contribution `rgb` x `scale` x cos cos / d^2
+    (`scale` holds area / (pdf of the emitter x samples x pi)) and the active flag. No branches: the slot is
+    written whether or not the emitter point faces p, and `active` says which."""
+    lt, yx, yy, yz = sample_on_emitter(le, es, triangles, u[0], u[1], u[2])
+    wx, wy, wz = yx - p[0], yy - p[1], yz - p[2]
+    d2 = wx * wx + wy * wy + wz * wz
+    # cosines times |w|: their signs need no square root, and cos_x cos_y / d2 = dot_x dot_y / d2^2
+    dot_x = s[0] * wx + s[1] * wy + s[2] * wz
+    dot_y = -(fnormals[lt, 0] * wx + fnormals[lt, 1] * wy + fnormals[lt, 2] * wz)
+    g = dot_x * dot_y * scale / (d2 * d2)
+    off = eps if gn[0] * wx + gn[1] * wy + gn[2] * wz > 0.0 else -eps
+    ox, oy, oz = p[0] + off * gn[0], p[1] + off * gn[1], p[2] + off * gn[2]
+    contrib[slot, 0], contrib[slot, 1], contrib[slot, 2] = rgb[0] * g, rgb[1] * g, rgb[2] * g
+    s_org[slot, 0], s_org[slot, 1], s_org[slot, 2] = ox, oy, oz
+    s_dir[slot, 0], s_dir[slot, 1], s_dir[slot, 2] = yx - ox, yy - oy, yz - oz
+    s_emit[slot] = le
+    active[slot] = (dot_x > 0.0) & (dot_y > 0.0)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def point_samples(i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, base, s_org, s_dir, contrib, s_emit,
+                  active, dense):
+    """Direct light at shading point `i` (`geom` is the `SceneArrays`), per emitter as the visibility
+    estimator's `cases` say:
+
+    lit (case 1) emitters are integrated analytically (Lambert's polygon formula, no noise, no rays),
+    shadowed (case 2) ones contribute nothing, and the others are sampled: `n_shadow` emitter samples (emitter
+    by power among the sampled ones, point uniform by area) in slots base..base + n_shadow - 1. Fills, per
+    slot, segment origin and direction, the unoccluded contribution (already divided by pdf and n_shadow), the
+    emitter id and the active flag (the other outputs of an inactive slot are meaningless). With `dense` (a
+    constant in each caller) only the active samples are kept, in slots base..base + m - 1 (a sample is
+    written at base + m and kept by advancing m). Returns the analytic radiance and m (0 without `dense`).
+    """
+    triangles, fnormals, refl, radiance = geom.triangles, geom.face_normals, geom.reflectance, geom.emitter_radiance
+    pmf, area = es.pmf, es.area
+    inv_pi = 1.0 / math.pi
+    a0 = a1 = a2 = 0.0
+    m = 0
+    mi = mat[i]
+    if mi < 0:
+        for j in range(n_shadow):
+            active[base + j] = False
+        return a0, a1, a2, m
+    tri = prim[i]
+    p = (pos[i, 0], pos[i, 1], pos[i, 2])
+    s = (nrm[i, 0], nrm[i, 1], nrm[i, 2])
+    for e in range(pmf.shape[0]):
+        if cases[i, e] == CASE_LIT:
+            f = emitter_irradiance(e, es, triangles, p[0], p[1], p[2], s[0], s[1], s[2]) * inv_pi
+            a0 += refl[mi, 0] * radiance[e, 0] * f
+            a1 += refl[mi, 1] * radiance[e, 1] * f
+            a2 += refl[mi, 2] * radiance[e, 2] * f
+    total, only = sampled_share(pmf, cases, i)
+    if total <= 0.0:
+        for j in range(n_shadow):
+            active[base + j] = False
+        return a0, a1, a2, m
+    gn = (fnormals[tri, 0], fnormals[tri, 1], fnormals[tri, 2])
+    eps = 1e-9 * (1.0 + max(abs(p[0]), abs(p[1]), abs(p[2])))
+    key = keys[i]
+    if only >= 0:  # a single emitter: no choice (its random dimension is simply not drawn)
+        scale = area[only] * inv_pi / n_shadow
+        rgb = (refl[mi, 0] * radiance[only, 0], refl[mi, 1] * radiance[only, 1], refl[mi, 2] * radiance[only, 2])
+        for j in range(n_shadow):
+            u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
+            slot = base + m if dense else base + j
+            _emitter_segment(slot, only, scale, rgb, u, es, triangles, fnormals, p, s, gn, eps, contrib, s_org,
+                             s_dir, s_emit, active)
+            if dense:
+                m += active[slot]
+        return a0, a1, a2, m
+    for j in range(n_shadow):
+        le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
+        rgb = (refl[mi, 0] * radiance[le, 0], refl[mi, 1] * radiance[le, 1], refl[mi, 2] * radiance[le, 2])
+        u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
+        slot = base + m if dense else base + j
+        _emitter_segment(slot, le, area[le] * inv_pi / (p_e * n_shadow), rgb, u, es, triangles, fnormals, p, s,
+                         gn, eps, contrib, s_org, s_dir, s_emit, active)
+        if dense:
+            m += active[slot]
+    return a0, a1, a2, m
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def sample_emitters(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s_dir, contrib, s_emit, active):
+    """`point_samples` of every shading point, point i in slots i * n_shadow onwards; returns the analytic
+    radiance per point."""
+    n = prim.shape[0]
+    analytic = np.zeros((n, 3))
+    n_blocks = (n + POINTS_PER_BLOCK - 1) // POINTS_PER_BLOCK
+    for it in prange(n_blocks):
+        blk = spread(it, n_blocks)
+        for i in range(blk * POINTS_PER_BLOCK, min(n, (blk + 1) * POINTS_PER_BLOCK)):
+            analytic[i, 0], analytic[i, 1], analytic[i, 2] = point_samples(
+                i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, i * n_shadow, s_org, s_dir, contrib, s_emit,
+                active, False)[:3]
+    return analytic

@@ -1,4 +1,4 @@
-"""Adaptive decomposition (beyond the seed): per penumbra pair, the mixture that minimises variance x cost.
+"""Adaptive mixture (beyond the 2013 paper): per penumbra pair, the mixture that minimises variance x cost.
 
 The occlusion map estimates how often the pair's segments see each configuration (V_A, V_B) from the
 neighbouring photons (with a Dirichlet(1/2) prior); test costs are estimated from the group sizes. The

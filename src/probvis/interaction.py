@@ -1,0 +1,86 @@
+"""Stage 2 of a render: the surface interaction at each camera ray's closest hit.
+
+Gives the radiance of an emitter seen directly, the shading point, its shading normal turned to the camera's
+side and its material. As in Mitsuba 3, a plain `diffuse` BSDF is one-sided (nothing is reflected from its
+back) and area emitters emit from their front side only.
+"""
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from .geometry import unit_normals
+
+
+class SceneArrays(NamedTuple):
+    """The scene as the kernels take it."""
+
+    triangles: np.ndarray  # (n, 3, 3)
+    vertex_normals: np.ndarray  # (n, 3, 3) shading normals at the corners
+    face_normals: np.ndarray  # (n, 3) unit geometric normals
+    tri_material: np.ndarray  # (n,)
+    tri_emitter: np.ndarray  # (n,) emitter id, -1 where the triangle does not emit
+    reflectance: np.ndarray  # (materials, 3)
+    twosided: np.ndarray  # (materials,)
+    emitter_radiance: np.ndarray  # (emitters, 3)
+
+
+def scene_arrays(scene):
+    """The `SceneArrays` of a `Scene` (unit face normals computed here, once per render)."""
+    return SceneArrays(scene.triangles, scene.vertex_normals, unit_normals(scene.triangles), scene.tri_material,
+                       scene.tri_emitter, scene.reflectance, scene.twosided, scene.emitter_radiance)
+
+
+class Interactions(NamedTuple):
+    """Surface interactions of a batch of camera samples; `material` is -1 where nothing is reflected (a miss or
+    the back of a one-sided surface)."""
+
+    triangle: np.ndarray  # (m,) scene triangle hit, -1 on a miss
+    emitted: np.ndarray  # (m, 3) emitted radiance seen directly
+    position: np.ndarray  # (m, 3)
+    normal: np.ndarray  # (m, 3) shading normal on the camera's side
+    material: np.ndarray  # (m,) int32
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _surface(geom, prim, b1, b2, dirs):
+    triangles, vnormals, tri_mat, tri_emit = geom.triangles, geom.vertex_normals, geom.tri_material, geom.tri_emitter
+    twosided, radiance = geom.twosided, geom.emitter_radiance
+    n = prim.shape[0]
+    emitted = np.zeros((n, 3))
+    pos = np.zeros((n, 3))
+    nrm = np.zeros((n, 3))
+    mat = np.full(n, -1, np.int32)
+    for i in prange(n):
+        tri = prim[i]
+        if tri < 0:
+            continue
+        c1, c2 = b1[i], b2[i]
+        c0 = 1.0 - c1 - c2
+        sx = c0 * vnormals[tri, 0, 0] + c1 * vnormals[tri, 1, 0] + c2 * vnormals[tri, 2, 0]
+        sy = c0 * vnormals[tri, 0, 1] + c1 * vnormals[tri, 1, 1] + c2 * vnormals[tri, 2, 1]
+        sz = c0 * vnormals[tri, 0, 2] + c1 * vnormals[tri, 1, 2] + c2 * vnormals[tri, 2, 2]
+        inv = 1.0 / math.sqrt(sx * sx + sy * sy + sz * sz)
+        sx, sy, sz = sx * inv, sy * inv, sz * inv
+        cos_i = -(sx * dirs[i, 0] + sy * dirs[i, 1] + sz * dirs[i, 2])
+        em = tri_emit[tri]
+        if em >= 0 and cos_i > 0.0:
+            for k in range(3):
+                emitted[i, k] = radiance[em, k]
+        m = tri_mat[tri]
+        if cos_i <= 0.0:
+            if not twosided[m]:
+                continue
+            sx, sy, sz = -sx, -sy, -sz
+        for k in range(3):
+            pos[i, k] = c0 * triangles[tri, 0, k] + c1 * triangles[tri, 1, k] + c2 * triangles[tri, 2, k]
+        nrm[i, 0], nrm[i, 1], nrm[i, 2] = sx, sy, sz
+        mat[i] = m
+    return emitted, pos, nrm, mat
+
+
+def surface_interactions(geom, prim, b1, b2, dirs):
+    """`Interactions` of camera rays with directions `dirs` that hit triangles `prim` at barycentrics (b1, b2)."""
+    emitted, pos, nrm, mat = _surface(geom, prim, b1, b2, dirs)
+    return Interactions(prim, emitted, pos, nrm, mat)

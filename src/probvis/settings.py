@@ -1,0 +1,40 @@
+"""Render settings: how many samples, which random sequence, how many threads — everything that is not the scene.
+
+A scene file declares its own (Mitsuba's `sampler sample_count` and `seed`, the integrator's `emitter_samples`),
+kept as `Scene.defaults`; `render` starts from those and replaces what the caller gives.
+"""
+import dataclasses
+from dataclasses import dataclass
+
+from .errors import ProbvisError
+
+MAX_SPP = 1 << 20
+MAX_SHADOW_RAYS = 1 << 16
+MAX_SEED = (1 << 64) - 1  # the random numbers hash the seed as an unsigned 64-bit word
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """`spp` camera samples per pixel, `shadow_rays` emitter samples per camera sample, the random `seed`
+    (the image is a pure function of it), and `threads` (None: every core)."""
+
+    spp: int = 4
+    shadow_rays: int = 1
+    seed: int = 0
+    threads: int | None = None
+
+    def replace(self, **changes):
+        """A copy with the given settings replaced; None leaves a setting as it is. Validated."""
+        out = dataclasses.replace(self, **{k: v for k, v in changes.items() if v is not None})
+        out.validate()
+        return out
+
+    def validate(self):
+        for what, val, lo, hi in (("spp", self.spp, 1, MAX_SPP), ("shadow_rays", self.shadow_rays, 1, MAX_SHADOW_RAYS),
+                                  ("seed", self.seed, 0, MAX_SEED)):
+            if isinstance(val, bool) or int(val) != val or not lo <= val <= hi:
+                raise ProbvisError(f"{what} must be a whole number from {lo} to {hi}, got {val}")
+        if self.threads is not None and (isinstance(self.threads, bool) or int(self.threads) != self.threads
+                                         or self.threads < 1):
+            raise ProbvisError(f"threads must be a positive whole number, got {self.threads}")
+        return self

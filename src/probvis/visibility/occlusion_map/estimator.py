@@ -1,0 +1,167 @@
+"""The `occlusion-map` estimator: photons classify shading points; only penumbra points get shadow rays, and
+those are tested against the point's candidate blockers (`penumbra="list"`) or the whole BVH ("bvh")."""
+import time
+import warnings
+
+import numpy as np
+
+from ...accel import occluded_segments, visibility_from_lists
+from ...geometry import unit_normals
+from ..base import CASE_PENUMBRA, CASE_UNKNOWN, Aov, Option, Phase, VisibilityEstimator, VisibilityResult
+from .adaptive_photons import refine
+from .components import blocker_groups, closed_orientation, components
+from .map import OcclusionMap
+from .photons import shoot_photons
+
+DEFAULT_NEIGHBOURS = 32
+PHOTONS_PER_CAMERA_SAMPLE = 0.5  # default photon budget: half a photon ray per camera sample ...
+MIN_PHOTONS_DEFAULT = 100_000  # ... but at least this many
+ADAPTIVE_SHARE = 0.5  # adaptive rounds may add up to this share of the first pass's photons
+GROUP_COMPONENTS = 64  # a recorded blocker brings its whole connected component if that is this small
+MAX_PHOTONS = 1 << 30
+MAX_NEIGHBOURS = 1024
+
+MAP_OPTIONS = (
+    Option("photons", int, None, "photon rays of the first pass (default: half a ray per camera sample, at least "
+                                 "100,000)", minimum=1, maximum=MAX_PHOTONS),
+    Option("neighbours", int, DEFAULT_NEIGHBOURS, "photons looked up per shading point", minimum=1,
+           maximum=MAX_NEIGHBOURS),
+    Option("radius", float, None, "look-up radius (default: twice the median distance from a photon to its k-th "
+                                  "neighbour)", check=lambda r: None if r > 0 else "must be positive"),
+    Option("adaptive_photons", bool, False, "aim extra photons (up to half the first pass) at uncertain regions"),
+    Option("volumetric", bool, True, "with candidate lists, skip closed meshes' triangles that face away from the "
+                                     "segment's light end"),
+)
+MAP_PHASES = (
+    Phase("photons", "prepare", "tracing the first pass of photon rays"),
+    Phase("adaptive_photons", "prepare", "rounds of photons aimed at uncertain regions"),
+    Phase("map_build", "prepare", "connected components, kd-trees"),
+    Phase("lookup", "batch", "classifying shading points from their neighbouring photons"),
+)
+CASES_AOV = Aov("cases", "per pixel and emitter, the share of camera samples classified unknown, lit, shadowed "
+                         "and penumbra", kind="cases")
+
+
+class OcclusionMapVisibility(VisibilityEstimator):
+    """Photons -> cases per shading point and emitter -> shadow rays only in the penumbra (and where too few
+    photons fall to decide: 'unknown', tested against the whole scene)."""
+
+    name = "occlusion-map"
+    summary = "photons classify points as lit, shadowed or penumbra; shadow rays only in the penumbra"
+    options = (Option("penumbra", str, "bvh", "test penumbra segments against the whole BVH (unbiased there) or "
+                                              "only the candidate blockers of neighbouring shadow photons (fewer "
+                                              "tests; biased where the photons missed a blocker)",
+                      choices=("bvh", "list")),) + MAP_OPTIONS
+    phases = MAP_PHASES
+    aovs = (CASES_AOV,)
+
+    @property
+    def with_lists(self):
+        return self.params.penumbra == "list"
+
+    def prepare(self, scene, bvh, emitters, settings):
+        super().prepare(scene, bvh, emitters, settings)
+        p = self.params
+        cam = scene.camera
+        n = p.photons or max(MIN_PHOTONS_DEFAULT, int(PHOTONS_PER_CAMERA_SAMPLE * cam.width * cam.height * settings.spp))
+        t_geom = time.perf_counter()
+        self.fnormal = unit_normals(scene.triangles)
+        n_tri = scene.n_triangles
+        self.orientation = np.zeros(n_tri, np.int8)
+        if self.with_lists:
+            comps = components(scene)
+            if p.volumetric:  # only where the list holds the whole component, so its exit face too
+                whole = np.bincount(comps[0])[comps[0]] <= GROUP_COMPONENTS
+                self.orientation = np.where(whole, closed_orientation(scene, comps), 0).astype(np.int8)
+            groups = blocker_groups(comps[0], comps[2], GROUP_COMPONENTS)
+        else:  # lists are not used: each triangle stands for itself
+            groups = (np.arange(n_tri, dtype=np.int32), np.arange(n_tri + 1, dtype=np.int64),
+                      np.arange(n_tri, dtype=np.int32))
+        self.seconds["map_build"] += time.perf_counter() - t_geom
+        with self.timed("photons"):
+            photons = shoot_photons(scene, bvh, emitters, n, settings.seed)
+        first = len(photons)
+        rounds, radius = [], p.radius
+        with self.timed("adaptive_photons"):
+            if p.adaptive_photons and len(photons):
+                photons, radius, rounds = refine(scene, bvh, emitters, photons, p.neighbours, groups, radius,
+                                                 int(ADAPTIVE_SHARE * n), settings.seed)
+        with self.timed("map_build"):
+            self.map = OcclusionMap(photons, scene.n_emitters, p.neighbours, groups, radius)
+        if len(photons) == 0:
+            warnings.warn(f"occlusion map: no photon of scene '{scene.name}' hit anything; every point is "
+                          "'unknown' and tested against the whole scene (exact visibility)", stacklevel=2)
+        shadow = photons.shadow
+        self._stats = {
+            "photon_rays": photons.rays, "photon_rays_first_pass": n, "photons": len(photons),
+            "photons_first_pass": first, "light_photons": int((~shadow).sum()), "shadow_photons": int(shadow.sum()),
+            "radius": self.map.radius, "neighbours": p.neighbours,
+            "photon_tests": {"triangle": photons.triangle_tests, "node": photons.node_tests},
+            "closed_triangles": int((self.orientation != 0).sum()),
+            "adaptive_rounds": rounds,
+            "list_length": {"mean": None, "max": None, "penumbra_pairs": 0},
+            "culled_candidates": 0, "penumbra_shadow_rays": 0, "unknown_shadow_rays": 0,
+        }
+        self._list_sum = 0
+
+    def classify(self, points):
+        with self.timed("lookup"):
+            return self._classify(points)
+
+    def _classify(self, points):
+        tri = points.triangle
+        shaded = tri >= 0
+        g = self.fnormal[np.maximum(tri, 0)]
+        g = np.where((np.einsum("ij,ij->i", g, points.normal) < 0)[:, None], -g, g)
+        g[~shaded] = 0.0
+        self.normals = g  # geometric normals on the shading normal's side, zero where not shaded
+        with_lists = self.with_lists
+        self.lookup = self.map.lookup(points.position, g, with_lists=with_lists)
+        lk, st = self.lookup, self._stats
+        pen = lk.case == CASE_PENUMBRA
+        ll = st["list_length"]
+        ll["penumbra_pairs"] += int(pen.sum())
+        if with_lists:
+            m = lk.case.shape[0]
+            lo, hi = lk.range(np.arange(m)[:, None], np.arange(self.scene.n_emitters)[None, :])
+            lengths = (hi - lo)[pen]
+            self._list_sum += int(lengths.sum())
+            ll["max"] = max(ll["max"] or 0, int(lengths.max()) if len(lengths) else 0)
+            ll["mean"] = self._list_sum / max(1, ll["penumbra_pairs"])
+        return lk.case
+
+    def segment_lists(self, query, idx):
+        """Candidate-list range [lo, hi) of each segment in idx."""
+        return self.lookup.range(query.point[idx], query.emitter[idx])
+
+    def evaluate(self, query):
+        n = len(query.tmax)
+        value = np.ones(n)
+        n_node = np.zeros(n, np.int32)
+        n_tri = np.zeros(n, np.int32)
+        case = self.lookup.case[query.point, query.emitter]
+        on_bvh = (case == CASE_UNKNOWN) | ((case == CASE_PENUMBRA) if not self.with_lists else False)
+        idx = np.flatnonzero(on_bvh)
+        if len(idx):
+            occ, a, b = occluded_segments(self.bvh, query.origin[idx], query.direction[idx], query.tmax[idx],
+                                          query.point[idx])
+            value[idx], n_node[idx], n_tri[idx] = 1.0 - occ, a, b
+        self._stats["unknown_shadow_rays"] += int((case == CASE_UNKNOWN).sum())
+        self._stats["penumbra_shadow_rays"] += int((case == CASE_PENUMBRA).sum())
+        if self.with_lists:
+            idx = np.flatnonzero(case == CASE_PENUMBRA)
+            if len(idx):
+                value[idx], n_tri[idx] = self.evaluate_penumbra(query, idx)
+        return VisibilityResult(value, n_node, n_tri)
+
+    def evaluate_penumbra(self, query, idx):
+        """Visibility and triangle tests of the penumbra segments idx against their candidate lists."""
+        lo, hi = self.segment_lists(query, idx)
+        vis, n_tri, n_cull = visibility_from_lists(self.scene.triangles, self.orientation, self.fnormal,
+                                                   query.origin[idx], query.direction[idx], query.tmax[idx], lo, hi,
+                                                   self.lookup.tris)
+        self._stats["culled_candidates"] += int(n_cull.sum())
+        return vis, n_tri
+
+    def stats(self):
+        return {**super().stats(), **self._stats}

@@ -1,0 +1,147 @@
+"""The `probvis` estimator: probabilistic visibility (Billen et al. 2013) over the occlusion map's candidate lists.
+
+Penumbra segments are evaluated by a decomposition of V = V_A V_B (see `decomposition`): one term chosen at
+random, only the groups it needs tested. Lit, shadowed and unknown points are handled as by the occlusion map
+with `penumbra="list"`, so the two converge to the same image and differ only in cost and noise.
+"""
+import numpy as np
+
+from ...errors import ProbvisError
+from ..base import Option, Phase
+from ..occlusion_map.estimator import CASES_AOV, MAP_OPTIONS, MAP_PHASES, OcclusionMapVisibility
+from ..occlusion_map.map import NORMAL_COS
+from . import mixture
+from .decomposition import MODE_EXACT
+from .kernels import GROUP_COUNT, GROUP_RANDOM, GROUP_SOLID_ANGLE, configuration_counts, evaluate_segments, group_lists
+from .power import power as power_decomposition
+from .shifted import shifted as shifted_decomposition
+from .standard import standard as standard_decomposition
+
+GROUPINGS = {"solid-angle": GROUP_SOLID_ANGLE, "count": GROUP_COUNT, "random": GROUP_RANDOM}
+DECOMPOSITIONS = ("standard", "shifted", "power", "adaptive")
+MAX_POWER = 64  # (V_A + V_B)^n / (2^n - 2): beyond this the terms lose all precision
+
+
+class ProbabilisticVisibility(OcclusionMapVisibility):
+    """Occlusion-map cases; penumbra segments by one random term of a decomposition of V_A V_B."""
+
+    name = "probvis"
+    summary = "probabilistic visibility (Billen et al. 2013): one random term of V = V_A V_B per penumbra segment"
+    options = (
+        Option("estimator", str, "standard", "decomposition of V = V_A V_B: the paper's standard and shifted ones, "
+                                             "the power decomposition, or the adaptive mixture",
+               choices=DECOMPOSITIONS),
+        Option("probabilities", tuple, None, "term probabilities p1,p2,p3 (default 1/3 each)", count=3,
+               minimum=0.0, maximum=1.0, metavar="P1,P2,P3"),
+        Option("shifts", tuple, None, "shifts α,β,γ of the shifted decomposition, summing to 1 (default 1/3 each)",
+               count=3, metavar="A,B,G"),
+        Option("power", int, 8, "exponent n of the power decomposition", minimum=2, maximum=MAX_POWER),
+        Option("grouping", str, "solid-angle", "how a candidate list is split into A and B",
+               choices=tuple(GROUPINGS)),
+        Option("levels", int, 1, "recursive subdivision depth (1: one A/B split)", minimum=1, maximum=8),
+        Option("cells", int, 1, "groups along the ray whose estimates are multiplied (1: none)", minimum=1,
+               maximum=8),
+    ) + MAP_OPTIONS
+    phases = MAP_PHASES + (Phase("grouping", "batch", "splitting candidate lists into groups, choosing mixtures"),)
+    aovs = (CASES_AOV,)
+
+    @property
+    def with_lists(self):
+        return True
+
+    def __init__(self, **options):
+        super().__init__(**options)
+        p = self.params
+        if p.estimator == "adaptive" and (p.levels != 1 or p.cells != 1 or p.probabilities or p.shifts):
+            raise ProbvisError("the adaptive estimator chooses its own probabilities and shifts, on one A/B split")
+        if p.shifts is not None and p.estimator != "shifted":
+            raise ProbvisError("shifts apply to the shifted estimator only")
+        if p.power != 8 and p.estimator != "power":
+            raise ProbvisError("power applies to the power estimator only")
+        probs = (1 / 3, 1 / 3, 1 / 3) if p.probabilities is None else p.probabilities
+        try:
+            if p.estimator == "standard":
+                self.decomposition = standard_decomposition(probs)
+            elif p.estimator == "shifted":
+                self.decomposition = shifted_decomposition(probs, (1 / 3, 1 / 3, 1 / 3) if p.shifts is None
+                                                           else p.shifts)
+            elif p.estimator == "power":
+                self.decomposition = power_decomposition(p.power, probs)
+            else:
+                self.decomposition = None
+        except (ValueError, TypeError) as exc:
+            raise ProbvisError(str(exc)) from None
+
+    def prepare(self, scene, bvh, emitters, settings):
+        super().prepare(scene, bvh, emitters, settings)
+        self._stats.update(term_selections=[0, 0, 0], exact_selections=0, group_balance=None,
+                           adaptive_strategies=[0] * (len(mixture.P_GRID) + 1))
+        self._balance = np.zeros(2)
+        self._batches = 0
+
+    def classify(self, points):
+        case = super().classify(points)
+        with self.timed("grouping"):
+            self._group(points)
+        return case
+
+    def _group(self, points):
+        lk = self.lookup
+        p = self.params
+        tris, bounds, balance = group_lists(self.scene.triangles, points.position[lk.first], lk.offsets, lk.tris,
+                                            lk.n_rep, GROUPINGS[p.grouping], p.levels, p.cells,
+                                            self.render_settings.seed)
+        self.grouped, self.bounds = tris, bounds
+        n_pairs = len(bounds)
+        if self.decomposition is not None:
+            d = self.decomposition
+            self.cdf = np.repeat(np.cumsum(d.p)[None], n_pairs, axis=0)
+            self.cdf[:, 2] = 1.0
+            self.coef = np.repeat(d.coefficients()[None], n_pairs, axis=0)
+            self.mode = np.repeat(d.mode[None], n_pairs, axis=0)
+        else:
+            self._choose_adaptive(lk, tris, bounds)
+        used = balance.sum(axis=1) > 0
+        self._balance += balance[used].sum(axis=0)
+        self._stats["group_balance"] = {"solid_angle_share_A": self._balance[0] / max(self._balance.sum(), 1e-300)}
+
+    def _choose_adaptive(self, lk, tris, bounds):
+        n_rep = lk.n_rep
+        counts = np.zeros((len(bounds), 4))
+        nrm = self.normals[lk.first]
+        ph = self.map.photons
+        for e in range(self.scene.n_emitters):
+            sl = slice(e * n_rep, (e + 1) * n_rep)
+            counts[sl] = configuration_counts(lk.neighbours[e], nrm, ph.normal, ph.n_blockers, ph.start, ph.ray_tris,
+                                              tris, bounds[sl], n_rep, NORMAL_COS)
+        size_a = bounds[:, 1] - bounds[:, 0]
+        size_b = bounds[:, 2] - bounds[:, 1]
+        self.cdf, self.coef, self.mode, best = mixture.choose(counts, size_a, size_b)
+        has_list = bounds[:, -1] > bounds[:, 0]
+        st = self._stats["adaptive_strategies"]
+        for k, c in enumerate(np.bincount(best[has_list], minlength=len(st))):
+            st[k] += int(c)
+
+    def evaluate_penumbra(self, query, idx):
+        """Stochastic terms through the decomposition kernel; pairs whose mode is exact evaluation (adaptive)
+        through the occlusion map's own list test, whose photon-frequency order finds a blocker sooner."""
+        lk = self.lookup
+        pair = query.emitter[idx].astype(np.int64) * lk.n_rep + lk.rep[query.point[idx]]
+        exact = self.mode[pair, 0] == MODE_EXACT
+        value = np.empty(len(idx))
+        n_tri = np.empty(len(idx), dtype=np.int64)
+        if exact.any():
+            value[exact], n_tri[exact] = super().evaluate_penumbra(query, idx[exact])
+        rest = ~exact
+        if rest.any():
+            sub, p = idx[rest], pair[rest]
+            value[rest], n_tri[rest], n_cull, term = evaluate_segments(
+                self.scene.triangles, self.orientation, self.fnormal, query.origin[sub], query.direction[sub],
+                query.tmax[sub], p, query.key[sub], self.grouped, self.bounds, self.params.levels, self.params.cells,
+                self.cdf, self.coef, self.mode)
+            self._stats["culled_candidates"] += int(n_cull.sum())
+            sel = np.bincount(term[term >= 0], minlength=3)
+            for k in range(3):
+                self._stats["term_selections"][k] += int(sel[k])
+        self._stats["exact_selections"] += int(exact.sum())
+        return value, n_tri

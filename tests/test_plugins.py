@@ -1,0 +1,145 @@
+"""Estimators from outside probvis: the worked example of docs/writing-an-estimator.md, loaded by file, by
+module and through the entry-point group, through the CLI, the Python API and `probvis experiment`."""
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import probvis
+from probvis.errors import ProbvisError
+from probvis.visibility import available_names, estimator_class
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "writing-an-estimator.md"
+
+
+def example_source():
+    """The first Python code block of the guide."""
+    return re.search(r"```python\n(.*?)```", DOC.read_text(), re.S).group(1)
+
+
+@pytest.fixture
+def roulette(tmp_path):
+    path = tmp_path / "roulette.py"
+    path.write_text(example_source())
+    return path
+
+
+def run_cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "probvis.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, timeout=600)
+
+
+def test_the_guide_s_estimator_renders_through_the_cli(roulette, tmp_path):
+    out = tmp_path / "r.exr"
+    stats = tmp_path / "r.json"
+    r = run_cli("render", "quad-shadow", "-D", "res=12", "--spp", "2", "--visibility", f"{roulette}:RouletteVisibility",
+                "--q", "0.25", "-o", out, "--stats", stats, "-q")
+    assert r.returncode == 0, r.stderr
+    s = json.loads(stats.read_text())
+    assert out.is_file() and s["visibility"] == {"name": "roulette", "q": 0.25}
+    assert "trace" in s["estimator"]["seconds"]
+    by_module = run_cli("render", "quad-shadow", "-D", "res=12", "--visibility", "roulette:RouletteVisibility",
+                        "--q", "0.5", "-o", tmp_path / "m.exr", "-q", cwd=tmp_path)
+    assert by_module.returncode == 0, by_module.stderr
+    listed = run_cli("estimators", f"{roulette}:RouletteVisibility")
+    assert listed.returncode == 0 and "--q" in listed.stdout and "traced" in listed.stdout
+
+
+def test_flags_are_those_the_estimator_declares(roulette, tmp_path):
+    r = run_cli("render", "quad-shadow", "--visibility", f"{roulette}:RouletteVisibility", "--photons", "10",
+                "-o", tmp_path / "x.exr")
+    assert r.returncode == 2 and not (tmp_path / "x.exr").exists()
+    assert r.stderr.strip() == ("probvis: error: --photons does not apply to --visibility roulette (it is an "
+                                "option of occlusion-map, probvis; see `probvis estimators`)")
+    bad = run_cli("render", "quad-shadow", "--visibility", f"{roulette}:RouletteVisibility", "--q", "2")
+    assert bad.returncode == 2 and "q must be from 0.001 to 1" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_the_guide_s_estimator_is_unbiased_against_exact_visibility(roulette):
+    """Same seeds, same segments: the per-seed difference from exact visibility averages to zero within 4 SE,
+    and it does not for a deliberately wrong weight (the test can fail)."""
+    spec = f"{roulette}:RouletteVisibility"
+
+    def mean(seed, **vis):
+        return probvis.render("quad-shadow", spp=2, shadow_rays=4, seed=seed, defines={"res": 12}, **vis).image.mean()
+
+    exact = np.array([mean(s) for s in range(30)])
+    diff = np.array([mean(s, visibility=spec, visibility_options={"q": 0.3}) for s in range(30)]) - exact
+    se = np.std(diff, ddof=1) / np.sqrt(len(diff))
+    assert se > 0 and abs(diff.mean()) < 4 * se
+    cls = estimator_class(spec)
+
+    class Heavy(cls):  # the weight 1/q forgotten: biased low
+        def evaluate(self, query):
+            res = super().evaluate(query)
+            res.value *= self.params.q
+            return res
+
+    heavy = np.array([mean(s, visibility=Heavy, visibility_options={"q": 0.3}) for s in range(30)]) - exact
+    assert abs(heavy.mean()) > 4 * np.std(heavy, ddof=1) / np.sqrt(len(heavy))
+
+
+def test_the_guide_s_estimator_runs_in_an_experiment(roulette, tmp_path):
+    from probvis.experiments import experiment, load_experiment
+
+    study = tmp_path / "study.toml"
+    study.write_text("""name = "plugin"
+spp = 1
+shadow_rays = [1, 2]
+resolution = [8, 8]
+[reference]
+spp = 4
+shadow_rays = 4
+[[scenes]]
+name = "q"
+source = "quad-shadow"
+[[methods]]
+name = "exact"
+visibility = "exact"
+[[methods]]
+name = "roulette"
+visibility = "roulette.py:RouletteVisibility"
+options = { q = 0.5 }
+""")
+    exp = load_experiment(study)
+    assert exp.methods[1].visibility == f"{roulette}:RouletteVisibility"
+    results, index, run = experiment(exp, tmp_path / "report", progress=False, log=lambda m: None)
+    rows = [r for r in results.cells if r["method"] == "roulette"]
+    assert len(rows) == 2 and all("trace" in r["seconds_phases"] for r in rows)
+    assert index.is_file()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(study.read_text().replace("q = 0.5", "q = 5"))
+    with pytest.raises(ProbvisError, match=r"method 'roulette': q must be from 0.001 to 1"):
+        load_experiment(bad)
+
+
+def test_installed_estimators_load_through_the_entry_point_group(roulette, tmp_path, monkeypatch):
+    site = tmp_path / "site"
+    (site / "roulette_pkg").mkdir(parents=True)
+    (site / "roulette_pkg" / "__init__.py").write_text(example_source())
+    dist = site / "roulette_pkg-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: roulette-pkg\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[probvis.visibility]\nroulette = roulette_pkg:RouletteVisibility\n")
+    monkeypatch.syspath_prepend(str(site))
+    assert "roulette" in available_names()
+    cls = estimator_class("roulette")
+    assert cls.name == "roulette" and [o.name for o in cls.options] == ["q"]
+    r = probvis.render("quad-shadow", spp=1, shadow_rays=1, defines={"res": 8}, visibility="roulette",
+                       visibility_options={"q": 1.0})
+    exact = probvis.render("quad-shadow", spp=1, shadow_rays=1, defines={"res": 8})
+    np.testing.assert_array_equal(r.image, exact.image)  # q = 1 traces every segment: exact visibility
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("nowhere_module:Thing", "cannot import 'nowhere_module'"),
+    ("probvis.settings:RenderSettings", "is not a probvis.visibility.VisibilityEstimator subclass"),
+    ("magic", "unknown visibility 'magic'"),
+])
+def test_bad_estimator_names_are_one_line_errors(spec, message):
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        estimator_class(spec)
