@@ -5,3 +5,5 @@ CASE_SHADOWED = 2  # fully occluded: contributes nothing, no shadow rays
 CASE_PENUMBRA = 3  # partly visible: sampled
 N_CASES = 4
 CASE_NAMES = ("unknown", "lit", "shadowed", "penumbra")
+CASE_MASK = 3  # case & CASE_MASK is one of the four cases above
+CASE_VERIFIED = 4  # flag on a lit or shadowed pair: sampled too, its segments return corrections (verification)

@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from .cases import CASE_LIT, CASE_PENUMBRA, CASE_UNKNOWN
+from .cases import CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_UNKNOWN, CASE_VERIFIED
 from .errors import ProbvisError
 from .parallel import spread
 from .rng import uniform
@@ -107,8 +107,10 @@ def build_emitter_sampler(scene):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def is_sampled(case):
-    """Whether an emitter of this occlusion case gets shadow rays (lit ones are integrated, shadowed skipped)."""
-    return case == CASE_UNKNOWN or case == CASE_PENUMBRA
+    """Whether an emitter of this occlusion case gets shadow rays (lit ones are integrated, shadowed skipped,
+    unless verified)."""
+    c = case & CASE_MASK
+    return c == CASE_UNKNOWN or c == CASE_PENUMBRA or (case & CASE_VERIFIED) != 0
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -263,7 +265,8 @@ def point_samples(i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, base,
     estimator's `cases` say:
 
     lit (case 1) emitters are integrated analytically (Lambert's polygon formula, no noise, no rays),
-    shadowed (case 2) ones contribute nothing, and the others are sampled: `n_shadow` emitter samples (emitter
+    shadowed (case 2) ones contribute nothing, and the others, verified lit and shadowed ones included, are
+    sampled: `n_shadow` emitter samples (emitter
     by power among the sampled ones, point uniform by area) in slots base..base + n_shadow - 1. Fills, per
     slot, segment origin and direction, the unoccluded contribution (already divided by pdf and n_shadow), the
     emitter id and the active flag (the other outputs of an inactive slot are meaningless). With `dense` (a
@@ -284,7 +287,7 @@ def point_samples(i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, base,
     p = (pos[i, 0], pos[i, 1], pos[i, 2])
     s = (nrm[i, 0], nrm[i, 1], nrm[i, 2])
     for e in range(pmf.shape[0]):
-        if cases[i, e] == CASE_LIT:
+        if cases[i, e] & CASE_MASK == CASE_LIT:
             f = emitter_irradiance(e, es, triangles, p[0], p[1], p[2], s[0], s[1], s[2]) * inv_pi
             a0 += refl[mi, 0] * radiance[e, 0] * f
             a1 += refl[mi, 1] * radiance[e, 1] * f

@@ -3,7 +3,7 @@ second moment, per-pixel test counts and the estimator's AOVs beside it."""
 import numpy as np
 from numba import njit, prange
 
-from .cases import N_CASES
+from .cases import CASE_MASK, N_CASES
 
 N_COUNTS = 5  # per-pixel counts: camera-ray triangle and node tests, shadow triangle and node tests, negatives
 CAM_TRI, CAM_NODE, SH_TRI, SH_NODE, NEGATIVE = range(N_COUNTS)
@@ -79,7 +79,7 @@ class Film:
         """Count the occlusion cases (camera samples x emitters, CASE_*) of pixels [p0, p1)."""
         if self.case_counts is None:
             self.case_counts = np.zeros((len(self.image), self.n_emitters, N_CASES), np.int32)
-        per_px = cases.reshape(p1 - p0, self.spp, -1)
+        per_px = cases.reshape(p1 - p0, self.spp, -1) & CASE_MASK
         for c in range(N_CASES):
             self.case_counts[p0:p1, :, c] = (per_px == c).sum(axis=1)
 

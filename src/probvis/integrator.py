@@ -16,7 +16,7 @@ import numpy as np
 
 from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
-from .cases import CASE_UNKNOWN, N_CASES
+from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler, sample_emitters
 from .errors import ProbvisError
 from .film import Film, accumulate
@@ -87,12 +87,12 @@ def render_pass(scene, settings, estimator, progress=False):
                 prim, _, b1, b2, cam_node, cam_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
                 its = surface_interactions(geom, prim, b1, b2, dirs)
                 cases = estimator.classify(ShadingPoints(its.position, its.normal,
-                                                         np.where(its.material >= 0, prim, -1)))
+                                                         np.where(its.material >= 0, prim, -1), keys))
                 if cases is None:
                     cases = np.full((len(prim), scene.n_emitters), CASE_UNKNOWN, np.int8)
                 else:
                     film.add_cases(p0, p1, cases)
-                    shaded = cases[its.material >= 0]
+                    shaded = cases[its.material >= 0] & CASE_MASK
                     for c in range(N_CASES):
                         case_totals[c] += int((shaded == c).sum())
                 if fused:

@@ -7,7 +7,7 @@ import pytest
 import probvis
 from probvis import ProbvisError
 from probvis.accel import build_bvh, closest_hit
-from probvis.cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED
+from probvis.cases import CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_SHADOWED
 from probvis.emitters import build_emitter_sampler, triangle_irradiance
 from probvis.visibility.occlusion_map import closed_orientation
 from probvis.scene import SceneBuilder, load_scene
@@ -31,7 +31,8 @@ def floor_points(scene, xy):
     prim, t, _, _, _, _ = closest_hit(bvh.arrays, org, np.tile([0.0, 0.0, -1.0], (len(xy), 1)),
                                       np.zeros(len(xy)), np.full(len(xy), np.inf))
     assert np.all(prim >= 0) and np.allclose(t, 0.5)
-    return ShadingPoints(org - [0, 0, 0.5], np.tile([0.0, 0.0, 1.0], (len(xy), 1)), prim)
+    return ShadingPoints(org - [0, 0, 0.5], np.tile([0.0, 0.0, 1.0], (len(xy), 1)), prim,
+                         np.arange(len(xy), dtype=np.uint64))
 
 
 @pytest.mark.parametrize("penumbra", ["list", "bvh"])
@@ -41,7 +42,7 @@ def test_quad_over_plane_cases_and_candidate_lists(penumbra):
     est = prepared(scene, photons=200_000, penumbra=penumbra)
     umbra, lit, pen = [[0.0, 0.0], [0.3, -0.2]], [[2.0, 0.0], [0.0, -2.5], [1.8, 1.8]], [[1.0, 0.0], [0.0, -1.0]]
     points = floor_points(scene, np.array(umbra + lit + pen))
-    case = est.classify(points)[:, 0]
+    case = est.classify(points)[:, 0] & CASE_MASK
     assert case.tolist() == [CASE_SHADOWED] * 2 + [CASE_LIT] * 3 + [CASE_PENUMBRA] * 2
     blocker = set(range(scene.shapes[1].first_triangle, scene.shapes[1].first_triangle + 2))
     if penumbra == "list":

@@ -19,7 +19,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..cases import CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES  # noqa: F401
+from ..cases import (CASE_LIT, CASE_MASK, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN,  # noqa: F401
+                     CASE_VERIFIED, N_CASES)
 from ..errors import ProbvisError
 
 _TYPE_NAMES = {int: "integer", float: "number", str: "string", bool: "true/false", tuple: "numbers"}
@@ -151,6 +152,7 @@ class ShadingPoints:
     position: np.ndarray  # (m, 3)
     normal: np.ndarray  # (m, 3)
     triangle: np.ndarray  # (m,) scene triangle id, -1 where nothing is shaded (a miss, a one-sided back face)
+    key: np.ndarray  # (m,) uint64 rng key of the camera sample, for per-point random choices (see `probvis.rng`)
 
 
 @dataclass
@@ -229,7 +231,8 @@ class VisibilityEstimator(abc.ABC):
 
     def classify(self, points: ShadingPoints):
         """Optionally an (m, n_emitters) int8 array of CASE_* per shading point and emitter: lit ones are
-        integrated analytically, shadowed ones skipped, the others sampled (see `probvis.cases`). Called per
+        integrated analytically, shadowed ones skipped, the others sampled; a lit or shadowed pair flagged
+        CASE_VERIFIED is sampled as well, and its segments' values are corrections (see `probvis.cases`). Called per
         batch before the batch's segments are made; `evaluate` of the same batch follows. None samples all."""
         return None
 

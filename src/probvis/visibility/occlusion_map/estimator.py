@@ -7,7 +7,10 @@ import numpy as np
 
 from ...accel import occluded_segments, visibility_from_lists
 from ...geometry import unit_normals
-from ..base import CASE_PENUMBRA, CASE_UNKNOWN, Aov, Option, Phase, VisibilityEstimator, VisibilityResult
+from ...rng import uniforms
+from ..base import (CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, CASE_VERIFIED, Aov, Option, Phase,
+                    VisibilityEstimator, VisibilityResult)
+from . import verification
 from .adaptive_photons import refine
 from .components import blocker_groups, closed_orientation, components
 from .map import OcclusionMap
@@ -31,6 +34,10 @@ MAP_OPTIONS = (
     Option("adaptive_photons", bool, False, "aim extra photons (up to half the first pass) at uncertain regions"),
     Option("volumetric", bool, True, "with candidate lists, skip closed meshes' triangles that face away from the "
                                      "segment's light end"),
+    Option("verify", str, "auto", "how often the map's shortcuts (lit, shadowed, candidate lists) are checked "
+                                  "against the whole scene with an unbiased correction term: auto (per pair from "
+                                  "its photons), a probability in (0, 1], or off (biased)",
+           check=verification.parse_verify, metavar="auto|Q|off"),
 )
 MAP_PHASES = (
     Phase("photons", "prepare", "tracing the first pass of photon rays"),
@@ -59,8 +66,15 @@ class OcclusionMapVisibility(VisibilityEstimator):
     def with_lists(self):
         return self.params.penumbra == "list"
 
+    @property
+    def verify(self):
+        """None (off), 'auto' or a fixed probability."""
+        v = self.params.verify
+        return None if v == "off" else v if v == "auto" else float(v)
+
     def prepare(self, scene, bvh, emitters, settings):
         super().prepare(scene, bvh, emitters, settings)
+        self.tally = verification.Tally()
         p = self.params
         cam = scene.camera
         n = p.photons or max(MIN_PHOTONS_DEFAULT, int(PHOTONS_PER_CAMERA_SAMPLE * cam.width * cam.height * settings.spp))
@@ -119,6 +133,15 @@ class OcclusionMapVisibility(VisibilityEstimator):
         self.lookup = self.map.lookup(points.position, g, with_lists=with_lists)
         lk, st = self.lookup, self._stats
         pen = lk.case == CASE_PENUMBRA
+        self.cases = lk.case
+        if self.verify is not None:
+            if self.verify == "auto":
+                counts = lk.photons[lk.rep]
+                self.q = verification.auto_q(np.where(lk.case == CASE_LIT, counts[..., 0], counts[..., 1]))
+            else:
+                self.q = np.full(lk.case.shape, self.verify)
+            self.cases = verification.flag_verified(lk.case, self.q, points.key)
+            self.tally.add_pairs(lk.case, self.cases)
         ll = st["list_length"]
         ll["penumbra_pairs"] += int(pen.sum())
         if with_lists:
@@ -128,31 +151,66 @@ class OcclusionMapVisibility(VisibilityEstimator):
             self._list_sum += int(lengths.sum())
             ll["max"] = max(ll["max"] or 0, int(lengths.max()) if len(lengths) else 0)
             ll["mean"] = self._list_sum / max(1, ll["penumbra_pairs"])
-        return lk.case
+        return self.cases
 
     def segment_lists(self, query, idx):
         """Candidate-list range [lo, hi) of each segment in idx."""
         return self.lookup.range(query.point[idx], query.emitter[idx])
+
+    def _trace(self, query, idx, n_node, n_tri):
+        """Exact visibility of segments idx against the whole scene; their tests are added to the counts."""
+        occ, a, b = occluded_segments(self.bvh, query.origin[idx], query.direction[idx], query.tmax[idx],
+                                      query.point[idx])
+        n_node[idx] += a
+        n_tri[idx] += b
+        return 1.0 - occ
 
     def evaluate(self, query):
         n = len(query.tmax)
         value = np.ones(n)
         n_node = np.zeros(n, np.int32)
         n_tri = np.zeros(n, np.int32)
-        case = self.lookup.case[query.point, query.emitter]
+        flagged = self.cases[query.point, query.emitter]
+        case = flagged & CASE_MASK
         on_bvh = (case == CASE_UNKNOWN) | ((case == CASE_PENUMBRA) if not self.with_lists else False)
         idx = np.flatnonzero(on_bvh)
         if len(idx):
-            occ, a, b = occluded_segments(self.bvh, query.origin[idx], query.direction[idx], query.tmax[idx],
-                                          query.point[idx])
-            value[idx], n_node[idx], n_tri[idx] = 1.0 - occ, a, b
+            value[idx] = self._trace(query, idx, n_node, n_tri)
         self._stats["unknown_shadow_rays"] += int((case == CASE_UNKNOWN).sum())
         self._stats["penumbra_shadow_rays"] += int((case == CASE_PENUMBRA).sum())
         if self.with_lists:
             idx = np.flatnonzero(case == CASE_PENUMBRA)
             if len(idx):
                 value[idx], n_tri[idx] = self.evaluate_penumbra(query, idx)
+                if self.verify is not None:
+                    self._verify_lists(query, idx, value, n_node, n_tri)
+        for c, approx in ((CASE_LIT, 1.0), (CASE_SHADOWED, 0.0)):  # verified pairs: the correction terms
+            idx = np.flatnonzero(flagged == (c | CASE_VERIFIED))
+            if len(idx):
+                q = self.q[query.point[idx], query.emitter[idx]]
+                mismatch = self._trace(query, idx, n_node, n_tri) - approx
+                value[idx] = mismatch / q
+                self.tally.add_segments(c, len(idx), mismatch, q)
         return VisibilityResult(value, n_node, n_tri)
+
+    def _verify_lists(self, query, idx, value, n_node, n_tri):
+        """Add B (V - V_list) / q to the penumbra segments idx: V_list from the exact list test, V traced
+        against the whole scene where the list says visible (elsewhere a listed blocker blocks: V = 0 too)."""
+        q = self.q[query.point[idx], query.emitter[idx]]
+        chosen = uniforms(query.key[idx], verification.SEGMENT_DIM) < q
+        ver, q = idx[chosen], q[chosen]
+        v_list = self.list_visibility(query, ver, value, n_tri)
+        mismatch = np.zeros(len(ver))
+        open_ = v_list == 1.0
+        if open_.any():
+            mismatch[open_] = self._trace(query, ver[open_], n_node, n_tri) - 1.0
+        value[ver] += mismatch / q
+        self.tally.add_segments(CASE_PENUMBRA, len(idx), mismatch, q)
+
+    def list_visibility(self, query, idx, value, n_tri):
+        """Exact visibility of penumbra segments idx against their candidate lists: what `evaluate_penumbra`
+        already put in `value` (subclasses that estimate it stochastically test the lists, counting tests)."""
+        return value[idx]
 
     def evaluate_penumbra(self, query, idx):
         """Visibility and triangle tests of the penumbra segments idx against their candidate lists."""
@@ -164,4 +222,4 @@ class OcclusionMapVisibility(VisibilityEstimator):
         return vis, n_tri
 
     def stats(self):
-        return {**super().stats(), **self._stats}
+        return {**super().stats(), **self._stats, "verification": self.tally.stats(self.params.verify)}

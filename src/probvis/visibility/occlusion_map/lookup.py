@@ -53,13 +53,15 @@ def _unique_by_frequency(buf, m):
 @njit(cache=True, parallel=True, error_model="numpy")
 def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_tris, normal_cos, min_photons,
                     max_hits, with_lists):
-    """Case and candidate list (CSR of triangles, most often recorded groups first) per point.
+    """Case, candidate list (CSR of triangles, most often recorded groups first) and agreeing (light, shadow)
+    photon counts per point.
 
     `nbr` (m, k) holds photon ids of one emitter's photons near each point (-1 for none); `nrm` the points'
     normals (a zero normal marks a point that is not shaded). Without `with_lists` the lists are left empty.
     """
     m, k = nbr.shape
     case = np.full(m, CASE_UNKNOWN, np.int8)
+    counts = np.zeros((m, 2), np.int32)
     length = np.zeros(m + 1, np.int64)
     for c in prange((m + 63) // 64):
         buf = np.empty(k * max_hits, np.int32)
@@ -68,6 +70,7 @@ def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_t
             if nx == 0.0 and ny == 0.0 and nz == 0.0:
                 continue
             n_light, n_shadow, g = _gather(nbr, i, pn, nb, start, ray_tris, group, nx, ny, nz, normal_cos, buf)
+            counts[i, 0], counts[i, 1] = n_light, n_shadow
             if n_light + n_shadow < min_photons:
                 continue
             if n_shadow == 0:
@@ -96,4 +99,4 @@ def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_t
                 for q in range(group_off[gr], group_off[gr + 1]):
                     tris[w] = group_tris[q]
                     w += 1
-    return case, offsets, tris
+    return case, offsets, tris, counts

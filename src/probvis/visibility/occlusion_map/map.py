@@ -28,6 +28,7 @@ class Lookup:
     offsets: np.ndarray
     tris: np.ndarray
     neighbours: list
+    photons: np.ndarray  # (n_rep, emitters, 2) agreeing light and shadow photons of each look-up
 
     @property
     def n_rep(self):
@@ -102,13 +103,14 @@ class OcclusionMap:
         m = len(pos)
         p = self.photons
         case = np.empty((m, self.n_emitters), np.int8)
+        counts = np.empty((m, self.n_emitters, 2), np.int32)
         offs, tris, nbrs = [np.zeros(1, np.int64)], [], []
         for e in range(self.n_emitters):
             nbr = self.neighbours(pos, e)
-            c, o, t = classify_points(nbr, nrm, p.normal, p.n_blockers, p.start, p.ray_tris, *self.groups,
-                                              NORMAL_COS, MIN_PHOTONS, MAX_HITS, with_lists)
+            c, o, t, counts[:, e] = classify_points(nbr, nrm, p.normal, p.n_blockers, p.start, p.ray_tris,
+                                                    *self.groups, NORMAL_COS, MIN_PHOTONS, MAX_HITS, with_lists)
             case[:, e] = c
             offs.append(o[1:] + offs[-1][-1])
             tris.append(t)
             nbrs.append(nbr)
-        return Lookup(case[rep], rep, first, np.concatenate(offs), np.concatenate(tris), nbrs)
+        return Lookup(case[rep], rep, first, np.concatenate(offs), np.concatenate(tris), nbrs, counts)

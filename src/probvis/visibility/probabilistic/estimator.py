@@ -122,6 +122,12 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
         for k, c in enumerate(np.bincount(best[has_list], minlength=len(st))):
             st[k] += int(c)
 
+    def list_visibility(self, query, idx, value, n_tri):
+        """The exact list test (the stochastic estimate in `value` is not V_list itself); tests counted."""
+        vis, tests = OcclusionMapVisibility.evaluate_penumbra(self, query, idx)
+        n_tri[idx] += tests
+        return vis
+
     def evaluate_penumbra(self, query, idx):
         """Stochastic terms through the decomposition kernel; pairs whose mode is exact evaluation (adaptive)
         through the occlusion map's own list test, whose photon-frequency order finds a blocker sooner."""

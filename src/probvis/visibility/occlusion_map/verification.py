@@ -1,0 +1,102 @@
+"""Verification: stochastic correction terms that make the occlusion map's shortcuts unbiased.
+
+Any approximate visibility Ṽ becomes unbiased as Ṽ + B (V - Ṽ) / q with B ~ Bernoulli(q) and V traced exactly
+when B = 1 (Russian roulette on the correction; Billen, Lagae and Dutré 2014 use the same idea with geometry
+proxies). Applied to the occlusion map's three shortcuts:
+
+- lit pairs (Case I) are integrated analytically; with probability q the pair is also sampled and each of its
+  segments returns (V - 1) / q: the analytic unoccluded radiance minus the sampled deficit;
+- shadowed pairs (Case II) contribute nothing; with probability q each of their segments returns V / q;
+- penumbra segments evaluated against a candidate list (exactly, or stochastically by a decomposition) add,
+  with probability q, (V - V_list) / q. A listed blocker really blocks, so V - V_list is non-zero only where
+  the list says visible: only those need the trace.
+
+q is fixed (`verify=<q>`) or, with `verify=auto`, chosen per pair from the photons that agreed with its
+classification: the rule of succession puts the chance that the next photon disagrees at 1 / (k + 2) for k
+agreeing photons, and q = clip(2 / (k + 2), Q_MIN, 1) verifies pairs more often the less the map knows.
+"""
+import numpy as np
+from numba import njit
+
+from ...cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED, CASE_VERIFIED
+from ...rng import mix64, uniform
+
+Q_MIN = 0.05  # auto: never verify less often than this
+SEGMENT_DIM = 1 << 20  # rng dimension of a segment's verification draw, above any estimator's own
+_PAIR_SALT = np.uint64(0x5645524946590000)  # derives a camera sample's verification key from its rng key
+
+
+def parse_verify(value):
+    """'auto', 'off' or a probability in (0, 1]: the error message for anything else, or None."""
+    if value in ("auto", "off"):
+        return None
+    try:
+        q = float(value)
+    except ValueError:
+        return f"must be auto, off or a probability in (0, 1], got {value!r}"
+    if not 0.0 < q <= 1.0:  # NaN fails too
+        return f"must be auto, off or a probability in (0, 1], got {value!r}"
+    return None
+
+
+def auto_q(agreeing):
+    """Verification probability of pairs whose classification `agreeing` photons supported."""
+    return np.clip(2.0 / (agreeing + 2.0), Q_MIN, 1.0)
+
+
+@njit(cache=True, error_model="numpy")
+def pair_uniforms(keys, n_emitters):
+    """(m, n_emitters) uniforms per camera sample (rng key) and emitter, apart from every other draw of it."""
+    out = np.empty((keys.shape[0], n_emitters))
+    for i in range(keys.shape[0]):
+        k = mix64(keys[i] ^ _PAIR_SALT)
+        for e in range(n_emitters):
+            out[i, e] = uniform(k, e)
+    return out
+
+
+def flag_verified(case, q, keys):
+    """Flag lit and shadowed pairs CASE_VERIFIED with probability q (per pair); returns the flagged cases."""
+    draw = pair_uniforms(keys, case.shape[1])
+    pick = ((case == CASE_LIT) | (case == CASE_SHADOWED)) & (draw < q)
+    return np.where(pick, case | CASE_VERIFIED, case).astype(np.int8)
+
+
+class Tally:
+    """Per case: segments verified and the mismatch V - Ṽ they measured (count, sum, sum of squares)."""
+
+    NAMES = {CASE_LIT: "lit", CASE_SHADOWED: "shadowed", CASE_PENUMBRA: "penumbra"}
+
+    def __init__(self):
+        self.pairs = {name: [0, 0] for name in ("lit", "shadowed")}  # pairs, verified pairs
+        self.segments = {name: [0, 0] for name in self.NAMES.values()}  # segments of the case, verified ones
+        self.mismatch = {name: np.zeros(3) for name in self.NAMES.values()}
+        self.q_sum = {name: 0.0 for name in self.NAMES.values()}
+
+    def add_pairs(self, case, flagged):
+        for c in (CASE_LIT, CASE_SHADOWED):
+            name = self.NAMES[c]
+            self.pairs[name][0] += int((case == c).sum())
+            self.pairs[name][1] += int((flagged == (c | CASE_VERIFIED)).sum())
+
+    def add_segments(self, c, n_total, mismatch, q):
+        name = self.NAMES[c]
+        self.segments[name][0] += int(n_total)
+        self.segments[name][1] += len(mismatch)
+        self.mismatch[name] += (len(mismatch), float(np.sum(mismatch)), float(np.sum(mismatch * mismatch)))
+        self.q_sum[name] += float(np.sum(q))
+
+    def stats(self, setting):
+        out = {"setting": setting, "biased": setting == "off"}
+        for name in self.NAMES.values():
+            n, s, s2 = self.mismatch[name]
+            mean = s / n if n else None
+            entry = {"segments": self.segments[name][0], "verified_segments": self.segments[name][1],
+                     "verified_segment_share": self.segments[name][1] / max(1, self.segments[name][0]),
+                     "mean_q": self.q_sum[name] / n if n else None,
+                     "mismatch_mean": mean, "mismatch_variance": s2 / n - mean * mean if n else None}
+            if name in self.pairs:
+                entry["pairs"], entry["verified_pairs"] = self.pairs[name]
+                entry["verified_pair_share"] = self.pairs[name][1] / max(1, self.pairs[name][0])
+            out[name] = entry
+        return out
