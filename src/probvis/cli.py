@@ -1,4 +1,4 @@
-"""Command line: `probvis render | info | scenes | tables | experiment`."""
+"""Command line: `probvis render | info | scenes | estimators | tables | experiment`."""
 import argparse
 import dataclasses
 import json
@@ -235,8 +235,8 @@ def _cmd_estimators(args):
         print(f"{d['name']}  —  {d['summary']}")
         print(f"    class {d['class']}" + ("; exact any-hit: the integrator may fuse it" if d["fused_any_hit"] else ""))
         for o in d["options"]:
-            default = "automatic" if o["default"] is None else o["default"]
-            print(f"    {o['flag']:<22} {o['type']:<24} default {default}")
+            default = "automatic" if o["default"] is None else _show(o["default"])
+            print(f"    {o['flag']}  ({o['type']}; default {default})")
             print(f"        {o['help']}")
         if d["phases"]:
             print("    phases: " + ", ".join(f"{p['name']} ({p['stage']})" for p in d["phases"]))

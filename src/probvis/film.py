@@ -107,6 +107,12 @@ class Film:
             out[name] = v.reshape(shape)
         return out
 
+    def noise_relmse(self):
+        """relMSE (weights 1 / (x^2 + 0.01), as ../shared/README.md defines it) of the image against its own
+        expectation, estimated from the per-pixel variance of the camera samples' radiance."""
+        var = np.maximum(self.moment2 - self.image * self.image, 0.0) / max(self.spp - 1, 1)
+        return float(np.mean(var / (self.image * self.image + 0.01)))
+
     def developed(self):
         """The (height, width, 3) radiance image."""
         return self.image.reshape(self.height, self.width, 3)

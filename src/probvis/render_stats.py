@@ -50,6 +50,7 @@ def render_stats(scene, settings, estimator, result, image, clamp, seconds):
         },
         "shadow_rays_per_second": shadow_rays / render_s if render_s > 0 else None,
         "image_mean": [float(x) for x in image.reshape(-1, 3).mean(axis=0)],
+        "noise_relmse": result.film.noise_relmse(),
         "bvh": result.bvh.stats(),
         "estimator": estimator.stats(),
     }

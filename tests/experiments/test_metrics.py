@@ -36,3 +36,16 @@ def test_report_numbers_print_counts_and_their_seed_means_in_full():
     assert _fmt(727769) == "727,769"
     assert _fmt(0.09551) == "0.0955" and _fmt(97.24) == "97.2"
     assert _fmt(math.inf) == "∞" and _fmt(None) == "–"
+
+
+def test_block_bias_ratio_tells_noise_from_bias():
+    """Two seeds of an unbiased image: about 1; a 10% offset on a smooth reference: far more."""
+    import numpy as np
+
+    rng = np.random.default_rng(3)
+    ref = np.broadcast_to(np.linspace(0.2, 1.0, 64)[None, :, None], (64, 64, 3))
+    a, b = (ref * (1 + 0.2 * rng.standard_normal(ref.shape)) for _ in range(2))
+    assert 0.5 < metrics.block_bias_ratio(a, b, ref) < 2
+    assert metrics.block_bias_ratio(a * 1.1, b * 1.1, ref) > 15
+    # the reference's own noise counts where a method has none (an analytically lit region)
+    assert metrics.block_bias_ratio(ref, ref, ref + 0.001, reference_noise=0.01) < 1

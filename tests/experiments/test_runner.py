@@ -162,3 +162,20 @@ def test_sigterm_stops_the_study_keeping_finished_renders(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "probvis.cli", "experiment", str(study), "--seeds", "1,1"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "distinct seeds" in bad.stderr
+
+
+def test_two_seeds_give_a_bias_column_and_biased_shortcuts_are_labelled(tmp_path):
+    study = {
+        "name": "bias", "spp": 2, "shadow_rays": [4], "seeds": [0, 1], "resolution": [48, 48],
+        "reference": {"spp": 16, "shadow_rays": 16},
+        "scenes": [{"name": "canopy", "source": "canopy"}],
+        "methods": [{"name": "exact", "visibility": "exact"},
+                    {"name": "om-off", "visibility": "occlusion-map",
+                     "options": {"penumbra": "list", "photons": 20000, "verify": "off"}},
+                    {"name": "om", "visibility": "occlusion-map", "options": {"penumbra": "list", "photons": 20000}}],
+    }
+    results, index, _ = experiment(parse_experiment(study), tmp_path, progress=False, log=lambda m: None)
+    row = {r["method"]: r for r in results.summary}
+    assert row["exact"]["bias_ratio"] < 2.5 and row["om"]["bias_ratio"] < 2.5
+    assert row["om-off"]["bias_ratio"] > 10 and row["om-off"]["biased"] and not row["om"]["biased"]
+    assert "(biased)" in index.read_text() and "(biased)" in (tmp_path / "results.md").read_text()

@@ -15,7 +15,7 @@ from ..visibility import estimator_class
 TOP_KEYS = {"name", "description", "spp", "shadow_rays", "seeds", "resolution", "target_relmse", "table_shadow_rays",
             "reference", "scenes", "methods"}
 REFERENCE_KEYS = {"spp", "shadow_rays", "seed", "visibility"}
-SCENE_KEYS = {"name", "source", "defines", "reference"}
+SCENE_KEYS = {"name", "source", "defines", "reference", "reference_noise"}
 METHOD_KEYS = {"name", "visibility", "options", "baseline"}
 
 
@@ -27,6 +27,7 @@ class SceneSpec:
     source: str
     defines: dict = field(default_factory=dict)
     reference: str | None = None
+    reference_noise: float = 0.0  # the reference file's own per-pixel relMSE (for the bias column)
 
 
 @dataclass(frozen=True)
@@ -119,7 +120,12 @@ def _scene(where, table, base):
         if not ref.is_file():
             _fail(f"{where}.reference", f"image not found: {ref}")
         reference = str(ref)
-    return SceneSpec(name, source, {k: str(v) for k, v in defines.items()}, reference)
+    noise = table.get("reference_noise", 0.0)
+    if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not 0 <= noise < float("inf"):
+        _fail(f"{where}.reference_noise", f"expected a number >= 0, got {noise!r}")
+    if "reference_noise" in table and reference is None:
+        _fail(f"{where}.reference_noise", "applies to a reference file only (a rendered one measures its own)")
+    return SceneSpec(name, source, {k: str(v) for k, v in defines.items()}, reference, float(noise))
 
 
 def _visibility(vis, base):

@@ -42,3 +42,24 @@ def time_to_target(costs, errors, target):
             t = (math.log(target) - math.log(e0)) / (math.log(e1) - math.log(e0))
             return math.exp(math.log(c0) + t * (math.log(c1) - math.log(c0)))
     return None
+
+
+def block_means(image, block):
+    """Means of block x block pixel tiles (a partial tile at the border is dropped)."""
+    h, w = image.shape[0] // block * block, image.shape[1] // block * block
+    return np.asarray(image[:h, :w], dtype=np.float64).reshape(h // block, block, w // block, block, -1).mean(
+        axis=(1, 3))
+
+
+def block_bias_ratio(image_a, image_b, reference, block=8, trim=0.05, reference_noise=0.0):
+    """Is a method converging to the reference? Two renders with different seeds: block means' squared error
+    against the reference over half their squared difference (the noise), both weighted like relMSE; about 1
+    (1-2.5: heavy-tailed pixels) for an unbiased method, far more for a biased one. The `trim` share of blocks
+    with the largest seed-to-seed difference is left out; `reference_noise` is the reference's own per-pixel
+    relMSE, which matters where a method is noise-free (analytically lit regions)."""
+    a, b, r = block_means(image_a, block), block_means(image_b, block), block_means(reference, block)
+    weight = 1.0 / (r * r + EPSILON)
+    err = ((a - r) ** 2 * weight).mean(axis=-1).ravel()
+    noise = ((a - b) ** 2 * weight).mean(axis=-1).ravel() / 2
+    keep = noise <= np.quantile(noise, 1 - trim)
+    return float(err[keep].mean()) / max(float(noise[keep].mean()) + reference_noise / block ** 2, 1e-30)

@@ -1,4 +1,5 @@
-"""The study's report: a self-contained folder with `index.html`, images, plots, `results.csv` and `results.json`.
+"""The study's report: a self-contained folder with `index.html`, images, plots, `results.csv`, `results.json` and
+`results.md`.
 
 The page uses no network resource: images are PNG files beside it, the interactive comparison's float images
 are float16 data in `data/*.js` files loaded by plain script tags (so the page also works from file://), and
@@ -63,12 +64,19 @@ def _pyplot():
     return plt
 
 
+def _bias(r):
+    """The block-bias ratio of a summary row, marked where the method is biased by choice."""
+    text = "–" if r["bias_ratio"] is None else _fmt(r["bias_ratio"], 2)
+    return text + (" (biased)" if r["biased"] else "")
+
+
 def _summary_cells(r, baseline):
-    """A summary row's seconds, tests, relMSE and efficiency as the paper-style table shows them."""
+    """A summary row's seconds, tests, relMSE, bias and efficiency as the paper-style table shows them."""
     if baseline:
-        return f"{r['seconds']:.2f}", _fmt(r["triangle_tests"]), _fmt(r["relmse"]), _fmt(r["efficiency_time"])
+        return (f"{r['seconds']:.2f}", _fmt(r["triangle_tests"]), _fmt(r["relmse"]), _bias(r),
+                _fmt(r["efficiency_time"]))
     return (f"{r['seconds']:.2f} ({_change(r['seconds_change'])})",
-            f"{_fmt(r['triangle_tests'])} ({_change(r['tests_change'])})", _fmt(r["relmse"]),
+            f"{_fmt(r['triangle_tests'])} ({_change(r['tests_change'])})", _fmt(r["relmse"]), _bias(r),
             f"{_fmt(r['efficiency_time'])} (×{_fmt(r['efficiency_vs_baseline'], 2)})")
 
 
@@ -220,9 +228,10 @@ class Report:
         exp, rays = self.exp, self.exp.table_shadow_rays
         lines = [f"At {exp.spp} spp × {rays} shadow rays per camera sample; seconds exclude JIT compilation, tests "
                  f"are shadow-ray triangle tests, efficiency = 1/(relMSE × seconds); changes against "
-                 f"{exp.baseline}.", "",
-                 "| scene | method | seconds | tests | relMSE | efficiency (× baseline) |",
-                 "|---|---|---:|---:|---:|---:|"]
+                 f"{exp.baseline}; bias = block-bias ratio of two seeds (about 1: converges to the reference; "
+                 f"'biased': a shortcut chosen by its options).", "",
+                 "| scene | method | seconds | tests | relMSE | bias | efficiency (× baseline) |",
+                 "|---|---|---:|---:|---:|---:|---:|"]
         for spec in exp.scenes:
             for m in exp.methods:
                 r = self.results.summary_row(spec.name, m.name, rays)
@@ -243,9 +252,10 @@ class Report:
         exp, rays = self.exp, self.exp.table_shadow_rays
         others = [m for m in exp.methods if m.name != exp.baseline]
         e = html.escape
-        head = (f"<tr><th rowspan=2>scene</th><th rowspan=2>reference</th><th colspan=4>{e(exp.baseline)} "
-                f"(baseline)</th>" + "".join(f"<th colspan=4>{e(m.name)}</th>" for m in others) + "</tr><tr>"
-                + "<th>seconds</th><th>tests</th><th>relMSE</th><th>effic.</th>" * (1 + len(others)) + "</tr>")
+        head = (f"<tr><th rowspan=2>scene</th><th rowspan=2>reference</th><th colspan=5>{e(exp.baseline)} "
+                f"(baseline)</th>" + "".join(f"<th colspan=5>{e(m.name)}</th>" for m in others) + "</tr><tr>"
+                + "<th>seconds</th><th>tests</th><th>relMSE</th><th>bias</th><th>effic.</th>" * (1 + len(others))
+                + "</tr>")
         body = []
         for spec in exp.scenes:
             s = spec.name
@@ -258,7 +268,10 @@ class Report:
         return (f"<div class=wide><table class=paper id=paper-table><caption>At {exp.spp} spp × {rays} shadow rays: "
                 f"render seconds "
                 f"(JIT excluded) and shadow-ray triangle tests with their change against the baseline, relMSE "
-                f"against the reference, and efficiency 1/(relMSE × seconds) with its ratio to the baseline's."
+                f"against the reference, bias (block means' error against the reference over their seed-to-seed "
+                f"noise, two seeds: about 1 when the image converges to the reference, far more when not; "
+                f"'biased' marks a shortcut chosen by the method's options) and efficiency 1/(relMSE × seconds) "
+                f"with its ratio to the baseline's."
                 f"</caption>"
                 f"<thead>{head}</thead><tbody>{''.join(body)}</tbody></table></div>")
 
@@ -273,11 +286,12 @@ class Report:
                     f"<tr{' class=base' if r['baseline'] else ''}><td>{sr}</td><td>{e(m.name)}</td>"
                     f"<td title='{e(phases)}'>{r['seconds']:.3f}</td><td>{_change(r['seconds_change'])}</td>"
                     f"<td>{_fmt(r['triangle_tests'])}</td><td>{_change(r['tests_change'])}</td>"
-                    f"<td>{_fmt(r['relmse'])}</td><td>{_fmt(r['rmse'])}</td><td>{r['negative_pixel_share']:.1%}</td>"
+                    f"<td>{_fmt(r['relmse'])}</td><td>{_fmt(r['rmse'])}</td><td>{_bias(r)}</td>"
+                    f"<td>{r['negative_pixel_share']:.1%}</td>"
                     f"<td>{_fmt(r['efficiency_time'])}</td><td>{_fmt(r['efficiency_vs_baseline'])}</td>"
                     f"<td>{_fmt(r['efficiency_tests'])}</td></tr>")
         head = ("<tr><th>rays</th><th>method</th><th>seconds</th><th>Δ</th><th>tests</th><th>Δ</th><th>relMSE</th>"
-                "<th>RMSE</th><th>neg. px</th><th>1/(relMSE·s)</th><th>× base</th><th>1/(relMSE·tests)</th></tr>")
+                "<th>RMSE</th><th>bias</th><th>neg. px</th><th>1/(relMSE·s)</th><th>× base</th><th>1/(relMSE·tests)</th></tr>")
         return f"<table class=detail><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
 
     def _target_table(self, scene):

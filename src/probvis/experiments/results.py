@@ -39,6 +39,13 @@ def phases(stats, visibility):
     return {**out, **batch, "render": sec["render"] - sum(batch.values())}
 
 
+def biased_by_choice(stats):
+    """Whether a render took a shortcut that is biased by construction (verification off, negative pixels
+    clamped): such methods are labelled biased in reports."""
+    verification = (stats.get("estimator") or {}).get("verification") or {}
+    return bool(verification.get("biased")) or bool(stats["negative_pixels"].get("clamped"))
+
+
 def cell_row(task, render, reference, baseline_name):
     s = render.stats
     err = metrics.relmse(render.image, reference)
@@ -56,6 +63,7 @@ def cell_row(task, render, reference, baseline_name):
         "node_tests_total": s["intersection_tests"]["node"],
         "relmse": err, "rmse": metrics.rmse(render.image, reference),
         "negative_pixel_share": s["negative_pixels"]["negative_pixel_share"],
+        "biased": biased_by_choice(s),
         "negative_estimate_share": s["negative_estimate_share"],
         "efficiency_time": metrics.efficiency(err, seconds), "efficiency_tests": metrics.efficiency(err, tests),
     }
@@ -72,14 +80,16 @@ def _changes(rows, key_fields):
                                        if b and b["efficiency_time"] else None)
 
 
-def _summarise(cells):
+def _summarise(cells, bias):
     groups = {}
     for r in cells:
         groups.setdefault((r["scene"], r["method"], r["shadow_rays"]), []).append(r)
     out = []
-    for rows in groups.values():
+    for key, rows in groups.items():
         first = rows[0]
-        row = {k: first[k] for k in ("scene", "method", "visibility", "options", "baseline", "shadow_rays", "spp")}
+        row = {k: first[k] for k in ("scene", "method", "visibility", "options", "baseline", "shadow_rays", "spp",
+                                     "biased")}
+        row["bias_ratio"] = bias.get(key)
         row["seeds"] = len(rows)
         row["seconds"] = statistics.median(r["seconds"] for r in rows)
         row["seconds_phases"] = {k: statistics.median(r["seconds_phases"].get(k, 0.0) for r in rows)
@@ -110,10 +120,27 @@ def _targets(exp, summary):
     return out
 
 
+def _bias_ratios(exp, run):
+    """Per (scene, method, shadow rays): the block-bias ratio of the first two seeds' images (see
+    `metrics.block_bias_ratio`); none with a single seed."""
+    if len(exp.seeds) < 2:
+        return {}
+    images = {(t.scene, t.method.name, t.shadow_rays, t.seed): run.renders[t.key].image for t in run.tasks}
+    out = {}
+    for spec in exp.scenes:
+        noise = run.reference_noise.get(spec.name, 0.0)
+        for m in exp.methods:
+            for sr in exp.shadow_rays:
+                a, b = (images[(spec.name, m.name, sr, s)] for s in exp.seeds[:2])
+                out[(spec.name, m.name, sr)] = metrics.block_bias_ratio(a, b, run.reference_images[spec.name],
+                                                                        reference_noise=noise)
+    return out
+
+
 def measure(exp, run):
     """Metrics of every cell of a finished run (a `runner.RunSummary`) against its scene's reference."""
     cells = [cell_row(t, run.renders[t.key], run.reference_images[t.scene], exp.baseline) for t in run.tasks]
     _changes(cells, ("scene", "shadow_rays", "seed"))
-    summary = _summarise(cells)
+    summary = _summarise(cells, _bias_ratios(exp, run))
     _changes(summary, ("scene", "shadow_rays"))
     return Results(cells, summary, _targets(exp, summary))

@@ -59,6 +59,7 @@ class RunSummary:
     renders: dict = field(default_factory=dict)  # key -> Render
     reference_images: dict = field(default_factory=dict)  # scene -> image
     reference_stats: dict = field(default_factory=dict)  # scene -> stats (None for a reference file)
+    reference_noise: dict = field(default_factory=dict)  # scene -> the reference's own per-pixel relMSE
 
 
 def render_task(scene, visibility, options, spp, shadow_rays, seed, threads):
@@ -211,10 +212,12 @@ def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log
         if spec.reference is not None:
             out.reference_images[spec.name] = _reference_file(spec, scenes[spec.name])
             out.reference_stats[spec.name] = None
+            out.reference_noise[spec.name] = spec.reference_noise
     for t in refs:
         r = cache.load(t.key)
         out.reference_images[t.scene] = r.image.astype(np.float64)
         out.reference_stats[t.scene] = r.stats
+        out.reference_noise[t.scene] = r.stats.get("noise_relmse", 0.0)
     for t in cells:
         out.renders[t.key] = cache.load(t.key)
     return out

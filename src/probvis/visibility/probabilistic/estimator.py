@@ -9,6 +9,7 @@ import numpy as np
 from ...errors import ProbvisError
 from ..base import Option, Phase
 from ..occlusion_map.estimator import CASES_AOV, MAP_OPTIONS, MAP_PHASES, OcclusionMapVisibility
+from ..occlusion_map import verification
 from ..occlusion_map.map import NORMAL_COS
 from . import mixture
 from .decomposition import MODE_EXACT
@@ -116,11 +117,19 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
                                               tris, bounds[sl], n_rep, NORMAL_COS)
         size_a = bounds[:, 1] - bounds[:, 0]
         size_b = bounds[:, 2] - bounds[:, 1]
-        self.cdf, self.coef, self.mode, best = mixture.choose(counts, size_a, size_b)
+        self.cdf, self.coef, self.mode, best = mixture.choose(counts, size_a, size_b, self._pair_q(lk))
         has_list = bounds[:, -1] > bounds[:, 0]
         st = self._stats["adaptive_strategies"]
         for k, c in enumerate(np.bincount(best[has_list], minlength=len(st))):
             st[k] += int(c)
+
+    def _pair_q(self, lk):
+        """Verification probability of each (emitter, look-up) pair of the penumbra, in pair order."""
+        if self.verify is None:
+            return None
+        if self.verify == "auto":
+            return verification.auto_q(lk.photons[:, :, 1].T.reshape(-1))
+        return np.full(lk.n_rep * self.scene.n_emitters, self.verify)
 
     def list_visibility(self, query, idx, value, n_tri):
         """The exact list test (the stochastic estimate in `value` is not V_list itself); tests counted."""

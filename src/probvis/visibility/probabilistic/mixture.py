@@ -23,13 +23,20 @@ _VB = np.array([vb for _, vb in CONFIGS], dtype=np.int64)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _choose(counts, size_a, size_b, p_grid, prior, xs, vs, vas, vbs, cdf, coef, mode, best):
+def _choose(counts, size_a, size_b, verify_q, p_grid, prior, xs, vs, vas, vbs, cdf, coef, mode, best):
     """Per pair the strategy with the least variance x cost; fills cdf, coef, mode and best (0 = exact)."""
     n_terms = 3
     for q in prange(counts.shape[0]):
         total = 4 * prior
         for c in range(4):
             total += counts[q, c]
+        # the verification's correction term B (V - V_list) / q, the same whichever strategy evaluates V_list:
+        # non-zero when the list says visible (probability pi_11) and missed a blocker (rule of succession over
+        # the pair's photons); its variance and its cost (the list, then the whole scene) add to every strategy
+        vq = verify_q[q]
+        p11 = (counts[q, 3] + prior) / total
+        var_v = p11 / ((total - 4 * prior + 2.0) * vq) if vq > 0.0 else 0.0
+        cost_v = vq * p11 * (size_a[q] + size_b[q] + 1.0)
         pi = np.empty(4)
         for c in range(4):
             pi[c] = (counts[q, c] + prior) / total
@@ -52,7 +59,7 @@ def _choose(counts, size_a, size_b, p_grid, prior, xs, vs, vas, vbs, cdf, coef, 
         exact_cost = 0.0
         for c in range(4):
             exact_cost += pi[c] * cost[c, 3]
-        best_score = max((ev2 - ev * ev) * exact_cost, 1e-12)  # exact: only the variance of V itself
+        best_score = max((ev2 - ev * ev + var_v) * (exact_cost + cost_v), 1e-12)  # exact: the variance of V
         chosen = 0
         s_best = np.zeros(n_terms)
         s = np.empty(n_terms)
@@ -66,7 +73,7 @@ def _choose(counts, size_a, size_b, p_grid, prior, xs, vs, vas, vbs, cdf, coef, 
                     dev = xs[c, k] - s[k]
                     second += pi[c] * dev * dev / p_grid[g, k]
                     cst += pi[c] * p_grid[g, k] * cost[c, k]
-            score = max(second - ev * ev, 0.0) * cst
+            score = (max(second - ev * ev, 0.0) + var_v) * (cst + cost_v)
             if score < best_score * (1 - 1e-9):
                 chosen, best_score = g + 1, score
                 s_best[:] = s
@@ -87,15 +94,17 @@ def _choose(counts, size_a, size_b, p_grid, prior, xs, vs, vas, vbs, cdf, coef, 
         coef[q, 2, 3] = 1 / p[2]
 
 
-def choose(counts, size_a, size_b):
+def choose(counts, size_a, size_b, verify_q=None):
     """Per pair: (cdf (n, 3), coefficients (n, 3, 4), modes (n, 3), chosen strategy index: 0 exact, 1.. grid).
 
-    `counts` (n, 4) are photon counts per configuration (VA, VB) in CONFIGS order."""
+    `counts` (n, 4) are photon counts per configuration (VA, VB) in CONFIGS order; `verify_q` (n,) the pair's
+    verification probability (0 or None: not verified), whose correction term the model includes."""
+    verify_q = np.zeros(len(counts)) if verify_q is None else np.asarray(verify_q, dtype=float)
     n = len(counts)
     cdf = np.zeros((n, 3))
     coef = np.zeros((n, 3, 4))
     mode = np.empty((n, 3), np.int8)
     best = np.empty(n, np.int64)
     _choose(np.ascontiguousarray(counts, dtype=float), np.asarray(size_a, dtype=float),
-            np.asarray(size_b, dtype=float), P_GRID, PRIOR, _X, _V, _VA, _VB, cdf, coef, mode, best)
+            np.asarray(size_b, dtype=float), verify_q, P_GRID, PRIOR, _X, _V, _VA, _VB, cdf, coef, mode, best)
     return cdf, coef, mode, best
