@@ -133,8 +133,17 @@ def test_rendered_probvis_converges_to_the_occlusion_map_image():
         assert abs((pv.image - om.image).mean()) < 4 * se, est
         if est != "adaptive":
             assert pv.stats["negative_estimates"] > 0
-            assert pv.stats["intersection_tests"]["shadow"]["triangle"] < om.stats["intersection_tests"]["shadow"][
-                "triangle"]
+
+
+def test_probvis_tests_fewer_triangles_than_the_lists_it_works_on():
+    """The 2013 paper's claim, on the same unverified lists: a stochastic term tests fewer candidates."""
+    kw = dict(resolution=(24, 24), spp=16, shadow_rays=8, seed=5)
+    base = dict(photons=100_000, verify="off")
+    om = probvis.render("canopy", visibility="occlusion-map", visibility_options={**base, "penumbra": "list"}, **kw)
+    for est in ("standard", "shifted"):
+        pv = probvis.render("canopy", visibility="probvis", visibility_options={**base, "estimator": est}, **kw)
+        assert pv.stats["intersection_tests"]["shadow"]["triangle"] < om.stats["intersection_tests"]["shadow"][
+            "triangle"]
 
 
 def test_clamping_negative_pixels_is_reported_as_a_bias():

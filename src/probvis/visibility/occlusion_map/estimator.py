@@ -136,8 +136,7 @@ class OcclusionMapVisibility(VisibilityEstimator):
         self.cases = lk.case
         if self.verify is not None:
             if self.verify == "auto":
-                counts = lk.photons[lk.rep]
-                self.q = verification.auto_q(np.where(lk.case == CASE_LIT, counts[..., 0], counts[..., 1]))
+                self.q = verification.auto_q(lk.case, lk.photons[lk.rep], lk.unseen[lk.rep], self.tally.floors())
             else:
                 self.q = np.full(lk.case.shape, self.verify)
             self.cases = verification.flag_verified(lk.case, self.q, points.key)
@@ -193,24 +192,29 @@ class OcclusionMapVisibility(VisibilityEstimator):
                 self.tally.add_segments(c, len(idx), mismatch, q)
         return VisibilityResult(value, n_node, n_tri)
 
+    exact_list_values = True  # `evaluate_penumbra` returns V_list itself (a subclass may estimate it instead)
+
     def _verify_lists(self, query, idx, value, n_node, n_tri):
-        """Add B (V - V_list) / q to the penumbra segments idx: V_list from the exact list test, V traced
-        against the whole scene where the list says visible (elsewhere a listed blocker blocks: V = 0 too)."""
+        """Add B (V - V_list) / q to the penumbra segments idx. A listed blocker really blocks (V <= V_list), so
+        the correction is non-zero only where the list says visible and the scene blocks: with V_list at hand
+        only open segments are traced; otherwise the scene is traced first and the list tested only where it
+        blocks."""
         q = self.q[query.point[idx], query.emitter[idx]]
         chosen = uniforms(query.key[idx], verification.SEGMENT_DIM) < q
         ver, q = idx[chosen], q[chosen]
-        v_list = self.list_visibility(query, ver, value, n_tri)
         mismatch = np.zeros(len(ver))
-        open_ = v_list == 1.0
-        if open_.any():
-            mismatch[open_] = self._trace(query, ver[open_], n_node, n_tri) - 1.0
+        if self.exact_list_values:
+            open_ = value[ver] == 1.0
+            if open_.any():
+                mismatch[open_] = self._trace(query, ver[open_], n_node, n_tri) - 1.0
+        elif len(ver):
+            blocked = self._trace(query, ver, n_node, n_tri) == 0.0
+            if blocked.any():
+                vis, tests = OcclusionMapVisibility.evaluate_penumbra(self, query, ver[blocked])
+                n_tri[ver[blocked]] += tests
+                mismatch[blocked] = -vis
         value[ver] += mismatch / q
         self.tally.add_segments(CASE_PENUMBRA, len(idx), mismatch, q)
-
-    def list_visibility(self, query, idx, value, n_tri):
-        """Exact visibility of penumbra segments idx against their candidate lists: what `evaluate_penumbra`
-        already put in `value` (subclasses that estimate it stochastically test the lists, counting tests)."""
-        return value[idx]
 
     def evaluate_penumbra(self, query, idx):
         """Visibility and triangle tests of the penumbra segments idx against their candidate lists."""

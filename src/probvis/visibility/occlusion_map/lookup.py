@@ -53,8 +53,10 @@ def _unique_by_frequency(buf, m):
 @njit(cache=True, parallel=True, error_model="numpy")
 def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_tris, normal_cos, min_photons,
                     max_hits, with_lists):
-    """Case, candidate list (CSR of triangles, most often recorded groups first) and agreeing (light, shadow)
-    photon counts per point.
+    """Case, candidate list (CSR of triangles, most often recorded groups first), agreeing (light, shadow)
+    photon counts and, for penumbra points with lists, the Good-Turing estimate of the list's unseen blockers
+    (the share of recorded blockers recorded only once: the chance that the next shadow photon would record a
+    blocker not in the list) per point.
 
     `nbr` (m, k) holds photon ids of one emitter's photons near each point (-1 for none); `nrm` the points'
     normals (a zero normal marks a point that is not shaded). Without `with_lists` the lists are left empty.
@@ -62,6 +64,7 @@ def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_t
     m, k = nbr.shape
     case = np.full(m, CASE_UNKNOWN, np.int8)
     counts = np.zeros((m, 2), np.int32)
+    unseen = np.zeros(m)
     length = np.zeros(m + 1, np.int64)
     for c in prange((m + 63) // 64):
         buf = np.empty(k * max_hits, np.int32)
@@ -81,9 +84,13 @@ def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_t
                 case[i] = CASE_PENUMBRA
                 if not with_lists:
                     continue
-                groups, _ = _unique_by_frequency(buf, g)
+                groups, freq = _unique_by_frequency(buf, g)
                 for gr in groups:
                     length[i + 1] += group_off[gr + 1] - group_off[gr]
+                singles = 0
+                for f in freq:
+                    singles += f == 1
+                unseen[i] = singles / max(g, 1)
     offsets = np.cumsum(length)
     tris = np.empty(offsets[m], np.int32)
     for c in prange((m + 63) // 64 if with_lists else 0):
@@ -99,4 +106,4 @@ def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_t
                 for q in range(group_off[gr], group_off[gr + 1]):
                     tris[w] = group_tris[q]
                     w += 1
-    return case, offsets, tris, counts
+    return case, offsets, tris, counts, unseen

@@ -29,6 +29,7 @@ class Lookup:
     tris: np.ndarray
     neighbours: list
     photons: np.ndarray  # (n_rep, emitters, 2) agreeing light and shadow photons of each look-up
+    unseen: np.ndarray  # (n_rep, emitters) Good-Turing share of blockers the list has not seen (penumbra, lists)
 
     @property
     def n_rep(self):
@@ -104,13 +105,14 @@ class OcclusionMap:
         p = self.photons
         case = np.empty((m, self.n_emitters), np.int8)
         counts = np.empty((m, self.n_emitters, 2), np.int32)
+        unseen = np.zeros((m, self.n_emitters))
         offs, tris, nbrs = [np.zeros(1, np.int64)], [], []
         for e in range(self.n_emitters):
             nbr = self.neighbours(pos, e)
-            c, o, t, counts[:, e] = classify_points(nbr, nrm, p.normal, p.n_blockers, p.start, p.ray_tris,
+            c, o, t, counts[:, e], unseen[:, e] = classify_points(nbr, nrm, p.normal, p.n_blockers, p.start, p.ray_tris,
                                                     *self.groups, NORMAL_COS, MIN_PHOTONS, MAX_HITS, with_lists)
             case[:, e] = c
             offs.append(o[1:] + offs[-1][-1])
             tris.append(t)
             nbrs.append(nbr)
-        return Lookup(case[rep], rep, first, np.concatenate(offs), np.concatenate(tris), nbrs, counts)
+        return Lookup(case[rep], rep, first, np.concatenate(offs), np.concatenate(tris), nbrs, counts, unseen)

@@ -11,9 +11,16 @@ proxies). Applied to the occlusion map's three shortcuts:
   with probability q, (V - V_list) / q. A listed blocker really blocks, so V - V_list is non-zero only where
   the list says visible: only those need the trace.
 
-q is fixed (`verify=<q>`) or, with `verify=auto`, chosen per pair from the photons that agreed with its
-classification: the rule of succession puts the chance that the next photon disagrees at 1 / (k + 2) for k
-agreeing photons, and q = clip(2 / (k + 2), Q_MIN, 1) verifies pairs more often the less the map knows.
+q is fixed (`verify=<q>`) or, with `verify=auto`, chosen per pair from what the map knows. A lit or shadowed
+pair that k photons agreed with: the rule of succession puts the chance that the next photon disagrees at
+1 / (k + 2), and q = clip(2 / (k + 2), Q_MIN, 1). A penumbra pair's list: the Good-Turing estimate of the
+blockers it has not seen, the share of recorded blockers recorded only once, and q = clip(that, Q_MIN, 1) -
+lists of big, often-recorded blockers (a city's boxes) are rarely verified, lists of many small, once-seen
+ones (leaves, a finely tessellated mesh) almost always. Once the verified segments of earlier batches have
+measured how often a case's shortcut is wrong (a rate r), no pair of that case is verified less often than
+2 sqrt(r): the q that minimises (variance x cost) when the shortcut's own variance is that of binary visibility
+(1/4) and it costs about what a trace costs. q of a batch depends only on earlier batches, so the correction
+stays unbiased.
 """
 import numpy as np
 from numba import njit
@@ -22,6 +29,7 @@ from ...cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED, CASE_VERIFIED
 from ...rng import mix64, uniform
 
 Q_MIN = 0.05  # auto: never verify less often than this
+MIN_MEASURED = 64  # verified segments of a case before its measured mismatch rate raises q
 SEGMENT_DIM = 1 << 20  # rng dimension of a segment's verification draw, above any estimator's own
 _PAIR_SALT = np.uint64(0x5645524946590000)  # derives a camera sample's verification key from its rng key
 
@@ -39,9 +47,14 @@ def parse_verify(value):
     return None
 
 
-def auto_q(agreeing):
-    """Verification probability of pairs whose classification `agreeing` photons supported."""
-    return np.clip(2.0 / (agreeing + 2.0), Q_MIN, 1.0)
+def auto_q(case, photons, unseen, floors=None):
+    """Verification probability per pair from its case, its agreeing (light, shadow) photon counts (..., 2), its
+    list's unseen-blocker estimate and the per-case `floors` (`Tally.floors`) measured so far."""
+    agreeing = np.where(case == CASE_LIT, photons[..., 0], photons[..., 1])
+    q = np.where(case == CASE_PENUMBRA, unseen, 2.0 / (agreeing + 2.0))
+    for c, floor in (floors or {}).items():
+        q = np.where(case == c, np.maximum(q, floor), q)
+    return np.clip(q, Q_MIN, 1.0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -85,6 +98,15 @@ class Tally:
         self.segments[name][1] += len(mismatch)
         self.mismatch[name] += (len(mismatch), float(np.sum(mismatch)), float(np.sum(mismatch * mismatch)))
         self.q_sum[name] += float(np.sum(q))
+
+    def floors(self):
+        """Per case, 2 sqrt(measured mismatch rate) once enough segments were verified (see the module)."""
+        out = {}
+        for c, name in self.NAMES.items():
+            n, _, s2 = self.mismatch[name]
+            if n >= MIN_MEASURED:
+                out[c] = 2.0 * np.sqrt(s2 / n)
+        return out
 
     def stats(self, setting):
         out = {"setting": setting, "biased": setting == "off"}

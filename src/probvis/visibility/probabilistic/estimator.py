@@ -7,7 +7,7 @@ with `penumbra="list"`, so the two converge to the same image and differ only in
 import numpy as np
 
 from ...errors import ProbvisError
-from ..base import Option, Phase
+from ..base import CASE_PENUMBRA, Option, Phase
 from ..occlusion_map.estimator import CASES_AOV, MAP_OPTIONS, MAP_PHASES, OcclusionMapVisibility
 from ..occlusion_map import verification
 from ..occlusion_map.map import NORMAL_COS
@@ -45,6 +45,8 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
     ) + MAP_OPTIONS
     phases = MAP_PHASES + (Phase("grouping", "batch", "splitting candidate lists into groups, choosing mixtures"),)
     aovs = (CASES_AOV,)
+
+    exact_list_values = False  # the decomposition estimates V_list: verification tests the list where needed
 
     @property
     def with_lists(self):
@@ -128,14 +130,9 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
         if self.verify is None:
             return None
         if self.verify == "auto":
-            return verification.auto_q(lk.photons[:, :, 1].T.reshape(-1))
+            q = lk.unseen.T.reshape(-1)
+            return np.clip(np.maximum(q, self.tally.floors().get(CASE_PENUMBRA, 0.0)), verification.Q_MIN, 1.0)
         return np.full(lk.n_rep * self.scene.n_emitters, self.verify)
-
-    def list_visibility(self, query, idx, value, n_tri):
-        """The exact list test (the stochastic estimate in `value` is not V_list itself); tests counted."""
-        vis, tests = OcclusionMapVisibility.evaluate_penumbra(self, query, idx)
-        n_tri[idx] += tests
-        return vis
 
     def evaluate_penumbra(self, query, idx):
         """Stochastic terms through the decomposition kernel; pairs whose mode is exact evaluation (adaptive)
