@@ -2,6 +2,7 @@
 import argparse
 import dataclasses
 import json
+import os
 import shlex
 import signal
 import sys
@@ -10,6 +11,8 @@ from pathlib import Path
 
 from . import __version__
 from .errors import ProbvisError
+from .settings import MAX_SEED
+from .visibility.probabilistic.estimator import MAX_POWER
 
 
 def _defines(items):
@@ -22,8 +25,8 @@ def _defines(items):
     return out
 
 
-def _int_at_least(lowest):
-    """argparse type: a whole number >= `lowest`."""
+def _int_at_least(lowest, highest=MAX_SEED):
+    """argparse type: a whole number from `lowest` to `highest`."""
 
     def parse(text):
         try:
@@ -32,6 +35,8 @@ def _int_at_least(lowest):
             raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
         if v < lowest:
             raise argparse.ArgumentTypeError(f"must be at least {lowest}, got {v}")
+        if v > highest:
+            raise argparse.ArgumentTypeError(f"must be at most {highest}, got {v}")
         return v
 
     return parse
@@ -44,6 +49,17 @@ def _positive_float(text):
         raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
     if not v > 0 or v == float("inf"):
         raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return v
+
+
+def _exposure(text):
+    """argparse type: a finite exposure in stops within +-64 (2^64 scales any radiance out of range)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of stops, got '{text}'") from None
+    if not -64.0 <= v <= 64.0:  # NaN fails too
+        raise argparse.ArgumentTypeError(f"must be a number of stops from -64 to 64, got {text}")
     return v
 
 
@@ -142,7 +158,7 @@ def _parser(estimator=None):
     r.add_argument("--stats", metavar="OUT.json", help="write the statistics as JSON")
     r.add_argument("--tests-image", metavar="OUT.exr", help="write per-pixel ray-triangle and ray-node test counts")
     r.add_argument("--threads", type=_positive, help="worker threads (default: all cores)")
-    r.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops (default 0)")
+    r.add_argument("--exposure", type=_exposure, default=0.0, help="PNG exposure in stops (default 0)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
 
     i = sub.add_parser("info", help="triangles, emitters, bounds and BVH statistics of a scene")
@@ -160,7 +176,8 @@ def _parser(estimator=None):
     t.add_argument("--json", action="store_true", help="print JSON")
     t.add_argument("--probabilities", type=_triple, metavar="P1,P2,P3", help="term probabilities (default 1/3)")
     t.add_argument("--shifts", type=_triple, metavar="A,B,G", help="shifts of the shifted decomposition")
-    t.add_argument("--power", type=_positive, default=8, help="exponent of the power decomposition (default 8)")
+    t.add_argument("--power", type=_int_at_least(2, MAX_POWER), default=8,
+                   help=f"exponent of the power decomposition, 2 to {MAX_POWER} (default 8)")
 
     e = sub.add_parser("experiment", help="run a study (TOML) on Dask and write a browsable report",
                        description="Render every cell (scene x method x shadow rays x seed) of a study, caching "
@@ -420,6 +437,10 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("probvis: interrupted, nothing written", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `probvis tables | head`: the reader left; say nothing more
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 141
 
 
 if __name__ == "__main__":

@@ -8,12 +8,17 @@ Estimators that declare `fused_any_hit` (exact visibility) take a fused last thr
 path's numbers bit for bit. This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0`: each camera sample
 takes `shadow_rays` emitter samples (emitter by power, triangle by area, uniform point) with a Lambertian BRDF.
 """
+import sys
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numba
 import numpy as np
+from threadpoolctl import threadpool_limits
 
+from . import memory
 from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
@@ -30,6 +35,15 @@ from .settings import RenderSettings
 from .visibility import ShadingPoints, ShadowQuery, VisibilityEstimator, estimator_class
 
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
+COMPILE_SECONDS = 150  # what the first run's kernel compilation takes on 2 cores, to say so beforehand
+MEMORY_HINTS = {"film": "the resolution (-D res, resolution=)", "photons": "--photons",
+                "lookups": "--neighbours or --shadow-rays", "batch": "--spp or --shadow-rays"}
+
+
+def batch_pixels(scene, settings):
+    """Whole pixels per batch: about TARGET_SLOTS shadow-ray slots."""
+    n_pix = scene.camera.width * scene.camera.height
+    return max(1, min(n_pix, TARGET_SLOTS // (settings.spp * settings.shadow_rays)))
 
 
 @dataclass
@@ -68,7 +82,7 @@ def render_pass(scene, settings, estimator, progress=False):
     width, height = scene.camera.width, scene.camera.height
     n_pix_total = width * height
     spp, n_shadow = settings.spp, settings.shadow_rays
-    per_batch = max(1, min(n_pix_total, TARGET_SLOTS // (spp * n_shadow)))
+    per_batch = batch_pixels(scene, settings)
     fused = estimator.fused_any_hit
     buffers = None if fused else SegmentBuffers(per_batch * spp * n_shadow)
     film = Film(width, height, spp, scene.n_emitters, [a.name for a in estimator.aovs if a.kind == "segment"])
@@ -130,7 +144,37 @@ def render_pass(scene, settings, estimator, progress=False):
 _warmed = set()
 
 
-def _warm_up(cls, options):
+def _cold_cache():
+    """Whether Numba's on-disk cache lacks the kernels (a first run, or a changed probvis)."""
+    return not any((Path(__file__).parent / "__pycache__").glob("fused_exact.shade_exact-*.nbi"))
+
+
+class _CompileProgress:
+    """A progress bar over Numba's compile events, for the first run's warm-up."""
+
+    def __init__(self):
+        from numba.core import event
+        from tqdm import tqdm
+
+        self.bar = tqdm(desc="compiling kernels", unit=" kernels", leave=False)
+        self.listener = event.install_listener("numba:compile", self)
+
+    def on_start(self, ev):
+        pass
+
+    def on_end(self, ev):
+        self.bar.update(1)
+
+    def __enter__(self):
+        self.listener.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        self.listener.__exit__(*exc)
+        self.bar.close()
+
+
+def _warm_up(cls, options, progress):
     """Compile (or load from Numba's cache) every kernel of the pipeline on a tiny scene; returns seconds."""
     key = (cls, repr(sorted(options.items())))
     if key in _warmed:
@@ -138,7 +182,11 @@ def _warm_up(cls, options):
     from .scene.builtin import quad_shadow
 
     t0 = time.perf_counter()
-    render_pass(quad_shadow(res=4), RenderSettings(spp=1, shadow_rays=2), cls(**options))
+    cold = progress and _cold_cache()
+    if cold:
+        print(f"probvis: compiling kernels (first run only, about {COMPILE_SECONDS} s on 2 cores)", file=sys.stderr)
+    with _CompileProgress() if cold and sys.stderr.isatty() else nullcontext():
+        render_pass(quad_shadow(res=4), RenderSettings(spp=1, shadow_rays=2), cls(**options))
     _warmed.add(key)
     return time.perf_counter() - t0
 
@@ -155,7 +203,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     negative pixels (from probabilistic visibility) to zero: biased, the image gets too bright on average; the
     stats report by how much. Returns a `RenderResult` whose `.stats` is JSON-serialisable.
     """
-    t_start = time.perf_counter()
+    t_start, cpu_start = time.perf_counter(), time.process_time()
     if not isinstance(scene, Scene):
         scene = load_scene(scene, **(defines or {}))
     elif defines:
@@ -164,11 +212,10 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     if resolution is not None:
         scene = scene.with_resolution(*resolution)
     settings = (settings or scene.defaults).replace(spp=spp, shadow_rays=shadow_rays, seed=seed, threads=threads)
-    if settings.threads is not None:
-        if settings.threads > numba.config.NUMBA_NUM_THREADS:
-            raise ProbvisError(f"threads must be between 1 and {numba.config.NUMBA_NUM_THREADS}, got "
-                               f"{settings.threads}")
-        numba.set_num_threads(settings.threads)
+    if settings.threads is not None and settings.threads > numba.config.NUMBA_NUM_THREADS:
+        raise ProbvisError(f"threads must be between 1 and {numba.config.NUMBA_NUM_THREADS}, got {settings.threads}")
+    threads = settings.threads or numba.config.NUMBA_NUM_THREADS
+    numba.set_num_threads(threads)
     if isinstance(visibility, VisibilityEstimator):
         if visibility_options:
             raise ProbvisError("visibility_options apply to an estimator name or class, not to an instance")
@@ -176,8 +223,16 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     else:
         options = dict(visibility_options or {})
         estimator = estimator_class(visibility)(**options)
-    compile_seconds = _warm_up(type(estimator), options)
-    result = render_pass(scene, settings, estimator, progress)
+    need = memory.estimate(scene, settings, estimator, batch_pixels(scene, settings))
+    if (type(estimator), repr(sorted(options.items()))) not in _warmed:
+        need["kernels"] = memory.KERNEL_BYTES  # loading (or compiling) the kernels comes after the estimate
+    memory.check(need, MEMORY_HINTS)
+    with threadpool_limits(limits=threads):  # one budget: BLAS and OpenMP pools get no more than Numba
+        cpu_compile = time.process_time()
+        compile_seconds = _warm_up(type(estimator), options, progress)
+        cpu_render = time.process_time()
+        cpu_compile = cpu_render - cpu_compile
+        result = render_pass(scene, settings, estimator, progress)
     image = result.film.developed()
     negative = image < 0
     clamp = {"negative_pixel_share": float(negative.any(axis=-1).mean()),
@@ -187,6 +242,9 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
         clamp["mean_bias"] = [float(x) for x in (clamped - image).reshape(-1, 3).mean(axis=0)]
         image = clamped
     seconds = {"total": time.perf_counter() - t_start, "load": load_seconds, "compile": compile_seconds,
-               **result.seconds}
-    stats = render_stats(scene, settings, estimator, result, image, clamp, seconds)
+               **result.seconds, "cpu_total": time.process_time() - cpu_start, "cpu_compile": cpu_compile,
+               "cpu_render": time.process_time() - cpu_render}
+    mem = {"estimated_bytes": int(sum(need.values())), "estimate": {k: int(v) for k, v in need.items()},
+           "process_peak_rss_bytes": memory.peak_rss()}
+    stats = render_stats(scene, settings, estimator, result, image, clamp, seconds, mem)
     return RenderResult(image, stats, result.film.aovs())

@@ -11,9 +11,10 @@ def _case_stats(counts):
     return {name: {"count": c, "share": c / total} for name, c in zip(CASE_NAMES, counts)}
 
 
-def render_stats(scene, settings, estimator, result, image, clamp, seconds):
-    """Stats of a finished render: `result` is the integrator's pass, `clamp` the negative-pixel report and
-    `seconds` the phases (total, load, compile, bvh, prepare, render)."""
+def render_stats(scene, settings, estimator, result, image, clamp, seconds, memory):
+    """Stats of a finished render: `result` is the integrator's pass, `clamp` the negative-pixel report,
+    `seconds` the phases (wall: total, load, compile, bvh, prepare, render; CPU: cpu_total, cpu_render) and
+    `memory` the estimate and the measured peak."""
     tot = result.film.totals()
     cam = scene.camera
     shadow_rays = result.shadow_rays
@@ -30,6 +31,7 @@ def render_stats(scene, settings, estimator, result, image, clamp, seconds):
         "threads": numba.get_num_threads(),
         "visibility": {"name": estimator.name, **estimator.settings()},
         "seconds": seconds,
+        "memory": memory,
         "triangles": scene.n_triangles,
         "dropped_degenerate_triangles": scene.dropped_degenerate,
         "emitters": scene.n_emitters,

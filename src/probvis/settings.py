@@ -10,7 +10,7 @@ from .errors import ProbvisError
 
 MAX_SPP = 1 << 20
 MAX_SHADOW_RAYS = 1 << 16
-MAX_SEED = (1 << 64) - 1  # the random numbers hash the seed as an unsigned 64-bit word
+MAX_SEED = (1 << 63) - 1  # the kernels take the seed as a signed 64-bit integer
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ import logging
 import os
 import signal
 import sys
+import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -148,10 +149,18 @@ def _open_client(workers, scheduler):
             raise ProbvisError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
     # The embedded cluster is ours alone: its logs are muted (a worker closed mid-heartbeat at the end of an
     # interrupted run logs a traceback at ERROR); failed renders still reach the user through their futures.
-    with warnings.catch_warnings():  # "port 8787 in use": another cluster's status page; ours needs none
-        warnings.filterwarnings("ignore", message="Port .* is already in use")
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.CRITICAL)
+    # Ctrl-C in a terminal signals the whole process group: the workers ignore it (they inherit the ignored
+    # disposition) and the driver, which defers it to a safe point, shuts them down and says so once.
+    main = threading.current_thread() is threading.main_thread()  # only there can Python set handlers
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        with warnings.catch_warnings():  # "port 8787 in use": another cluster's status page; ours needs none
+            warnings.filterwarnings("ignore", message="Port .* is already in use")
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   silence_logs=logging.CRITICAL)
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, previous)
     return Client(cluster), cluster
 
 
@@ -231,10 +240,21 @@ def _compute(todo, scenes, cache, workers, scheduler, progress, log):
         client, cluster = _open_client(workers, scheduler)
         try:
             _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt)
+        except (ProbvisError, KeyboardInterrupt):
+            raise
+        except Exception as exc:  # Dask's way of saying a worker went away: cancelled futures, lost workers
+            check_interrupt()  # Ctrl-C to the process group reaches the workers too: that is an interrupt
+            raise ProbvisError(f"the Dask cluster failed ({type(exc).__name__}: {exc}); finished renders are "
+                               f"cached, run the same command to resume") from None
         finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                try:
+                    client.close()
+                    if cluster is not None:
+                        cluster.close()
+                except Exception:  # closing a cluster whose workers were interrupted may fail: nothing is lost
+                    pass
 
 
 def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt):

@@ -3,6 +3,7 @@
 Every writer goes through a temporary file in the destination folder and an atomic rename, so an
 interrupted or failed write never leaves a partial file under the requested name.
 """
+import errno
 import os
 import tempfile
 from contextlib import contextmanager
@@ -21,12 +22,21 @@ def check_writable(path):
     if path.suffix.lower() not in FORMATS + (".json",):
         raise ProbvisError(f"cannot write '{path}': unknown format (use {', '.join(FORMATS)})")
     parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise ProbvisError(f"cannot write '{path}': folder '{parent}' does not exist")
-    if not os.access(parent, os.W_OK):
-        raise ProbvisError(f"cannot write '{path}': folder '{parent}' is not writable")
-    if path.is_dir():
-        raise ProbvisError(f"cannot write '{path}': it is a folder")
+    try:
+        if not parent.is_dir():
+            raise ProbvisError(f"cannot write '{path}': folder '{parent}' does not exist")
+        if not os.access(parent, os.W_OK):
+            raise ProbvisError(f"cannot write '{path}': folder '{parent}' is not writable")
+        if path.is_dir():
+            raise ProbvisError(f"cannot write '{path}': it is a folder")
+        # what the atomic write will do: a temporary file named after the output, in its folder, renamed
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=parent)
+        os.close(fd)
+        os.unlink(tmp)
+        if len(path.name.encode()) > os.pathconf(parent, "PC_NAME_MAX"):
+            raise OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG))
+    except OSError as exc:
+        raise ProbvisError(f"cannot write '{path}': {exc.strerror or exc}") from None
 
 
 @contextmanager

@@ -54,6 +54,32 @@ def uv_sphere(rings=32, segments=64):
     return v, np.array(faces, dtype=np.int64), v.copy()
 
 
+def _obj_problem(path):
+    """The first face of an OBJ file that refers to a vertex it does not have, as 'file:line: ...' (None if
+    none does). Only run on a file the reader rejected, to say where."""
+    n_vertices = 0
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            for line_no, line in enumerate(f, 1):
+                parts = line.split()
+                if not parts:
+                    continue
+                if parts[0] == "v":
+                    n_vertices += 1
+                elif parts[0] == "f":
+                    for item in parts[1:]:
+                        try:
+                            k = int(item.split("/")[0])
+                        except ValueError:
+                            return f"{path}:{line_no}: malformed face '{line.strip()}'"
+                        if k == 0 or k > n_vertices or k < -n_vertices:
+                            return (f"{path}:{line_no}: face refers to vertex {k}, but only {n_vertices} vertices "
+                                    f"are defined before it")
+    except OSError as exc:
+        return f"cannot read mesh {path}: {exc.strerror or exc}"
+    return None
+
+
 def load_mesh(path):
     """Read an OBJ or PLY file with trimesh: (vertices, faces, vertex normals or None), order preserved."""
     import trimesh
@@ -63,8 +89,10 @@ def load_mesh(path):
         raise ProbvisError(f"mesh file not found: {path}")
     try:
         mesh = trimesh.load(str(path), force="mesh", process=False, maintain_order=True)
-    except Exception as exc:  # trimesh raises many types for malformed files
-        raise ProbvisError(f"cannot read mesh {path}: {exc}") from None
+    except Exception:  # trimesh raises many types (and leaks its own dependencies' errors) for malformed files
+        problem = _obj_problem(path) if path.suffix.lower() == ".obj" else None
+        raise ProbvisError(problem or f"cannot read mesh {path}: not a valid {path.suffix.lstrip('.').upper()} "
+                                      "file") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ProbvisError(f"mesh {path} contains no triangles")
     v = np.asarray(mesh.vertices, dtype=np.float64)

@@ -240,6 +240,12 @@ class VisibilityEstimator(abc.ABC):
     def evaluate(self, query: ShadowQuery) -> VisibilityResult:
         """Visibility estimates for a batch of segments."""
 
+    def memory_estimate(self, scene, settings, batch_samples):
+        """Bytes by part of the estimator's own structures (photons, look-ups, ...) for a render of `scene` with
+        `settings` in batches of `batch_samples` camera samples; checked against the available memory before
+        `prepare`. Name parts after what lowers them (see `probvis.memory`)."""
+        return {}
+
     def stats(self):
         """Measurements accumulated over the render: at least the seconds of each declared phase."""
         return {"seconds": dict(self.seconds)}

@@ -6,6 +6,7 @@ import warnings
 import numpy as np
 
 from ...accel import occluded_segments, visibility_from_lists
+from ...errors import ProbvisError
 from ...geometry import unit_normals
 from ...rng import uniforms
 from ..base import (CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, CASE_VERIFIED, Aov, Option, Phase,
@@ -14,7 +15,7 @@ from . import verification
 from .adaptive_photons import refine
 from .components import blocker_groups, closed_orientation, components
 from .map import OcclusionMap
-from .photons import shoot_photons
+from .photons import MAX_HITS, shoot_photons
 
 DEFAULT_NEIGHBOURS = 32
 PHOTONS_PER_CAMERA_SAMPLE = 0.5  # default photon budget: half a photon ray per camera sample ...
@@ -66,6 +67,22 @@ class OcclusionMapVisibility(VisibilityEstimator):
     def with_lists(self):
         return self.params.penumbra == "list"
 
+    def photon_rays(self, scene, settings):
+        """Photon rays of the first pass."""
+        cam = scene.camera
+        return self.params.photons or max(MIN_PHOTONS_DEFAULT,
+                                          int(PHOTONS_PER_CAMERA_SAMPLE * cam.width * cam.height * settings.spp))
+
+    def memory_estimate(self, scene, settings, batch_samples):
+        rays = self.photon_rays(scene, settings) * (1 + ADAPTIVE_SHARE * self.params.adaptive_photons)
+        k = self.params.neighbours
+        return {
+            # per ray: its MAX_HITS blocker slots; per photon (about 4 a ray): position, normal, ids, kd-tree
+            "photons": int(rays * (MAX_HITS * 4 + 4 * (64 + 48))),
+            # per camera sample and emitter: the k neighbours and their distances, then the candidate lists
+            "lookups": int(batch_samples * scene.n_emitters * (k * 16 + (k * MAX_HITS * 4 if self.with_lists else 0))),
+        }
+
     @property
     def verify(self):
         """None (off), 'auto' or a fixed probability."""
@@ -76,8 +93,12 @@ class OcclusionMapVisibility(VisibilityEstimator):
         super().prepare(scene, bvh, emitters, settings)
         self.tally = verification.Tally()
         p = self.params
-        cam = scene.camera
-        n = p.photons or max(MIN_PHOTONS_DEFAULT, int(PHOTONS_PER_CAMERA_SAMPLE * cam.width * cam.height * settings.spp))
+        lo, hi = scene.bounds()
+        diagonal = float(np.linalg.norm(hi - lo))
+        if p.radius is not None and p.radius > diagonal:
+            raise ProbvisError(f"radius {p.radius:g} is larger than the scene (diagonal {diagonal:.4g}): every photon "
+                               "would be every point's neighbour; use a radius well below the scene's size")
+        n = self.photon_rays(scene, settings)
         t_geom = time.perf_counter()
         self.fnormal = unit_normals(scene.triangles)
         n_tri = scene.n_triangles

@@ -1,6 +1,7 @@
 """The occlusion map: photons of each emitter in a kd-tree, looked up in batches to classify shading points."""
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -66,7 +67,7 @@ class OcclusionMap:
             if tree is None or len(ids) <= 1:
                 continue
             probe = self.photons.position[ids[rng.choice(len(ids), min(len(ids), 4096), replace=False)]]
-            d, _ = tree.query(probe, k=min(self.k, len(ids)), workers=-1)
+            d, _ = tree.query(probe, k=min(self.k, len(ids)), workers=numba.get_num_threads())
             dists.append(d.reshape(len(probe), -1)[:, -1])
         if not dists:
             return 1.0
@@ -78,7 +79,7 @@ class OcclusionMap:
         tree = self.trees[e]
         if tree is None or len(pos) == 0:
             return np.full((len(pos), k), -1, np.int64)
-        _, idx = tree.query(pos, k=k, distance_upper_bound=self.radius, workers=-1)
+        _, idx = tree.query(pos, k=k, distance_upper_bound=self.radius, workers=numba.get_num_threads())
         idx = idx.reshape(len(pos), k)
         lookup = np.append(self.ids[e], -1)
         return lookup[np.minimum(idx, len(self.ids[e]))]

@@ -63,6 +63,7 @@ def table(fn):
 
 def probabilities(p):
     p = np.asarray(p, dtype=float)
-    if p.shape != (3,) or np.any(~np.isfinite(p)) or np.any(p < 0) or not np.isclose(p.sum(), 1.0):
-        raise ValueError(f"probabilities must be three non-negative numbers summing to 1, got {p.tolist()}")
+    if p.shape != (3,) or np.any(~np.isfinite(p)) or np.any(p <= 0) or not np.isclose(p.sum(), 1.0):
+        raise ValueError(f"probabilities must be three positive numbers summing to 1, got {p.tolist()} (a term "
+                         f"chosen with probability 0 is never evaluated: its share of V_A V_B would be lost)")
     return p / p.sum()

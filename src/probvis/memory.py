@@ -1,0 +1,60 @@
+"""Memory a render needs, estimated from its settings before anything large is allocated.
+
+`estimate` adds up what is resident already, the film (per-pixel sums and AOVs), one batch's buffers, the scene
+with its BVH and the estimator's own structures (`VisibilityEstimator.memory_estimate`: photons, kd-trees, look-ups); `check`
+refuses a render that would not fit in the memory available now, naming what to lower.
+"""
+import resource
+
+import psutil
+
+from .cases import N_CASES
+
+GIB = float(1 << 30)
+KERNEL_BYTES = 80 << 20  # the machine code of every kernel, loaded by a process's first render
+SLOT_BYTES = 3 * 3 * 8 + 4 + 1  # per shadow-ray slot: origin, direction, contribution, emitter, active
+SEGMENT_BYTES = 2 * 3 * 8 + 8 + 4 + 8 + 8 + 8 + 4 + 4  # per segment: the query, the estimate and its counts
+SAMPLE_BYTES = 400  # per camera sample of a batch: rays, hits, interactions, keys, cases
+PIXEL_BYTES = 3 * 8 * 2 + 5 * 8 + 2 * 8 + 3 * 4 * 2  # film sums, counts, the AOV images and the output image
+TRIANGLE_BYTES = 72 + 72 + 24 + 4 + 4 + 72 + 8 + 2 * 128  # scene arrays, BVH-order copy, ids, nodes
+
+
+def estimate(scene, settings, estimator, batch_pixels):
+    """Bytes by part (a dict) of rendering `scene` with `settings` and `estimator`."""
+    n_pix = scene.camera.width * scene.camera.height
+    per_batch = batch_pixels * settings.spp
+    parts = {
+        "film": n_pix * (PIXEL_BYTES + 8 * sum(a.kind == "segment" for a in estimator.aovs)
+                         + (scene.n_emitters * N_CASES * (4 + 8) if any(a.kind == "cases" for a in estimator.aovs)
+                            else 0)),
+        "batch": per_batch * (SAMPLE_BYTES + settings.shadow_rays * (0 if estimator.fused_any_hit
+                                                                       else SLOT_BYTES + SEGMENT_BYTES)),
+        "scene": scene.n_triangles * TRIANGLE_BYTES,
+        "process": psutil.Process().memory_info().rss,  # what is already resident: Python, Numba, the scene
+    }
+    parts.update(estimator.memory_estimate(scene, settings, per_batch))
+    return parts
+
+
+def available():
+    """Bytes the system can give this process now."""
+    return psutil.virtual_memory().available
+
+
+def peak_rss():
+    """The process's peak resident set so far, in bytes."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def check(parts, hints):
+    """Refuse (ProbvisError) when the estimate exceeds the available memory; `hints` maps a part to the option
+    that lowers it."""
+    from .errors import ProbvisError
+
+    need, have = sum(v for k, v in parts.items() if k not in ("process", "kernels")), available()
+    if need > have:
+        big = sorted(parts.items(), key=lambda kv: -kv[1])
+        detail = ", ".join(f"{k} {v / GIB:.1f} GiB" for k, v in big if v >= 0.05 * need)
+        lower = ", ".join(dict.fromkeys(hints[k] for k, v in big if k in hints and v >= 0.2 * need)) or "the settings"
+        raise ProbvisError(f"this render needs about {need / GIB:.1f} GiB ({detail}) but {have / GIB:.1f} GiB are "
+                           f"available: lower {lower}")

@@ -1,0 +1,125 @@
+"""Bad input, as a user (or an adversary) gives it: each case runs `probvis` as a subprocess under resource
+limits and must end with one line `probvis: error: ...` naming the problem, a non-zero exit, no traceback and
+no output file, in bounded time and memory."""
+import io
+import os
+import resource
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from probvis.cli import main
+from tests.conftest import sensor, write_scene
+
+MEMORY_LIMIT = 6 << 30  # address space of each case's process: far below what the bad settings would need
+TIME_LIMIT = 300
+
+
+def _limits():
+    resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
+
+
+def run(args, cwd):
+    t0 = time.perf_counter()
+    r = subprocess.run([sys.executable, "-m", "probvis.cli", *map(str, args)], capture_output=True, text=True,
+                       cwd=cwd, timeout=TIME_LIMIT, preexec_fn=_limits)
+    return r, time.perf_counter() - t0
+
+
+def mesh_scene(tmp_path, mesh_bytes, name="m.obj"):
+    (tmp_path / name).write_bytes(mesh_bytes)
+    return write_scene(tmp_path / "mesh.xml", sensor() + f"""
+        <shape type="obj"><string name="filename" value="{name}"/></shape>
+        <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="180"/><translate z="1"/></transform>
+            <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""")
+
+
+CASES = [
+    (["tables", "--power", "5000"], "argument --power: must be at most 64"),
+    (["render", "quad-shadow", "--visibility", "probvis", "--estimator", "power", "--power", "100000"],
+     "power must be from 2 to 64"),
+    (["render", "quad-shadow", "--exposure", "1e308"], "argument --exposure: must be a number of stops"),
+    (["render", "quad-shadow", "--exposure", "nan"], "argument --exposure: must be a number of stops"),
+    (["render", "quad-shadow", "--seed", "9223372036854775808"], "argument --seed: must be at most"),
+    (["render", "quad-shadow", "--spp", "1e400"], "argument --spp: expected a whole number"),
+    (["render", "quad-shadow", "-o", "/proc/out.png"], "cannot write '/proc/out.png'"),
+    (["render", "quad-shadow", "-o", "x" * 300 + ".png"], "File name too long"),
+    (["render", "quad-shadow", "-D", "res=16384"], "this render needs about"),
+    (["render", "quad-shadow", "-D", "res=32768"], "lower the resolution"),
+    (["render", "quad-shadow", "-D", "res=1e9"], "parameter res must be an integer"),
+    (["render", "quad-shadow", "--visibility", "occlusion-map", "--photons", "1e8"], "lower --photons"),
+    (["render", "quad-shadow", "--visibility", "occlusion-map", "--neighbours", "100000000"],
+     "neighbours must be from 1 to 1,024"),
+    (["render", "quad-shadow", "--visibility", "probvis", "--probabilities", "0,0.5,0.5"],
+     "probabilities must be three positive numbers"),
+    (["render", "quad-shadow", "--visibility", "occlusion-map", "--radius", "1e300"],
+     "radius 1e+300 is larger than the scene"),
+    (["render", "quad-shadow", "--visibility", "occlusion-map", "--radius", "inf"], "radius expects number"),
+    (["render", "quad-shadow", "--visibility", "occlusion-map", "--verify", "0"], "verify must be auto, off or"),
+    (["render", "quad-shadow", "--visibility", "probvis", "--verify", "nan"], "verify must be auto, off or"),
+    (["render", "quad-shadow", "--verify", "0.5"], "--verify does not apply to --visibility exact"),
+    (["render", "quad-shadow", "--threads", "100000"], "threads must be between 1 and"),
+    (["render", "quad-shadow", "--visibility", "nowhere:Thing"], "cannot import 'nowhere'"),
+]
+
+
+@pytest.mark.parametrize("args, message", CASES, ids=[" ".join(a)[:60] for a, _ in CASES])
+def test_bad_input_is_one_line_and_writes_nothing(tmp_path, args, message):
+    r, seconds = run(args + (["-o", "out.exr"] if args[0] == "render" and "-o" not in args else []), tmp_path)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2, r.stderr
+    assert len(lines) == 1 and lines[0].startswith("probvis: error:") and message in lines[0], r.stderr
+    assert "Traceback" not in r.stderr and not r.stdout.strip()
+    assert not [p for p in tmp_path.iterdir()], "nothing may be written"
+    assert seconds < TIME_LIMIT
+
+
+def test_bad_meshes_are_named_with_file_and_line(tmp_path):
+    scene = mesh_scene(tmp_path, os.urandom(3000))
+    r, _ = run(["render", scene, "-o", tmp_path / "o.exr"], tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    assert "m.obj" in r.stderr and "module" not in r.stderr.lower()
+    scene = mesh_scene(tmp_path, b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n# a comment\nf 1 2 7\n", "idx.obj")
+    r, _ = run(["render", scene, "-o", tmp_path / "o.exr"], tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    assert "idx.obj:6: face refers to vertex 7, but only 3 vertices are defined before it" in r.stderr
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_broken_pipe_exits_quietly(monkeypatch, capsys):
+    class Closed(io.StringIO):
+        def write(self, text):
+            raise BrokenPipeError
+
+        def fileno(self):
+            return os.open(os.devnull, os.O_WRONLY)
+
+    monkeypatch.setattr(sys, "stdout", Closed())
+    assert main(["tables"]) == 141
+    assert capsys.readouterr().err == ""
+
+
+def test_ctrl_c_to_the_process_group_of_an_experiment(tmp_path):
+    """What Ctrl-C in a terminal sends: SIGINT to the driver and its Dask workers alike. One line, exit 130,
+    the finished renders kept."""
+    study = tmp_path / "s.toml"
+    study.write_text('spp = 1\nshadow_rays = [1, 2, 3, 4, 5, 6, 7, 8]\nseeds = [0, 1, 2, 3]\nresolution = [32, 32]\n'
+                     '[[scenes]]\nname = "c"\nsource = "canopy"\n'
+                     '[[methods]]\nname = "om"\nvisibility = "occlusion-map"\n')
+    proc = subprocess.Popen([sys.executable, "-m", "probvis.cli", "experiment", str(study), "-o", str(tmp_path / "r"),
+                             "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    cache = tmp_path / "r" / "cache"
+    deadline = time.time() + 600
+    while time.time() < deadline and not list(cache.glob("*.json")):
+        time.sleep(0.2)
+    assert list(cache.glob("*.json")), "no render finished in time"
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    lines = [line for line in err.strip().splitlines() if not line.startswith("experiment '")
+             and not line.startswith("computing ")]
+    assert len(lines) == 1 and "interrupted" in lines[0] and "Traceback" not in err, err
