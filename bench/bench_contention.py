@@ -1,6 +1,7 @@
 """Render time on a busy machine, run by hand: `python3 bench/bench_contention.py [--pairs 3]`.
 
-For each threading configuration (Numba's OpenMP layer as is, with OMP_WAIT_POLICY=passive, and Numba's
+For each threading configuration (Numba's OpenMP layer as libgomp starts, with OMP_WAIT_POLICY=passive, with
+short spin counts - probvis sets GOMP_SPINCOUNT=1000 unless the environment has one - and Numba's
 workqueue layer), renders run in fresh processes, alternately on the idle machine and with two busy processes
 (pure-Python spin loops, one per core) started and stopped around them, so both see the machine's phases
 alike. Reported per configuration and render: the median idle and busy seconds (render phase) and their ratio;
@@ -20,9 +21,11 @@ RENDERS = {
                            "--estimator", "shifted"],
 }
 CONFIGS = {
-    "omp (default)": {},
-    "omp, OMP_WAIT_POLICY=passive": {"OMP_WAIT_POLICY": "passive"},
-    "workqueue": {"NUMBA_THREADING_LAYER": "workqueue"},
+    "omp, libgomp's default spin": {"GOMP_SPINCOUNT": "300000", "OMP_WAIT_POLICY": ""},
+    "omp, OMP_WAIT_POLICY=passive": {"OMP_WAIT_POLICY": "passive", "GOMP_SPINCOUNT": "0"},
+    "omp, GOMP_SPINCOUNT=1000 (probvis's)": {"GOMP_SPINCOUNT": "1000", "OMP_WAIT_POLICY": ""},
+    "omp, GOMP_SPINCOUNT=10000": {"GOMP_SPINCOUNT": "10000", "OMP_WAIT_POLICY": ""},
+    "workqueue": {"NUMBA_THREADING_LAYER": "workqueue", "GOMP_SPINCOUNT": "", "OMP_WAIT_POLICY": ""},
 }
 SPIN = "import time\nt = time.time()\nwhile time.time() - t < 600: pass"
 
@@ -40,7 +43,7 @@ def main():
     ap.add_argument("--pairs", type=int, default=3)
     args = ap.parse_args()
     for cname, extra in CONFIGS.items():
-        env = dict(os.environ, **extra)
+        env = {k: v for k, v in dict(os.environ, **extra).items() if v != ""}  # "" unsets
         for rname, rargs in RENDERS.items():
             render_seconds(rargs, env)  # warm the kernel cache
             idle, busy = [], []

@@ -49,14 +49,23 @@ def test_quick_report_in_chromium(quick_report):
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
         try:
-            page = browser.new_page(viewport={"width": 1300, "height": 900})
+            page = browser.new_page(viewport={"width": 1400, "height": 900})
             problems = []
             page.on("console", lambda m: problems.append(m.text) if m.type in ("error", "warning") else None)
             page.on("pageerror", lambda e: problems.append(str(e)))
             page.on("requestfailed", lambda r: problems.append(f"failed to load {r.url}"))
             page.goto((quick_report / "index.html").as_uri())
             page.wait_for_load_state("load")
-            assert page.locator("#paper-table tbody tr").count() == 2
+            assert page.locator("#paper-table tbody tr").count() == 2 * 7  # scenes x methods
+            # at 1400 px the page needs no sideways scrolling and the comparison sits centred in its panel
+            assert page.evaluate("document.documentElement.scrollWidth <= window.innerWidth")
+            table = page.locator("#paper-table").bounding_box()
+            assert table["x"] >= 0 and table["x"] + table["width"] <= 1400
+            stage = page.locator(".viewer .stage").first.bounding_box()
+            image = page.locator(".viewer canvas").first.bounding_box()
+            assert abs((image["x"] + image["width"] / 2) - (stage["x"] + stage["width"] / 2)) < 2
+            assert abs((image["y"] + image["height"] / 2) - (stage["y"] + stage["height"] / 2)) < 2
+            assert image["height"] > 0.95 * stage["height"] or image["width"] > 0.95 * stage["width"]
             broken = page.evaluate("Array.from(document.images).filter(i => !(i.complete && i.naturalWidth > 0))"
                                    ".map(i => i.src)")
             assert broken == []

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..errors import ProbvisError
 from ..io.image import atomic_path, tonemap_srgb, write_png
+from .results import UNSTEADY
 
 STATIC = ("viewer.js", "report.css")
 
@@ -72,10 +73,11 @@ def _bias(r):
 
 def _summary_cells(r, baseline):
     """A summary row's seconds, tests, relMSE, bias and efficiency as the paper-style table shows them."""
+    mark = "†" if r["timing_unsteady"] else ""
     if baseline:
-        return (f"{r['seconds']:.2f}", _fmt(r["triangle_tests"]), _fmt(r["relmse"]), _bias(r),
+        return (f"{r['seconds']:.2f}{mark}", _fmt(r["triangle_tests"]), _fmt(r["relmse"]), _bias(r),
                 _fmt(r["efficiency_time"]))
-    return (f"{r['seconds']:.2f} ({_change(r['seconds_change'])})",
+    return (f"{r['seconds']:.2f}{mark} ({_change(r['seconds_change'])})",
             f"{_fmt(r['triangle_tests'])} ({_change(r['tests_change'])})", _fmt(r["relmse"]), _bias(r),
             f"{_fmt(r['efficiency_time'])} (×{_fmt(r['efficiency_vs_baseline'], 2)})")
 
@@ -228,7 +230,8 @@ class Report:
         exp, rays = self.exp, self.exp.table_shadow_rays
         lines = [f"At {exp.spp} spp × {rays} shadow rays per camera sample; seconds exclude JIT compilation, tests "
                  f"are shadow-ray triangle tests, efficiency = 1/(relMSE × seconds); changes against "
-                 f"{exp.baseline}; bias = block-bias ratio of two seeds (about 1: converges to the reference; "
+                 f"{exp.baseline}; seconds = wall time of the render (median over seeds; † = the seeds' times "
+                 f"differ by more than {UNSTEADY:.0%}), which efficiency uses; bias = block-bias ratio of two seeds (about 1: converges to the reference; "
                  f"'biased': a shortcut chosen by its options).", "",
                  "| scene | method | seconds | tests | relMSE | bias | efficiency (× baseline) |",
                  "|---|---|---:|---:|---:|---:|---:|"]
@@ -249,31 +252,32 @@ class Report:
         return f"{html.escape(r.visibility)}, {r.spp} spp × {r.shadow_rays} rays, {sec:.1f} s"
 
     def _paper_table(self):
+        """The paper-style table, a row per scene and method (so it fits a page whatever the method count)."""
         exp, rays = self.exp, self.exp.table_shadow_rays
-        others = [m for m in exp.methods if m.name != exp.baseline]
         e = html.escape
-        head = (f"<tr><th rowspan=2>scene</th><th rowspan=2>reference</th><th colspan=5>{e(exp.baseline)} "
-                f"(baseline)</th>" + "".join(f"<th colspan=5>{e(m.name)}</th>" for m in others) + "</tr><tr>"
-                + "<th>seconds</th><th>tests</th><th>relMSE</th><th>bias</th><th>effic.</th>" * (1 + len(others))
-                + "</tr>")
+        head = ("<tr><th>scene</th><th>reference</th><th>method</th><th>seconds</th><th>tests</th><th>relMSE</th>"
+                "<th>bias</th><th>efficiency</th></tr>")
         body = []
         for spec in exp.scenes:
             s = spec.name
-            cells = [e(s), f"<img class=thumb src='{self._image_path(s)}' alt='reference'>"
-                           f"<br><small>{self._reference_note(s)}</small>"]
-            cells += _summary_cells(self.results.summary_row(s, exp.baseline, rays), True)
-            for m in others:
-                cells += _summary_cells(self.results.summary_row(s, m.name, rays), False)
-            body.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
-        return (f"<div class=wide><table class=paper id=paper-table><caption>At {exp.spp} spp × {rays} shadow rays: "
-                f"render seconds "
-                f"(JIT excluded) and shadow-ray triangle tests with their change against the baseline, relMSE "
-                f"against the reference, bias (block means' error against the reference over their seed-to-seed "
-                f"noise, two seeds: about 1 when the image converges to the reference, far more when not; "
-                f"'biased' marks a shortcut chosen by the method's options) and efficiency 1/(relMSE × seconds) "
-                f"with its ratio to the baseline's."
-                f"</caption>"
-                f"<thead>{head}</thead><tbody>{''.join(body)}</tbody></table></div>")
+            for k, m in enumerate(exp.methods):
+                row = self.results.summary_row(s, m.name, rays)
+                base = m.name == exp.baseline
+                cells = "".join(f"<td>{c}</td>" for c in _summary_cells(row, base))
+                first = (f"<td rowspan={len(exp.methods)}>{e(s)}</td><td rowspan={len(exp.methods)}>"
+                         f"<img class=thumb src='{self._image_path(s)}' alt='reference'><br>"
+                         f"<small>{self._reference_note(s)}</small></td>") if k == 0 else ""
+                body.append(f"<tr class='{'base ' if base else ''}{'first' if k == 0 else ''}'>{first}"
+                            f"<td class=method>{e(m.name)}{' (baseline)' if base else ''}</td>{cells}</tr>")
+        return (f"<table class=paper id=paper-table><caption>At {exp.spp} spp × {rays} shadow rays: render seconds "
+                f"and shadow-ray triangle tests with their change against the baseline ({e(exp.baseline)}), relMSE "
+                f"against the reference (seconds: the render's wall time without JIT compilation, median over the "
+                f"seeds, which also sets the efficiency; † marks a setting whose seeds' times differ by more than "
+                f"{UNSTEADY:.0%} — the machine was busy), bias (block means' error against the reference over their "
+                f"seed-to-seed noise, two seeds: about 1 when the image converges to the reference, far more when "
+                f"not; 'biased' marks a shortcut chosen by the method's options) and efficiency 1/(relMSE × "
+                f"seconds) with its ratio to the baseline's.</caption>"
+                f"<thead>{head}</thead><tbody>{''.join(body)}</tbody></table>")
 
     def _detail_table(self, scene):
         e = html.escape

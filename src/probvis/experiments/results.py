@@ -8,6 +8,9 @@ from . import metrics
 
 
 
+UNSTEADY = 0.25  # seeds' render times differing by more than this share of their median: a busy machine
+
+
 @dataclass
 class Results:
     """`cells`: one row per render; `summary`: rows per (scene, method, shadow rays) over seeds;
@@ -50,12 +53,13 @@ def cell_row(task, render, reference, baseline_name):
     s = render.stats
     err = metrics.relmse(render.image, reference)
     seconds = s["seconds"]["total"] - s["seconds"]["compile"]
+    cpu = s["seconds"].get("cpu_total", 0.0) - s["seconds"].get("cpu_compile", 0.0)
     tests = s["intersection_tests"]["shadow"]["triangle"]
     return {
         "scene": task.scene, "method": task.method.name, "visibility": task.method.visibility,
         "options": json.dumps(task.method.options, sort_keys=True, default=list),
         "baseline": task.method.name == baseline_name, "shadow_rays": task.shadow_rays, "spp": task.spp,
-        "seed": task.seed, "seconds": seconds, "seconds_phases": phases(s, task.method.visibility),
+        "seed": task.seed, "seconds": seconds, "cpu_seconds": cpu, "seconds_phases": phases(s, task.method.visibility),
         "camera_rays": s["camera_rays"],
         "shadow_rays_traced": s["shadow_rays"], "triangle_tests": tests,
         "node_tests": s["intersection_tests"]["shadow"]["node"],
@@ -92,6 +96,10 @@ def _summarise(cells, bias):
         row["bias_ratio"] = bias.get(key)
         row["seeds"] = len(rows)
         row["seconds"] = statistics.median(r["seconds"] for r in rows)
+        row["cpu_seconds"] = statistics.median(r["cpu_seconds"] for r in rows)
+        times = [r["seconds"] for r in rows]
+        row["seconds_spread"] = (max(times) - min(times)) / row["seconds"] if row["seconds"] > 0 else 0.0
+        row["timing_unsteady"] = len(rows) > 1 and row["seconds_spread"] > UNSTEADY
         row["seconds_phases"] = {k: statistics.median(r["seconds_phases"].get(k, 0.0) for r in rows)
                                  for k in first["seconds_phases"]}
         for k in ("triangle_tests", "node_tests", "relmse", "rmse", "negative_pixel_share", "negative_estimate_share"):

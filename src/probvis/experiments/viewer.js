@@ -70,7 +70,14 @@
     const status = el("div", {class: "status", text: " "}, root);
     const legend = el("div", {class: "legend"}, root);
     const ctx = canvas.getContext("2d", {willReadFrequently: true});  // CPU canvas: every draw is a putImageData
-    let zoom = Math.max(1, Math.floor(512 / Math.max(w, h))), panX = 0, panY = 0;
+    let zoom = 1, panX = 0, panY = 0;
+
+    function fit() {  // the whole image, as large as the panel allows, centred
+      const sw = stage.clientWidth || 512, sh = stage.clientHeight || 512;
+      zoom = Math.min(sw / w, sh / h);
+      panX = (sw - w * zoom) / 2;
+      panY = (sh - h * zoom) / 2;
+    }
 
     function key(src) {
       return src === "reference" ? "reference" : src + "@" + rays.value;
@@ -113,9 +120,8 @@
     }
 
     for (const c of [rays, left, right, mode, exposure, split]) c.addEventListener("input", draw);
-    reset.addEventListener("click", () => {
-      zoom = Math.max(1, Math.floor(512 / Math.max(w, h))); panX = 0; panY = 0; place();
-    });
+    reset.addEventListener("click", () => { fit(); place(); });
+    window.addEventListener("resize", () => { fit(); place(); });
     stage.addEventListener("wheel", (ev) => {
       ev.preventDefault();
       const r = stage.getBoundingClientRect(), mx = ev.clientX - r.left, my = ev.clientY - r.top;
@@ -136,6 +142,7 @@
       };
       status.textContent = "pixel " + x + ", " + y + ": " + show(left.value) + "  |  " + show(right.value);
     });
+    fit();
     draw();
   }
 
