@@ -1,16 +1,27 @@
-"""Stage 1 of a render: primary rays of a Mitsuba perspective camera with a box pixel filter."""
+"""Stage 1 of a render: primary rays of a Mitsuba `perspective` or `thinlens` sensor.
+
+The reconstruction filter is importance-sampled (a pixel's sample positions are drawn from the filter centred
+on it, each with weight 1), so a pixel's expected value is the filter-weighted mean of the radiance around it,
+as with Mitsuba's weighted splatting. Like Mitsuba's `hdrfilm` (without `sample_border`), only the rendered
+window is sampled: near its border the filter is cut off there. The box filter draws uniformly inside the pixel.
+"""
+import math
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
 
-from .rng import make_key, uniform
+from .errors import ProbvisError
+from .rng import make_key, mix64, uniform
 
 STREAM_CAMERA = 1  # rng stream of camera paths
+FILTER_BINS = 2048  # bins of a tabulated filter's inverse CDF (piecewise-constant density)
+_LENS_SALT = np.uint64(0x4C454E53)  # the lens sample's key, apart from the camera sample's own dimensions
 
 
 class CameraParams(NamedTuple):
-    """A `scene.Camera` as the kernel takes it: half-extents of the image plane at distance 1."""
+    """A `scene.Camera` as the kernel takes it: half-extents of the image plane at distance 1, the crop window
+    in the film, the principal-point shift, the thin lens and the filter's table (empty for a box)."""
 
     to_world: np.ndarray
     tan_x: float
@@ -19,23 +30,77 @@ class CameraParams(NamedTuple):
     height: int
     near_clip: float
     far_clip: float
+    film_width: int
+    film_height: int
+    crop_x: int
+    crop_y: int
+    principal_x: float
+    principal_y: float
+    aperture_radius: float
+    focus_distance: float
+    filter_cdf: np.ndarray
+    filter_radius: float
+
+
+def filter_table(kind, radius, stddev):
+    """(CDF over FILTER_BINS equal bins of [-r, r], r) of a separable Mitsuba filter; box: (empty, 0.5)."""
+    if kind == "box":
+        return np.zeros(0), 0.5
+    if kind == "tent":
+        r = radius
+        x = (np.arange(FILTER_BINS) + 0.5) / FILTER_BINS * 2 * r - r
+        f = np.maximum(0.0, 1.0 - np.abs(x) / r)
+    elif kind == "gaussian":
+        r = 4.0 * stddev  # Mitsuba's radius, where its Gaussian is shifted down to zero
+        x = (np.arange(FILTER_BINS) + 0.5) / FILTER_BINS * 2 * r - r
+        f = np.maximum(0.0, np.exp(-x * x / (2 * stddev * stddev)) - math.exp(-r * r / (2 * stddev * stddev)))
+    else:
+        raise ProbvisError(f"unknown reconstruction filter '{kind}' (box, tent, gaussian)")
+    cdf = np.concatenate([[0.0], np.cumsum(f)])
+    return cdf / cdf[-1], float(r)
 
 
 def camera_params(cam):
     """The kernel's `CameraParams` of a `scene.Camera`."""
+    fw, fh = cam.film_size
     tan_x = float(np.tan(np.radians(cam.fov_x) / 2.0))
-    return CameraParams(np.ascontiguousarray(cam.to_world, dtype=np.float64), tan_x, tan_x * cam.height / cam.width,
-                        int(cam.width), int(cam.height), float(cam.near_clip), float(cam.far_clip))
+    cdf, radius = filter_table(cam.rfilter, cam.filter_radius, cam.filter_stddev)
+    return CameraParams(np.ascontiguousarray(cam.to_world, dtype=np.float64), tan_x, tan_x * fh / fw,
+                        int(cam.width), int(cam.height), float(cam.near_clip), float(cam.far_clip), int(fw), int(fh),
+                        int(cam.crop_x), int(cam.crop_y), float(cam.principal_x), float(cam.principal_y),
+                        float(cam.aperture_radius), float(cam.focus_distance), cdf, radius)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _filter_cdf(cdf, radius, x):
+    """The tabulated filter's CDF at offset x (clamped to [-radius, radius])."""
+    n = cdf.shape[0] - 1
+    t = min(max((x / radius + 1.0) * 0.5 * n, 0.0), float(n))
+    k = min(int(t), n - 1)
+    return cdf[k] + (t - k) * (cdf[k + 1] - cdf[k])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def filter_offset(cdf, radius, u, lo, hi):
+    """An offset in [lo, hi] from the pixel centre with density proportional to the tabulated filter (cut off
+    outside [lo, hi]: the window's edges)."""
+    n = cdf.shape[0] - 1
+    u = _filter_cdf(cdf, radius, lo) + u * (_filter_cdf(cdf, radius, hi) - _filter_cdf(cdf, radius, lo))
+    k = min(max(np.searchsorted(cdf, u, side="right") - 1, 0), n - 1)
+    width = cdf[k + 1] - cdf[k]
+    t = (u - cdf[k]) / width if width > 0.0 else 0.5
+    return min(max(((k + t) / n * 2.0 - 1.0) * radius, lo), hi)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def camera_rays(cam, spp, seed, pixel0, pixel1):
-    """Rays for pixels [pixel0, pixel1) (row-major), `spp` per pixel, pixel-major order.
+    """Rays for pixels [pixel0, pixel1) of the image (row-major), `spp` per pixel, pixel-major order.
 
     Returns origins, unit directions, tmin, tmax and the rng key of each camera sample.
     """
-    m, tan_x, tan_y, width, height, near, far = cam.to_world, cam.tan_x, cam.tan_y, cam.width, cam.height, \
-        cam.near_clip, cam.far_clip
+    m, tan_x, tan_y, width = cam.to_world, cam.tan_x, cam.tan_y, cam.width
+    near, far, fw, fh = cam.near_clip, cam.far_clip, cam.film_width, cam.film_height
+    boxed = cam.filter_cdf.shape[0] == 0
     n = (pixel1 - pixel0) * spp
     org = np.empty((n, 3))
     dirs = np.empty((n, 3))
@@ -46,20 +111,36 @@ def camera_rays(cam, spp, seed, pixel0, pixel1):
         pix = pixel0 + i // spp
         s = i % spp
         key = make_key(seed, STREAM_CAMERA, pix * spp + s)
-        px = pix % width
-        py = pix // width
-        sx = (px + uniform(key, 0)) / width
-        sy = (py + uniform(key, 1)) / height
-        lx = (1.0 - 2.0 * sx) * tan_x
-        ly = (1.0 - 2.0 * sy) * tan_y
-        inv_len = 1.0 / np.sqrt(lx * lx + ly * ly + 1.0)
+        px = cam.crop_x + pix % width
+        py = cam.crop_y + pix // width
+        if boxed:
+            sx = (px + uniform(key, 0)) / fw
+            sy = (py + uniform(key, 1)) / fh
+        else:
+            cx, cy = px + 0.5, py + 0.5  # the window is [crop_x, crop_x + width] x [crop_y, crop_y + height]
+            sx = (cx + filter_offset(cam.filter_cdf, cam.filter_radius, uniform(key, 0), cam.crop_x - cx,
+                                     cam.crop_x + width - cx)) / fw
+            sy = (cy + filter_offset(cam.filter_cdf, cam.filter_radius, uniform(key, 1), cam.crop_y - cy,
+                                     cam.crop_y + cam.height - cy)) / fh
+        lx = (1.0 - 2.0 * (sx + cam.principal_x)) * tan_x
+        ly = (1.0 - 2.0 * (sy + cam.principal_y)) * tan_y
+        ox = oy = 0.0
+        lz = 1.0
+        if cam.aperture_radius > 0.0:  # thin lens: from a point of the aperture to the point in focus
+            lens = mix64(key ^ _LENS_SALT)
+            r = cam.aperture_radius * math.sqrt(uniform(lens, 0))
+            phi = 2.0 * math.pi * uniform(lens, 1)
+            ox, oy = r * math.cos(phi), r * math.sin(phi)
+            f = cam.focus_distance
+            lx, ly, lz = lx * f - ox, ly * f - oy, f
+        inv_len = 1.0 / np.sqrt(lx * lx + ly * ly + lz * lz)
         lx *= inv_len
         ly *= inv_len
-        lz = inv_len
+        lz *= inv_len
         wl = 0.0
         for j in range(3):
             dirs[i, j] = m[j, 0] * lx + m[j, 1] * ly + m[j, 2] * lz
-            org[i, j] = m[j, 3]
+            org[i, j] = m[j, 0] * ox + m[j, 1] * oy + m[j, 3]
             wl += dirs[i, j] * dirs[i, j]
         wl = np.sqrt(wl)
         for j in range(3):

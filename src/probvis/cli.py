@@ -81,8 +81,8 @@ def _triple(text):
 def _seed_list(text):
     """argparse type: distinct comma-separated whole numbers >= 0."""
     v = _comma_list(text, int, "comma-separated whole numbers")
-    if min(v) < 0 or len(set(v)) != len(v):
-        raise argparse.ArgumentTypeError(f"expected distinct seeds >= 0, got '{text}'")
+    if min(v) < 0 or max(v) > MAX_SEED or len(set(v)) != len(v):
+        raise argparse.ArgumentTypeError(f"expected distinct seeds from 0 to {MAX_SEED}, got '{text}'")
     return v
 
 

@@ -54,6 +54,10 @@ def test_defaults_and_baseline():
     ({"resolution": [16, 16, 16]}, "resolution: expected [width, height]"),
     ({"reference": {"sp": 3}}, "reference: unknown key 'sp'"),
     ({"target_relmse": -1}, "target_relmse: expected a positive number"),
+    ({"target_relmse": float("inf")}, "target_relmse: expected a positive number"),
+    ({"spp": 10 ** 30}, "spp: expected a whole number <= 1048576"),
+    ({"seeds": [2 ** 63]}, "seeds[0]: expected a whole number <= 9223372036854775807"),
+    ({"resolution": [100000, 8]}, "resolution[0]: expected a whole number <= 32768"),
     ({"table_shadow_rays": 8}, "table_shadow_rays: 8 is not one of shadow_rays"),
     ({"methods": []}, "at least one [[methods]]"),
 ])

@@ -10,7 +10,10 @@ from pathlib import Path
 
 from ..errors import ProbvisError
 from ..scene import BUILTINS
+from ..settings import MAX_SEED, MAX_SHADOW_RAYS, MAX_SPP
 from ..visibility import estimator_class
+
+MAX_RESOLUTION = 1 << 15
 
 TOP_KEYS = {"name", "description", "spp", "shadow_rays", "seeds", "resolution", "target_relmse", "table_shadow_rays",
             "reference", "scenes", "methods"}
@@ -80,16 +83,18 @@ def _check_keys(where, table, allowed):
                      f"(allowed: {', '.join(sorted(allowed))})")
 
 
-def _int(where, value, lowest=1):
+def _int(where, value, lowest=1, highest=MAX_SEED):
     if isinstance(value, bool) or not isinstance(value, int) or value < lowest:
         _fail(where, f"expected a whole number >= {lowest}, got {value!r}")
+    if value > highest:
+        _fail(where, f"expected a whole number <= {highest}, got {value!r}")
     return value
 
 
-def _int_list(where, value, lowest=1, distinct=True):
+def _int_list(where, value, lowest=1, distinct=True, highest=MAX_SEED):
     if not isinstance(value, list) or not value:
         _fail(where, f"expected a non-empty list of whole numbers, got {value!r}")
-    items = [_int(f"{where}[{i}]", v, lowest) for i, v in enumerate(value)]
+    items = [_int(f"{where}[{i}]", v, lowest, highest) for i, v in enumerate(value)]
     if distinct and len(set(items)) != len(items):
         _fail(where, f"repeated values in {value!r}")
     return tuple(items)
@@ -178,8 +183,9 @@ def parse_experiment(data, base=Path("."), source=""):
     ref = data.get("reference", {})
     _check_keys(f"{where}.reference", ref, REFERENCE_KEYS)
     reference = ReferenceSettings(
-        spp=_int("reference.spp", ref.get("spp", ReferenceSettings.spp)),
-        shadow_rays=_int("reference.shadow_rays", ref.get("shadow_rays", ReferenceSettings.shadow_rays)),
+        spp=_int("reference.spp", ref.get("spp", ReferenceSettings.spp), 1, MAX_SPP),
+        shadow_rays=_int("reference.shadow_rays", ref.get("shadow_rays", ReferenceSettings.shadow_rays), 1,
+                         MAX_SHADOW_RAYS),
         seed=_int("reference.seed", ref.get("seed", ReferenceSettings.seed), 0),
         visibility=_str("reference.visibility", ref.get("visibility", "exact")))
     try:
@@ -188,14 +194,15 @@ def parse_experiment(data, base=Path("."), source=""):
         _fail("reference.visibility", str(exc))
     resolution = data.get("resolution")
     if resolution is not None:
-        resolution = _int_list("resolution", resolution, distinct=False)
+        resolution = _int_list("resolution", resolution, distinct=False, highest=MAX_RESOLUTION)
         if len(resolution) == 1:
             resolution = resolution * 2
         if len(resolution) != 2:
             _fail("resolution", "expected [width, height]")
-    shadow_rays = _int_list("shadow_rays", data.get("shadow_rays", [1, 4, 16, 64, 256]))
+    shadow_rays = _int_list("shadow_rays", data.get("shadow_rays", [1, 4, 16, 64, 256]), highest=MAX_SHADOW_RAYS)
     target = data.get("target_relmse")
-    if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float)) or not target > 0):
+    if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float))
+                               or not 0 < target < float("inf")):
         _fail("target_relmse", f"expected a positive number, got {target!r}")
     table_rays = data.get("table_shadow_rays", 16 if 16 in shadow_rays else max(shadow_rays))
     if _int("table_shadow_rays", table_rays) not in shadow_rays:
@@ -204,7 +211,7 @@ def parse_experiment(data, base=Path("."), source=""):
         name=_str("name", data.get("name", Path(source).stem or "experiment")),
         description=str(data.get("description", "")),
         scenes=scene_specs, methods=method_specs, shadow_rays=tuple(sorted(shadow_rays)),
-        spp=_int("spp", data.get("spp", 4)), seeds=_int_list("seeds", data.get("seeds", [0]), 0),
+        spp=_int("spp", data.get("spp", 4), 1, MAX_SPP), seeds=_int_list("seeds", data.get("seeds", [0]), 0),
         reference=reference, baseline=baselines[0] if baselines else method_specs[0].name,
         resolution=resolution, target_relmse=None if target is None else float(target),
         table_shadow_rays=table_rays)

@@ -315,15 +315,17 @@ class _Reader:
     def sensor(self, node):
         self.check_attrs(node, ("type", "id", "name"))
         kind = self.attr(node, "type")
-        if kind != "perspective":
-            self.fail(node, f"unsupported sensor type '{kind}' (supported: perspective)")
-        props, objs = self.params(
-            node,
-            {"fov": ("float",), "fov_axis": ("string",), "to_world": ("transform",),
-             "near_clip": ("float",), "far_clip": ("float",)},
-            ("sampler", "film"),
-        )
-        spp, seed, width, height = 4, 0, 768, 576  # Mitsuba's defaults
+        if kind not in ("perspective", "thinlens"):
+            self.fail(node, f"unsupported sensor type '{kind}' (supported: perspective, thinlens)")
+        allowed = {"fov": ("float",), "focal_length": ("string", "float"), "fov_axis": ("string",),
+                   "to_world": ("transform",), "near_clip": ("float",), "far_clip": ("float",),
+                   "srf": ("spectrum", "rgb")}
+        if kind == "perspective":
+            allowed.update(principal_point_offset_x=("float",), principal_point_offset_y=("float",))
+        else:
+            allowed.update(aperture_radius=("float",), focus_distance=("float",))
+        props, objs = self.params(node, allowed, ("sampler", "film"))
+        spp, seed, film = 4, 0, None  # Mitsuba's default sample count and seed
         for ch in objs:
             if ch.tag == "sampler":
                 self.check_attrs(ch, ("type", "id", "name"))
@@ -333,61 +335,125 @@ class _Reader:
                 if st != "independent":
                     warnings.warn(f"{self.path}:{ch.line}: sampler '{st}' rendered with probvis's independent "
                                   "sampler (same expected image, different noise)", stacklevel=2)
-                sp, _ = self.params(ch, {"sample_count": ("integer",), "seed": ("integer",)})
+                sp, _ = self.params(ch, {"sample_count": ("integer",), "seed": ("integer",),
+                                         "jitter": ("boolean",), "dimension": ("integer",),
+                                         "scramble_seed": ("integer",)})
                 spp, seed = sp.get("sample_count", spp), sp.get("seed", seed)
             else:
-                width, height = self.film(ch)
-        if "fov" not in props:
-            self.fail(node, "perspective sensor needs 'fov'")
-        fov = props["fov"]
+                film = self.film(ch)
+        film = film or self.film(None)
+        fw, fh = film["film_width"], film["film_height"]
+        fov_x = self.fov_x(node, props, fw / fh)
+        near, far = props.get("near_clip", 1e-2), props.get("far_clip", 1e4)
+        lens = {}
+        if kind == "thinlens":
+            if "aperture_radius" not in props:
+                self.fail(node, "a thinlens sensor needs 'aperture_radius'")
+            lens = {"aperture_radius": props["aperture_radius"], "focus_distance": props.get("focus_distance", far)}
+            if not (lens["aperture_radius"] >= 0 and lens["focus_distance"] > 0):
+                self.fail(node, "aperture_radius must be >= 0 and focus_distance positive")
+        cam = Camera(props.get("to_world", np.eye(4)), fov_x, near_clip=near, far_clip=far,
+                     principal_x=props.get("principal_point_offset_x", 0.0),
+                     principal_y=props.get("principal_point_offset_y", 0.0), **lens, **film)
+        return cam, spp, seed
+
+    def fov_x(self, node, props, aspect):
+        """The horizontal field of view, from `fov` along `fov_axis` or from a 35 mm `focal_length` (as Mitsuba's
+        parse_fov: the focal length spans the 36 x 24 mm frame's diagonal; default 50 mm)."""
+        if "fov" in props and "focal_length" in props:
+            self.fail(node, "give either 'fov' or 'focal_length', not both")
+        if "fov" in props:
+            fov = props["fov"]
+            axis = props.get("fov_axis", "x").lower()
+        else:
+            text = str(props.get("focal_length", "50mm")).strip()
+            try:
+                f = float(text[:-2] if text.endswith("mm") else text)
+            except ValueError:
+                self.fail(node, f"focal_length must be of the form <x>mm, got '{text}'")
+            if not f > 0 or not np.isfinite(f):
+                self.fail(node, f"focal_length must be positive, got '{text}'")
+            fov, axis = float(np.degrees(2.0 * np.arctan(np.hypot(36.0, 24.0) / (2.0 * f)))), "diagonal"
         if not 0.0 < fov < 180.0:
             self.fail(node, f"fov must be between 0 and 180 degrees, got {fov:g}")
-        axis = props.get("fov_axis", "x")
-        aspect = width / height
-        t = np.tan(np.radians(fov) / 2.0)
         if axis == "smaller":
             axis = "y" if aspect > 1 else "x"
         elif axis == "larger":
             axis = "x" if aspect > 1 else "y"
+        t = np.tan(np.radians(fov) / 2.0)
         if axis == "y":
             t *= aspect
         elif axis == "diagonal":
-            t *= width / np.hypot(width, height)
+            t /= np.sqrt(1.0 + 1.0 / (aspect * aspect))
         elif axis != "x":
             self.fail(node, f"unknown fov_axis '{axis}' (x, y, diagonal, smaller, larger)")
-        fov_x = float(np.degrees(2.0 * np.arctan(t)))
-        m = props.get("to_world", np.eye(4))
-        cam = Camera(m, fov_x, width, height, props.get("near_clip", 1e-2), props.get("far_clip", 1e4))
-        return cam, spp, seed
+        return float(np.degrees(2.0 * np.arctan(t)))
 
     def film(self, node):
-        self.check_attrs(node, ("type", "id", "name"))
+        """The film's size, crop window and reconstruction filter as `Camera` fields (Mitsuba's defaults
+        without a <film>: 768 x 576, Gaussian filter)."""
+        width, height, rfilter = 768, 576, {"rfilter": "gaussian"}
+        props = {}
+        if node is not None:
+            self.check_attrs(node, ("type", "id", "name"))
+            kind = self.attr(node, "type")
+            if kind != "hdrfilm":
+                self.fail(node, f"unsupported film type '{kind}' (supported: hdrfilm)")
+            props, objs = self.params(
+                node, {"width": ("integer",), "height": ("integer",), "pixel_format": ("string",),
+                       "component_format": ("string",), "file_format": ("string",), "crop_offset_x": ("integer",),
+                       "crop_offset_y": ("integer",), "crop_width": ("integer",), "crop_height": ("integer",),
+                       "sample_border": ("boolean",), "banner": ("boolean",), "compensate": ("boolean",)},
+                ("rfilter",))
+            if props.get("pixel_format", "rgb") not in ("rgb", "rgba", "rgb_alpha", "luminance", "y"):
+                self.fail(node, f"unsupported pixel_format '{props['pixel_format']}'")
+            for ch in objs:
+                rfilter = self.rfilter(ch)
+            width, height = props.get("width", width), props.get("height", height)
+            if width < 1 or height < 1 or width > 1 << 15 or height > 1 << 15:
+                self.fail(node, f"film size {width}x{height} is out of range (1 to 32768)")
+        cx, cy = props.get("crop_offset_x", 0), props.get("crop_offset_y", 0)
+        cw, ch_ = props.get("crop_width", width - cx), props.get("crop_height", height - cy)
+        if not (0 <= cx and cw >= 1 and cx + cw <= width and 0 <= cy and ch_ >= 1 and cy + ch_ <= height):
+            self.fail(node, f"the crop window {cw}x{ch_} at ({cx}, {cy}) does not fit the {width}x{height} film")
+        return {"width": cw, "height": ch_, "film_width": width, "film_height": height, "crop_x": cx, "crop_y": cy,
+                **rfilter}
+
+    def rfilter(self, node):
+        self.check_attrs(node, ("type", "name", "id"))
         kind = self.attr(node, "type")
-        if kind != "hdrfilm":
-            self.fail(node, f"unsupported film type '{kind}' (supported: hdrfilm)")
-        props, objs = self.params(
-            node, {"width": ("integer",), "height": ("integer",), "pixel_format": ("string",),
-                   "component_format": ("string",), "file_format": ("string",)}, ("rfilter",))
-        if props.get("pixel_format", "rgb") not in ("rgb", "rgba"):
-            self.fail(node, "pixel_format must be rgb or rgba")
-        if not objs:
-            warnings.warn(f"{self.path}:{node.line}: no <rfilter>: probvis uses a box filter "
-                          "(Mitsuba's default is gaussian)", stacklevel=2)
-        for ch in objs:
-            self.check_attrs(ch, ("type", "name", "id"))
-            if self.attr(ch, "type") != "box":
-                self.fail(ch, f"unsupported rfilter '{ch.attrs['type']}' (supported: box)")
-            self.params(ch, {})
-        w, h = props.get("width", 768), props.get("height", 576)
-        if w < 1 or h < 1 or w > 1 << 15 or h > 1 << 15:
-            self.fail(node, f"film size {w}x{h} is out of range (1 to 32768)")
-        return w, h
+        if kind == "box":
+            self.params(node, {})
+            return {"rfilter": "box"}
+        if kind == "tent":
+            props, _ = self.params(node, {"radius": ("float",)})
+            r = props.get("radius", 1.0)
+            if not 0 < r < 1e3:
+                self.fail(node, f"tent radius must be positive, got {r:g}")
+            return {"rfilter": "tent", "filter_radius": r}
+        if kind == "gaussian":
+            props, _ = self.params(node, {"stddev": ("float",)})
+            sd = props.get("stddev", 0.5)
+            if not 0 < sd < 1e3:
+                self.fail(node, f"gaussian stddev must be positive, got {sd:g}")
+            return {"rfilter": "gaussian", "filter_stddev": sd}
+        self.fail(node, f"unsupported rfilter '{kind}' (supported: box, tent, gaussian)")
 
     def integrator(self, node):
         self.check_attrs(node, ("type", "id", "name"))
         kind = self.attr(node, "type")
+        if kind in ("path", "volpath"):
+            props, _ = self.params(node, {"max_depth": ("integer",), "rr_depth": ("integer",),
+                                          "hide_emitters": ("boolean",)})
+            if props.get("hide_emitters", False):
+                self.fail(node, "hide_emitters=true is not supported")
+            warnings.warn(f"{self.path}:{node.line}: integrator '{kind}' rendered as its direct-illumination "
+                          "component (probvis renders direct illumination only; one emitter sample per camera "
+                          "sample unless --shadow-rays says otherwise)", stacklevel=2)
+            return 1
         if kind != "direct":
-            self.fail(node, f"unsupported integrator '{kind}' (supported: direct)")
+            self.fail(node, f"unsupported integrator '{kind}' (supported: direct; path and volpath as their direct "
+                            "illumination)")
         props, _ = self.params(node, {"emitter_samples": ("integer",), "bsdf_samples": ("integer",),
                                       "shading_samples": ("integer",), "hide_emitters": ("boolean",)})
         if props.get("hide_emitters", False):

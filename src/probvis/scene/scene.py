@@ -11,7 +11,11 @@ from . import transform as tf
 
 @dataclass
 class Camera:
-    """A Mitsuba perspective sensor: `to_world` maps camera space (+z forward, +x left, +y up) to the world."""
+    """A Mitsuba perspective or thin-lens sensor: `to_world` maps camera space (+z forward, +x left, +y up) to
+    the world. `width` x `height` is the image rendered: the film's crop window at (`crop_x`, `crop_y`) of a film
+    of `film_width` x `film_height` (None: the whole film). `principal_x`, `principal_y` shift the principal
+    point by a fraction of the film size; `aperture_radius` > 0 makes a thin lens focused at `focus_distance`;
+    `rfilter` is the reconstruction filter ("box", "tent" with `filter_radius`, "gaussian" with `filter_stddev`)."""
 
     to_world: np.ndarray
     fov_x: float
@@ -19,6 +23,22 @@ class Camera:
     height: int
     near_clip: float = 1e-2
     far_clip: float = 1e4
+    film_width: int | None = None
+    film_height: int | None = None
+    crop_x: int = 0
+    crop_y: int = 0
+    principal_x: float = 0.0
+    principal_y: float = 0.0
+    aperture_radius: float = 0.0
+    focus_distance: float = 0.0
+    rfilter: str = "box"
+    filter_radius: float = 1.0
+    filter_stddev: float = 0.5
+
+    @property
+    def film_size(self):
+        """(width, height) of the whole film."""
+        return (self.film_width or self.width, self.film_height or self.height)
 
 
 @dataclass
@@ -61,10 +81,11 @@ class Scene:
         return flat.min(axis=0), flat.max(axis=0)
 
     def with_resolution(self, width=None, height=None):
-        """A copy whose film has another size (geometry arrays are shared, not copied)."""
+        """A copy whose film has another size, uncropped (geometry arrays are shared, not copied)."""
         cam = self.camera
         cam = dataclasses.replace(cam, width=cam.width if width is None else width,
-                                  height=cam.height if height is None else height)
+                                  height=cam.height if height is None else height, film_width=None,
+                                  film_height=None, crop_x=0, crop_y=0)
         out = dataclasses.replace(self, camera=cam)
         out.validate_camera()
         return out
@@ -81,7 +102,9 @@ class Scene:
             h.update(f"{a.dtype.str}{a.shape}".encode())
             h.update(a.tobytes())
         c = self.camera
-        h.update(repr((float(c.fov_x), int(c.width), int(c.height), float(c.near_clip), float(c.far_clip))).encode())
+        h.update(repr((float(c.fov_x), int(c.width), int(c.height), float(c.near_clip), float(c.far_clip),
+                       c.film_size, c.crop_x, c.crop_y, c.principal_x, c.principal_y, c.aperture_radius,
+                       c.focus_distance, c.rfilter, c.filter_radius, c.filter_stddev)).encode())
         return h.hexdigest()
 
     def validate_camera(self):
@@ -93,6 +116,12 @@ class Scene:
             raise ProbvisError(f"field of view must be between 0 and 180 degrees, got {c.fov_x:g}")
         if not 0.0 < c.near_clip < c.far_clip:
             raise ProbvisError("near_clip must be positive and smaller than far_clip")
+        fw, fh = c.film_size
+        if not (0 <= c.crop_x and c.crop_x + c.width <= fw and 0 <= c.crop_y and c.crop_y + c.height <= fh):
+            raise ProbvisError(f"the crop window {c.width}x{c.height} at ({c.crop_x}, {c.crop_y}) does not fit the "
+                               f"{fw}x{fh} film")
+        if c.aperture_radius < 0 or (c.aperture_radius > 0 and not c.focus_distance > 0):
+            raise ProbvisError("a thin lens needs aperture_radius >= 0 and a positive focus_distance")
 
 
 class SceneBuilder:
