@@ -118,7 +118,7 @@ def edge_scene(tmp_path, rfilter):
         <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/></transform>
         <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
         <film type="hdrfilm"><integer name="width" value="48"/><integer name="height" value="40"/>{rfilter}</film>
-        </sensor><integrator type="direct"/>
+        </sensor><integrator type="direct"><integer name="bsdf_samples" value="0"/></integrator>
         <shape type="rectangle"><transform name="to_world"><rotate z="1" angle="17"/><scale value="0.7"/></transform>
             <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""", '<default name="spp" value="16"/>')
 

@@ -143,6 +143,8 @@ def _parser(estimator=None):
                    help="set a scene parameter (a <default> of an XML scene; res, spp, shadow_rays or seed of a "
                         "built-in one)")
     r.add_argument("--seed", type=_non_negative, help="random seed (default: the scene's sampler seed)")
+    r.add_argument("--strict", action="store_true", help="refuse appearance probvis would approximate (non-diffuse "
+                                                         "BSDFs render as their nearest diffuse colour otherwise)")
     r.add_argument("--visibility", default="exact", metavar="NAME",
                    help=f"visibility estimator: {', '.join(available_names())} or module:Class (default exact; "
                         "`probvis estimators` lists each one's options)")
@@ -208,7 +210,7 @@ def _cmd_render(args):
                            f"'{cls.name}'")
     options = {o.name: getattr(args, o.name) for o in cls.options if getattr(args, o.name) is not None}
     result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed, threads=args.threads,
-                    visibility=cls, visibility_options=options, defines=_defines(args.defines),
+                    visibility=cls, visibility_options=options, defines=_defines(args.defines), strict=args.strict,
                     clamp_negative=args.clamp_negative, progress=not args.quiet and sys.stderr.isatty())
     for path in outputs:
         write_image(path, result.image, args.exposure)

@@ -192,20 +192,21 @@ def _warm_up(cls, options, progress):
 
 
 def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threads=None, resolution=None,
-           visibility="exact", visibility_options=None, defines=None, progress=False, clamp_negative=False):
+           visibility="exact", visibility_options=None, defines=None, strict=False, progress=False,
+           clamp_negative=False):
     """Render `scene` (a `Scene`, a Mitsuba XML path or a built-in name) with direct illumination.
 
     Settings start from the scene's own (`Scene.defaults`: its sampler and integrator) or `settings` (a
     `RenderSettings`); `spp`, `shadow_rays` (emitter samples per camera sample), `seed` and `threads` replace
     single ones, and `resolution` (width, height) the film's size. `defines` are `<default>` overrides for
-    loading the scene (like Mitsuba's `-D`). `visibility` is an estimator name (built-in, installed, or
+    loading the scene (like Mitsuba's `-D`); `strict` makes approximated appearance an error. `visibility` is an estimator name (built-in, installed, or
     `module:Class`), class or instance, with `visibility_options` for a name or class. `clamp_negative` sets
     negative pixels (from probabilistic visibility) to zero: biased, the image gets too bright on average; the
     stats report by how much. Returns a `RenderResult` whose `.stats` is JSON-serialisable.
     """
     t_start, cpu_start = time.perf_counter(), time.process_time()
     if not isinstance(scene, Scene):
-        scene = load_scene(scene, **(defines or {}))
+        scene = load_scene(scene, strict, **(defines or {}))
     elif defines:
         raise ProbvisError(f"scene parameters {sorted(defines)} apply only when loading a scene from a file")
     load_seconds = time.perf_counter() - t_start

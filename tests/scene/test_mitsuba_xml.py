@@ -71,8 +71,8 @@ def test_obj_mesh_relative_path_and_twosided(tmp_path):
 
 @pytest.mark.parametrize("body, message", [
     ("<shape type='rectangle'><emitter type='point'/></shape>", "unsupported emitter type 'point'"),
-    ("<shape type='disk'/>", "unsupported shape type 'disk'"),
-    ("<bsdf type='conductor' id='x'/>", "unsupported bsdf type 'conductor'"),
+    ("<shape type='hyperboloid'/>", "unsupported shape type 'hyperboloid'"),
+    ("<bsdf type='velvet' id='x'/>", "unsupported bsdf type 'velvet'"),
     ("<shape type='rectangle'><float name='radius' value='1'/></shape>", "unsupported parameter 'radius'"),
     ("<shape type='obj'><string name='filename' value='nope.obj'/></shape>", "mesh file not found"),
     ("<shape type='rectangle'><ref id='missing'/></shape>", "unknown id 'missing'"),

@@ -7,17 +7,18 @@ from .mitsuba_xml import read_scene
 from .scene import Camera, Scene, SceneBuilder, ShapeInfo
 
 
-def load_scene(path, **defaults):
+def load_scene(path, strict=False, **defaults):
     """Load a Mitsuba 3 XML file, or a built-in scene by name (`probvis scenes` lists them).
 
-    Keyword arguments override the scene's `<default>` parameters, like Mitsuba's `-D name=value`.
+    Keyword arguments override the scene's `<default>` parameters, like Mitsuba's `-D name=value`; with `strict`
+    appearance probvis would approximate (a non-diffuse BSDF) is an error instead of a warning.
     """
     if isinstance(path, str) and path in BUILTINS:
         return builtin_scene(path, **defaults)
     p = Path(path)
     if p.suffix.lower() != ".xml" and not p.exists():
         raise ProbvisError(f"'{path}' is neither a scene file nor a built-in scene ({', '.join(BUILTINS)})")
-    return read_scene(p, **defaults)
+    return read_scene(p, strict, **defaults)
 
 
 __all__ = ["BUILTINS", "Camera", "Scene", "SceneBuilder", "ShapeInfo", "load_scene"]

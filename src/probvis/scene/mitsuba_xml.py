@@ -62,14 +62,19 @@ def parse_tree(path):
     return handler.root
 
 
+_APPROXIMATED_BSDFS = {"plastic", "roughplastic", "conductor", "roughconductor", "dielectric", "thindielectric",
+                       "roughdielectric", "principled", "principledthin", "blendbsdf", "mask", "bumpmap", "normalmap",
+                       "pplastic", "hair", "measured", "polarizer", "retarder"}
 _PROPERTY_TAGS = {"integer", "float", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform"}
 _SAMPLERS = {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"}
 _VAR = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 
 
 class _Reader:
-    def __init__(self, path, overrides):
+    def __init__(self, path, overrides, strict=False):
         self.path = Path(path)
+        self.strict = strict
+        self.approximated = set()  # plugin types already warned about
         self.overrides = {k: str(v) for k, v in overrides.items()}
         self.defaults = {}
         self.used = set()  # overridden parameters the scene refers to
@@ -218,8 +223,10 @@ class _Reader:
         self.check_attrs(node, ("type", "id", "name"))
         kind = self.attr(node, "type")
         if kind == "diffuse":
-            props, _ = self.params(node, {"reflectance": ("rgb", "spectrum", "float")})
+            props, textures = self.params(node, {"reflectance": ("rgb", "spectrum", "float")}, ("texture",))
             refl = props.get("reflectance", np.full(3, 0.5))
+            for tex in textures:
+                refl = self.texture_colour(tex)
             refl = refl * np.ones(3)
             if np.any(refl < 0) or np.any(refl > 1):
                 self.fail(node, "reflectance must be within [0, 1]")
@@ -230,11 +237,84 @@ class _Reader:
                 self.fail(node, "twosided needs exactly one nested bsdf")
             inner, _ = self.bsdf(objs[0])
             out = (inner, True)
+        elif kind in _APPROXIMATED_BSDFS:
+            colour = self.nearest_diffuse(node, kind)
+            self.approximate(node, f"bsdf '{kind}'", f"rendered as diffuse with reflectance "
+                                                     f"{', '.join(f'{c:.3g}' for c in colour)}")
+            out = (colour, kind in ("dielectric", "thindielectric", "roughdielectric"))
         else:
-            self.fail(node, f"unsupported bsdf type '{kind}' (supported: diffuse, twosided)")
+            self.fail(node, f"unsupported bsdf type '{kind}' (supported: diffuse, twosided; approximated as diffuse: "
+                            f"{', '.join(sorted(_APPROXIMATED_BSDFS))})")
         if "id" in node.attrs:
             self.ids[node.attrs["id"]] = ("bsdf", out)
         return out
+
+    def approximate(self, node, what, how):
+        """Appearance probvis does not model: an error with --strict, else one warning per plugin type."""
+        if self.strict:
+            self.fail(node, f"{what} is approximated ({how}); drop --strict to render it anyway")
+        if what not in self.approximated:
+            self.approximated.add(what)
+            warnings.warn(f"{self.path}:{node.line}: {what} {how} (appearance approximated; visibility is exact)",
+                          stacklevel=2)
+
+    def loose_params(self, node):
+        """The simple properties of a plugin probvis approximates (any names), and its nested objects."""
+        props, objects = {}, []
+        for ch in node.children:
+            if ch.tag in ("rgb", "spectrum", "float", "integer", "boolean", "string"):
+                name = self.attr(ch, "name")
+                raw = self.attr(ch, "value")
+                if ch.tag == "spectrum" and (":" in raw or len(raw.replace(",", " ").split()) != 1):
+                    props[name] = np.full(3, 0.5)  # a sampled spectrum: its colour is not modelled
+                else:
+                    props[name] = self.value(ch)
+            elif ch.tag in ("bsdf", "ref", "texture"):
+                objects.append(ch)
+        return props, objects
+
+    def texture_colour(self, node):
+        """Mean colour of a nested texture (checkerboard: its two colours' mean; others: grey 0.5)."""
+        props, _ = self.loose_params(node)
+        kind = node.attrs.get("type", "")
+        if kind == "checkerboard":
+            c0, c1 = props.get("color0", np.full(3, 0.4)), props.get("color1", np.full(3, 0.2))
+            mean = np.clip(0.5 * (np.ones(3) * c0 + np.ones(3) * c1), 0.0, 1.0)
+            self.approximate(node, "texture 'checkerboard'", f"rendered as its mean colour "
+                                                            f"{', '.join(f'{c:.3g}' for c in mean)}")
+            return mean
+        self.approximate(node, f"texture '{kind}'", "rendered as grey 0.5")
+        return np.full(3, 0.5)
+
+    def nearest_diffuse(self, node, kind):
+        """The diffuse colour nearest to a BSDF probvis does not model (documented in docs/decisions.md)."""
+        props, objs = self.loose_params(node)
+        named = {ch.attrs.get("name"): ch for ch in objs if ch.tag == "texture"}
+        nested = [ch for ch in objs if ch.tag in ("bsdf", "ref")]
+
+        def colour(name, default):
+            if name in named:
+                return self.texture_colour(named[name])
+            return np.clip(np.ones(3) * props.get(name, default), 0.0, 1.0)
+
+        if kind in ("plastic", "roughplastic"):
+            return colour("diffuse_reflectance", 0.5)
+        if kind == "principled":
+            return colour("base_color", 0.5)
+        if kind in ("conductor", "roughconductor"):
+            return colour("specular_reflectance", 1.0)
+        if kind in ("dielectric", "thindielectric", "roughdielectric"):
+            ior_in, ior_out = props.get("int_ior", 1.5046), props.get("ext_ior", 1.000277)
+            ior_in = ior_in if isinstance(ior_in, float) else 1.5046  # a named material: taken as BK7
+            ior_out = ior_out if isinstance(ior_out, float) else 1.000277  # ... and air
+            eta = ior_in / ior_out
+            return np.full(3, ((eta - 1.0) / (eta + 1.0)) ** 2)  # Fresnel reflectance at normal incidence
+        if kind == "blendbsdf" and len(nested) == 2:
+            w = float(np.mean(colour("weight", 0.5)))
+            return (1.0 - w) * self.bsdf(nested[0])[0] + w * self.bsdf(nested[1])[0]
+        if nested:  # mask, bumpmap, normalmap, ...: the BSDF they wrap
+            return self.bsdf(nested[0])[0]
+        return np.full(3, 0.5)
 
     def resolve(self, node, kind):
         self.check_attrs(node, ("id", "name"))
@@ -267,8 +347,11 @@ class _Reader:
             allowed |= {"filename": ("string",), "face_normals": ("boolean",)}
         elif kind == "sphere":
             allowed |= {"center": ("point",), "radius": ("float",)}
-        elif kind not in ("rectangle", "cube"):
-            self.fail(node, f"unsupported shape type '{kind}' (supported: obj, ply, rectangle, cube, sphere)")
+        elif kind == "cylinder":
+            allowed |= {"p0": ("point",), "p1": ("point",), "radius": ("float",)}
+        elif kind not in ("rectangle", "cube", "disk"):
+            self.fail(node, f"unsupported shape type '{kind}' (supported: obj, ply, rectangle, cube, disk, cylinder, "
+                            "sphere)")
         props, objs = self.params(node, allowed, ("bsdf", "ref", "emitter"))
         material, radiance = None, None
         for ch in objs:
@@ -297,6 +380,12 @@ class _Reader:
             v, f = shp.rectangle()
         elif kind == "cube":
             v, f = shp.cube()
+        elif kind == "disk":
+            v, f = shp.disk()
+        elif kind == "cylinder":
+            v, f, vnormals = shp.cylinder()
+            m = m @ self.cylinder_frame(node, props)
+            face_normals = False
         else:
             v, f, vnormals = shp.uv_sphere()
             r = props.get("radius", 1.0)
@@ -304,13 +393,31 @@ class _Reader:
                 self.fail(node, "sphere radius must be positive")
             m = m @ tf.translate(props.get("center", np.zeros(3))) @ tf.scale([r, r, r])
             face_normals = False
-        if kind in ("rectangle", "sphere") and np.linalg.det(m[:3, :3]) < 0:
+        if kind in ("rectangle", "disk", "sphere", "cylinder") and np.linalg.det(m[:3, :3]) < 0:
             flip = not flip  # analytic shapes orient by the normal transform, not by the mirrored winding
         name = node.attrs.get("id", f"{kind}@{node.line}")
         try:
             builder.add_mesh(name, kind, v, f, m, material, radiance, face_normals, vnormals, flip)
         except ProbvisError as exc:
             self.fail(node, str(exc))
+
+    def cylinder_frame(self, node, props):
+        """Object-to-shape transform of Mitsuba's cylinder from p0 to p1 with a radius (the unit cylinder's z
+        axis along p1 - p0)."""
+        p0, p1 = props.get("p0", np.zeros(3)), props.get("p1", np.array([0.0, 0.0, 1.0]))
+        r = props.get("radius", 1.0)
+        axis = np.asarray(p1, float) - np.asarray(p0, float)
+        length = float(np.linalg.norm(axis))
+        if not (r > 0 and length > 0):
+            self.fail(node, "a cylinder needs a positive radius and p0 != p1")
+        z = axis / length
+        helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        x = np.cross(helper, z)
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        frame = np.eye(4)
+        frame[:3, 0], frame[:3, 1], frame[:3, 2], frame[:3, 3] = x * r, y * r, z * length, p0
+        return frame
 
     def sensor(self, node):
         self.check_attrs(node, ("type", "id", "name"))
@@ -507,6 +614,7 @@ class _Reader:
             raise ProbvisError(f"{self.path}: {exc}") from None
 
 
-def read_scene(path, **overrides):
-    """Load a Mitsuba 3 XML scene; `overrides` replace `<default>` values as `-D name=value` does."""
-    return _Reader(path, overrides).read()
+def read_scene(path, strict=False, **overrides):
+    """Load a Mitsuba 3 XML scene; `overrides` replace `<default>` values as `-D name=value` does. Appearance
+    that probvis approximates (non-diffuse BSDFs) is a warning, or with `strict` an error."""
+    return _Reader(path, overrides, strict).read()

@@ -101,3 +101,32 @@ def load_mesh(path):
     if "vertex_normals" in mesh._cache.cache:  # normals stored in the file
         n = np.asarray(mesh.vertex_normals, dtype=np.float64)
     return v, f, n
+
+
+DISK_SEGMENTS = 256  # a tessellated disk's area is (n / 2 pi) sin(2 pi / n) of the disk's: 0.99990 at 256
+
+
+def disk(segments=DISK_SEGMENTS):
+    """Mitsuba's disk: the unit disk in the z = 0 plane, front side +z, as a fan of `segments` triangles."""
+    phi = 2.0 * np.pi * np.arange(segments) / segments
+    v = np.vstack([[0.0, 0.0, 0.0], np.column_stack([np.cos(phi), np.sin(phi), np.zeros(segments)])])
+    j = np.arange(segments)
+    f = np.column_stack([np.zeros(segments, np.int64), 1 + j, 1 + (j + 1) % segments])
+    return v, f
+
+
+def cylinder(segments=DISK_SEGMENTS, rings=1):
+    """Mitsuba's cylinder: radius 1 around the z axis from z = 0 to z = 1, open, outward-facing, with its exact
+    (radial) vertex normals."""
+    phi = 2.0 * np.pi * np.arange(segments) / segments
+    z = np.linspace(0.0, 1.0, rings + 1)
+    zz, pp = np.meshgrid(z, phi, indexing="ij")
+    v = np.stack([np.cos(pp), np.sin(pp), zz], axis=-1).reshape(-1, 3)
+    n = np.stack([np.cos(pp), np.sin(pp), np.zeros_like(pp)], axis=-1).reshape(-1, 3)
+    faces = []
+    for i in range(rings):
+        for j in range(segments):
+            a, b = i * segments + j, i * segments + (j + 1) % segments
+            c, d = a + segments, b + segments
+            faces += [[a, b, d], [a, d, c]]
+    return v, np.array(faces, dtype=np.int64), n

@@ -1,0 +1,77 @@
+"""Mitsuba shapes beyond meshes (disk, cylinder) against Mitsuba 3, and appearance probvis approximates:
+one warning per plugin type naming file:line, or an error with --strict."""
+import warnings
+
+import numpy as np
+import pytest
+
+import probvis
+from probvis import ProbvisError
+from probvis.cli import main
+from tests.conftest import relmse, sensor, write_scene
+
+SHAPES = """
+    <shape type="disk"><transform name="to_world"><scale value="2"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.6, 0.5"/></bsdf></shape>
+    <shape type="cylinder"><float name="radius" value="0.15"/><point name="p0" x="-0.3" y="0.1" z="0"/>
+        <point name="p1" x="-0.1" y="0.2" z="0.9"/>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.6, 0.3"/></bsdf></shape>
+    <shape type="cylinder"><float name="radius" value="0.3"/><boolean name="flip_normals" value="true"/>
+        <transform name="to_world"><translate x="0.6" y="-0.2"/></transform>
+        <bsdf type="twosided"><bsdf type="diffuse"/></bsdf></shape>
+    <shape type="disk"><transform name="to_world"><scale value="0.35"/><rotate x="1" angle="170"/>
+        <translate x="0.1" y="0.2" z="1.8"/></transform>
+        <emitter type="area"><rgb name="radiance" value="14, 12, 9"/></emitter></shape>"""
+
+
+def test_disk_and_cylinder_match_mitsuba(tmp_path):
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    path = write_scene(tmp_path / "shapes.xml", sensor(origin="0.3, -2.8, 1.7", target="0, 0, 0.3", up="0, 0, 1",
+                                                        fov=45, spp="$spp", w=40, h=32) + SHAPES,
+                       '<default name="spp" value="16"/>')
+
+    def theirs(spp, seed):
+        return np.array(mi.render(mi.load_file(str(path), spp=spp), seed=seed, spp=spp), dtype=np.float64)
+
+    ref = theirs(512, 100)
+    noise = np.mean([relmse(theirs(16, s), ref) for s in (1, 2)])
+    ours = probvis.render(path, spp=16, shadow_rays=4, seed=1).image
+    assert relmse(ours, ref) <= 1.5 * noise
+    np.testing.assert_allclose(ours.reshape(-1, 3).mean(0), ref.reshape(-1, 3).mean(0), rtol=0.01)
+
+
+APPROXIMATED = """
+    <bsdf type="plastic" id="p"><rgb name="diffuse_reflectance" value="0.1, 0.27, 0.36"/></bsdf>
+    <shape type="rectangle"><transform name="to_world"><scale value="2"/></transform><ref id="p"/></shape>
+    <shape type="cube"><transform name="to_world"><scale value="0.2"/></transform><ref id="p"/></shape>
+    <shape type="sphere"><float name="radius" value="0.2"/><point name="center" x="0.5" y="0" z="0.3"/>
+        <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf></shape>
+    <shape type="disk"><transform name="to_world"><translate x="-0.6" z="0.01"/></transform>
+        <bsdf type="blendbsdf"><float name="weight" value="0.25"/><bsdf type="diffuse"><rgb name="reflectance"
+        value="0.8"/></bsdf><bsdf type="roughconductor"/></bsdf></shape>
+    <shape type="rectangle"><transform name="to_world"><scale value="0.3"/><rotate x="1" angle="180"/>
+        <translate z="2"/></transform><emitter type="area"><rgb name="radiance" value="10"/></emitter></shape>"""
+
+
+def test_approximated_appearance_warns_once_per_plugin_type(tmp_path):
+    path = write_scene(tmp_path / "a.xml", sensor() + APPROXIMATED)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene = probvis.load_scene(path)
+    messages = [str(w.message) for w in caught]
+    assert len(messages) == 4, messages  # plastic (used twice), dielectric, blendbsdf and the conductor in it
+    assert any(m.startswith(f"{path}:") and "bsdf 'plastic' rendered as diffuse with reflectance 0.1, 0.27, 0.36"
+               in m for m in messages)
+    colours = {tuple(np.round(c, 4)) for c in scene.reflectance}
+    eta = 1.5 / 1.000277  # glass in air (Mitsuba's default ext_ior): Fresnel reflectance at normal incidence
+    assert (round(((eta - 1) / (eta + 1)) ** 2, 4),) * 3 in colours
+    assert (0.85, 0.85, 0.85) in colours  # 3/4 of a 0.8 diffuse and 1/4 of a white conductor
+
+
+def test_strict_refuses_approximated_appearance(tmp_path, capsys):
+    path = write_scene(tmp_path / "a.xml", sensor() + APPROXIMATED)
+    with pytest.raises(ProbvisError, match=r"a.xml:\d+: <bsdf>: bsdf 'plastic' is approximated"):
+        probvis.load_scene(path, strict=True)
+    assert main(["render", str(path), "--strict", "-o", str(tmp_path / "o.exr")]) == 2
+    assert "drop --strict" in capsys.readouterr().err and not (tmp_path / "o.exr").exists()
