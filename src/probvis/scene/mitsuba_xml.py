@@ -339,19 +339,37 @@ class _Reader:
             self.fail(node, "radiance must be non-negative")
         return rad
 
-    def shape(self, node, builder):
+    def shape(self, node, builder, outer=None):
+        """Add a shape to `builder`; `outer` is an instance's transform, applied after the shape's own."""
         self.check_attrs(node, ("type", "id", "name"))
         kind = self.attr(node, "type")
+        if kind == "shapegroup":
+            if outer is not None or "id" not in node.attrs:
+                self.fail(node, "a shapegroup must be at the top level and have an id")
+            _, objs = self.params(node, {}, ("shape",))
+            self.ids[node.attrs["id"]] = ("shapegroup", objs)
+            return
+        if kind == "instance":
+            props, objs = self.params(node, {"to_world": ("transform",)}, ("ref",))
+            if len(objs) != 1:
+                self.fail(node, "an instance needs exactly one <ref> to a shapegroup")
+            group = self.resolve(objs[0], "shapegroup")
+            m = props.get("to_world", np.eye(4)) if outer is None else outer @ props.get("to_world", np.eye(4))
+            for child in group:
+                self.shape(child, builder, m)
+            return
         allowed = {"to_world": ("transform",), "flip_normals": ("boolean",)}
         if kind in ("obj", "ply"):
             allowed |= {"filename": ("string",), "face_normals": ("boolean",)}
+        elif kind == "serialized":
+            allowed |= {"filename": ("string",), "face_normals": ("boolean",), "shape_index": ("integer",)}
         elif kind == "sphere":
             allowed |= {"center": ("point",), "radius": ("float",)}
         elif kind == "cylinder":
             allowed |= {"p0": ("point",), "p1": ("point",), "radius": ("float",)}
         elif kind not in ("rectangle", "cube", "disk"):
-            self.fail(node, f"unsupported shape type '{kind}' (supported: obj, ply, rectangle, cube, disk, cylinder, "
-                            "sphere)")
+            self.fail(node, f"unsupported shape type '{kind}' (supported: obj, ply, serialized, rectangle, cube, disk, "
+                            "cylinder, sphere, shapegroup, instance)")
         props, objs = self.params(node, allowed, ("bsdf", "ref", "emitter"))
         material, radiance = None, None
         for ch in objs:
@@ -365,16 +383,24 @@ class _Reader:
                 refl, two = self.bsdf(ch)
                 material = builder.material(refl, two)
         m = props.get("to_world", np.eye(4))
+        if outer is not None:
+            m = outer @ m
         flip = props.get("flip_normals", False)
         face_normals, vnormals = True, None
-        if kind in ("obj", "ply"):
+        if kind in ("obj", "ply", "serialized"):
             fname = props.get("filename")
             if fname is None:
                 self.fail(node, "missing 'filename'")
             mesh_path = (self.path.parent / fname) if not Path(fname).is_absolute() else Path(fname)
             if not mesh_path.is_file():
                 self.fail(node, f"mesh file not found: {mesh_path}")
-            v, f, vnormals = shp.load_mesh(mesh_path)
+            try:
+                if kind == "serialized":
+                    v, f, vnormals = shp.load_serialized(mesh_path, props.get("shape_index", 0))
+                else:
+                    v, f, vnormals = shp.load_mesh(mesh_path)
+            except ProbvisError as exc:
+                self.fail(node, str(exc))
             face_normals = props.get("face_normals", False)
         elif kind == "rectangle":
             v, f = shp.rectangle()

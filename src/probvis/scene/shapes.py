@@ -130,3 +130,64 @@ def cylinder(segments=DISK_SEGMENTS, rings=1):
             c, d = a + segments, b + segments
             faces += [[a, b, d], [a, d, c]]
     return v, np.array(faces, dtype=np.int64), n
+
+
+SERIALIZED_MAGIC = 0x041C
+_SER_NORMALS, _SER_TEXCOORDS, _SER_COLORS, _SER_DOUBLE = 0x0001, 0x0002, 0x0008, 0x2000
+
+
+def load_serialized(path, shape_index=0):
+    """Mesh `shape_index` of a Mitsuba `.serialized` file (format versions 3 and 4: a zlib stream per mesh, an
+    offset table at the end): (vertices, faces, vertex normals or None)."""
+    import struct
+    import zlib
+
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ProbvisError(f"cannot read mesh {path}: {exc.strerror or exc}") from None
+    if len(data) < 8:
+        raise ProbvisError(f"{path} is not a Mitsuba serialized mesh (too short)")
+    magic, version = struct.unpack_from("<HH", data, 0)
+    if magic != SERIALIZED_MAGIC:
+        raise ProbvisError(f"{path} is not a Mitsuba serialized mesh (format id {magic:#06x})")
+    if version not in (3, 4):
+        raise ProbvisError(f"{path}: serialized format version {version} is not supported (3 and 4 are)")
+    (count,) = struct.unpack_from("<I", data, len(data) - 4)
+    if not 0 <= shape_index < max(count, 1):
+        raise ProbvisError(f"{path}: shape_index {shape_index} is out of range (the file holds {count} meshes)")
+    offset = 0
+    if shape_index > 0:
+        size = 8 if version == 4 else 4
+        table = len(data) - 4 - size * (count - shape_index)
+        (offset,) = struct.unpack_from("<Q" if version == 4 else "<I", data, table)
+    try:
+        raw = zlib.decompressobj().decompress(data[offset + 4:])
+        pos = 4
+        (flags,) = struct.unpack_from("<I", raw, 0)
+        if version == 4:
+            end = raw.index(b"\0", pos)
+            pos = end + 1
+        n_v, n_f = struct.unpack_from("<QQ", raw, pos)
+        pos += 16
+        real = np.float64 if flags & _SER_DOUBLE else np.float32
+
+        def take(n, dtype):
+            nonlocal pos
+            out = np.frombuffer(raw, dtype=dtype, count=n, offset=pos)
+            pos += out.nbytes
+            return out
+
+        v = take(3 * n_v, real).reshape(-1, 3).astype(np.float64)
+        n = take(3 * n_v, real).reshape(-1, 3).astype(np.float64) if flags & _SER_NORMALS else None
+        if flags & _SER_TEXCOORDS:
+            take(2 * n_v, real)
+        if flags & _SER_COLORS:
+            take(3 * n_v, real)
+        f = take(3 * n_f, np.uint64 if n_v > 0xFFFFFFFF else np.uint32).reshape(-1, 3).astype(np.int64)
+    except (zlib.error, struct.error, ValueError) as exc:
+        raise ProbvisError(f"{path}: corrupt serialized mesh {shape_index} ({exc})") from None
+    if len(f) == 0:
+        raise ProbvisError(f"mesh {shape_index} of {path} contains no triangles")
+    return v, f, n
