@@ -16,6 +16,7 @@ from .cases import CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_UNKNOWN, CASE_VERIFI
 from .errors import ProbvisError
 from .parallel import spread
 from .rng import uniform
+from .scene.scene import EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT
 
 _LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 POINTS_PER_BLOCK = 64  # shading points per parallel work item of `sample_emitters`
@@ -25,11 +26,15 @@ class EmitterArrays(NamedTuple):
     """The emitter sampler as the kernels take it."""
 
     pmf: np.ndarray  # (e,) selection probability of each emitter (by power)
-    area: np.ndarray  # (e,) its area
+    area: np.ndarray  # (e,) its area (1 for a point or spot light: its samples carry intensity / d^2)
     offsets: np.ndarray  # (e + 1,) range of each emitter in `tris`
     tris: np.ndarray  # scene triangle ids of all emitting triangles, grouped by emitter
     tri_prob: np.ndarray  # alias table of each emitter's triangles by area: keep probability of column k ...
     tri_alias: np.ndarray  # ... and the column (index within the emitter) taken otherwise
+    kind: np.ndarray  # (e,) EMITTER_AREA, EMITTER_POINT or EMITTER_SPOT
+    position: np.ndarray  # (e, 3) of a point or spot light
+    axis: np.ndarray  # (e, 3) a spot's unit axis
+    cone: np.ndarray  # (e, 4) a spot's cos cutoff, cos beam width, cutoff angle and 1 / transition width
 
 
 @dataclass
@@ -98,11 +103,18 @@ def build_emitter_sampler(scene):
     for i in range(e):
         tri_prob[offsets[i]:offsets[i + 1]], tri_alias[offsets[i]:offsets[i + 1]] = alias_table(
             tri_area[order[offsets[i]:offsets[i + 1]]])
-    power = np.pi * area * (scene.emitter_radiance @ _LUMINANCE)
+    kind = scene.emitter_kind
+    lum = scene.emitter_radiance @ _LUMINANCE
+    # flux: pi A L of an area emitter, 4 pi I of a point light, about 2 pi (1 - cos cutoff) I of a spot
+    power = np.where(kind == EMITTER_AREA, np.pi * area * lum,
+                     np.where(kind == EMITTER_POINT, 4 * np.pi * lum, 2 * np.pi * (1 - scene.emitter_cone[:, 0]) * lum))
+    area = np.where(kind == EMITTER_AREA, area, 1.0)
     if not np.any(power > 0):
         raise ProbvisError(f"scene '{scene.name}' has emitters, but all of them have zero power")
     pmf = power / power.sum()
-    return EmitterSampler(EmitterArrays(pmf, area, offsets, order.astype(np.int64), tri_prob, tri_alias), power)
+    return EmitterSampler(EmitterArrays(pmf, area, offsets, order.astype(np.int64), tri_prob, tri_alias,
+                                        kind.astype(np.int8), scene.emitter_position, scene.emitter_axis,
+                                        scene.emitter_cone), power)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -226,9 +238,30 @@ def triangle_irradiance(triangles, t, px, py, pz, nx, ny, nz):
     return 0.5 * abs(total)
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def delta_falloff(es, e, dx, dy, dz):
+    """Emitted intensity of point or spot light `e` towards direction d (any length), relative to its
+    `intensity`: 1 for a point light; Mitsuba's spot falloff, linear in angle from the beam width to the
+    cutoff."""
+    if es.kind[e] != EMITTER_SPOT:
+        return 1.0
+    cos_t = (dx * es.axis[e, 0] + dy * es.axis[e, 1] + dz * es.axis[e, 2]) / math.sqrt(dx * dx + dy * dy + dz * dz)
+    if cos_t <= es.cone[e, 0]:
+        return 0.0
+    if cos_t >= es.cone[e, 1]:
+        return 1.0
+    return (es.cone[e, 2] - math.acos(min(cos_t, 1.0))) * es.cone[e, 3]
+
+
 @njit(cache=True, error_model="numpy")
 def emitter_irradiance(e, es, triangles, px, py, pz, nx, ny, nz):
-    """Cosine-weighted solid angle of all of emitter `e`'s front-facing triangles above p's horizon."""
+    """Cosine-weighted solid angle of all of emitter `e`'s front-facing triangles above p's horizon (for a
+    point or spot light: cos / d^2 times its falloff, so that intensity x this is the irradiance)."""
+    if es.kind[e] != EMITTER_AREA:
+        wx, wy, wz = es.position[e, 0] - px, es.position[e, 1] - py, es.position[e, 2] - pz
+        d2 = wx * wx + wy * wy + wz * wz
+        dot = nx * wx + ny * wy + nz * wz
+        return max(dot, 0.0) / (d2 * math.sqrt(d2)) * delta_falloff(es, e, -wx, -wy, -wz)
     total = 0.0
     for k in range(es.offsets[e], es.offsets[e + 1]):
         total += triangle_irradiance(triangles, es.tris[k], px, py, pz, nx, ny, nz)
@@ -242,12 +275,19 @@ def _emitter_segment(slot, le, scale, rgb, u, es, triangles, fnormals, p, s, gn,
     point p (shading normal s, geometric normal gn): segment, contribution `rgb` x `scale` x cos cos / d^2
     (`scale` holds area / (pdf of the emitter x samples x pi)) and the active flag. No branches: the slot is
     written whether or not the emitter point faces p, and `active` says which."""
-    lt, yx, yy, yz = sample_on_emitter(le, es, triangles, u[0], u[1], u[2])
-    wx, wy, wz = yx - p[0], yy - p[1], yz - p[2]
-    d2 = wx * wx + wy * wy + wz * wz
-    # cosines times |w|: their signs need no square root, and cos_x cos_y / d2 = dot_x dot_y / d2^2
-    dot_x = s[0] * wx + s[1] * wy + s[2] * wz
-    dot_y = -(fnormals[lt, 0] * wx + fnormals[lt, 1] * wy + fnormals[lt, 2] * wz)
+    if es.kind[le] == EMITTER_AREA:
+        lt, yx, yy, yz = sample_on_emitter(le, es, triangles, u[0], u[1], u[2])
+        wx, wy, wz = yx - p[0], yy - p[1], yz - p[2]
+        d2 = wx * wx + wy * wy + wz * wz
+        # cosines times |w|: their signs need no square root, and cos_x cos_y / d2 = dot_x dot_y / d2^2
+        dot_x = s[0] * wx + s[1] * wy + s[2] * wz
+        dot_y = -(fnormals[lt, 0] * wx + fnormals[lt, 1] * wy + fnormals[lt, 2] * wz)
+    else:  # a point or spot light: cos_x I / d2 = dot_x |w| / d2^2, times a spot's falloff
+        yx, yy, yz = es.position[le, 0], es.position[le, 1], es.position[le, 2]
+        wx, wy, wz = yx - p[0], yy - p[1], yz - p[2]
+        d2 = wx * wx + wy * wy + wz * wz
+        dot_x = s[0] * wx + s[1] * wy + s[2] * wz
+        dot_y = math.sqrt(d2) * delta_falloff(es, le, -wx, -wy, -wz)
     g = dot_x * dot_y * scale / (d2 * d2)
     off = eps if gn[0] * wx + gn[1] * wy + gn[2] * wz > 0.0 else -eps
     ox, oy, oz = p[0] + off * gn[0], p[1] + off * gn[1], p[2] + off * gn[2]

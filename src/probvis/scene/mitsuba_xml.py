@@ -339,6 +339,37 @@ class _Reader:
             self.fail(node, "radiance must be non-negative")
         return rad
 
+    def delta_emitter(self, node, builder):
+        """A top-level `point` or `spot` emitter."""
+        self.check_attrs(node, ("type", "id", "name"))
+        kind = self.attr(node, "type")
+        if kind not in ("point", "spot"):
+            self.fail(node, f"unsupported emitter type '{kind}' at top level (supported: point, spot; area emitters "
+                            "attach to shapes)")
+        allowed = {"intensity": ("rgb", "spectrum", "float"), "to_world": ("transform",)}
+        if kind == "point":
+            allowed["position"] = ("point",)
+        else:
+            allowed |= {"cutoff_angle": ("float",), "beam_width": ("float",)}
+        props, _ = self.params(node, allowed)
+        intensity = props.get("intensity", np.ones(3)) * np.ones(3)
+        if np.any(intensity < 0):
+            self.fail(node, "intensity must be non-negative")
+        m = props.get("to_world", np.eye(4))
+        if kind == "point":
+            if "position" in props and "to_world" in props:
+                self.fail(node, "give either 'position' or 'to_world', not both")
+            builder.add_point_emitter(intensity, props.get("position", m[:3, 3]))
+            return
+        cutoff = props.get("cutoff_angle", 20.0)
+        beam = props.get("beam_width", 0.75 * cutoff)
+        if not 0.0 < cutoff <= 90.0:
+            self.fail(node, f"cutoff_angle must be in (0, 90] degrees, got {cutoff:g}")
+        if not 0.0 <= beam <= cutoff:
+            self.fail(node, f"beam_width must be in [0, cutoff_angle], got {beam:g}")
+        axis = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        builder.add_point_emitter(intensity, m[:3, 3], axis, cutoff, beam)
+
     def shape(self, node, builder, outer=None):
         """Add a shape to `builder`; `outer` is an instance's transform, applied after the shape's own."""
         self.check_attrs(node, ("type", "id", "name"))
@@ -624,8 +655,7 @@ class _Reader:
             elif ch.tag == "shape":
                 self.shape(ch, builder)
             elif ch.tag == "emitter":
-                self.fail(ch, f"unsupported emitter type '{ch.attrs.get('type', '')}' at top level "
-                              "(only area emitters attached to shapes are supported)")
+                self.delta_emitter(ch, builder)
             else:
                 self.fail(ch, "unsupported element")
         if camera is None:

@@ -6,6 +6,8 @@ import numpy as np
 
 from ..errors import ProbvisError
 from ..settings import RenderSettings
+
+EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT = 0, 1, 2
 from . import transform as tf
 
 
@@ -60,13 +62,27 @@ class Scene:
     tri_emitter: np.ndarray
     reflectance: np.ndarray  # (n_materials, 3)
     twosided: np.ndarray  # (n_materials,) bool
-    emitter_radiance: np.ndarray  # (n_emitters, 3)
-    camera: Camera
+    emitter_radiance: np.ndarray  # (n_emitters, 3) radiance of an area emitter, intensity of a point or spot
+    camera: Camera = None
     defaults: RenderSettings = RenderSettings()  # the settings the scene file declares (sampler, integrator)
     name: str = "scene"
     source: str = ""
     shapes: list = field(default_factory=list)
     dropped_degenerate: int = 0
+    # emitters that are points, not shapes: per emitter its kind (EMITTER_AREA, _POINT, _SPOT), position, the
+    # spot's unit axis and its cone (cos cutoff, cos beam width, cutoff angle, 1 / transition width)
+    emitter_kind: np.ndarray = None
+    emitter_position: np.ndarray = None
+    emitter_axis: np.ndarray = None
+    emitter_cone: np.ndarray = None
+
+    def __post_init__(self):
+        e = len(self.emitter_radiance)
+        if self.emitter_kind is None:
+            self.emitter_kind = np.zeros(e, np.int8)
+            self.emitter_position = np.zeros((e, 3))
+            self.emitter_axis = np.zeros((e, 3))
+            self.emitter_cone = np.zeros((e, 4))
 
     @property
     def n_triangles(self):
@@ -97,7 +113,8 @@ class Scene:
 
         h = hashlib.sha256()
         for a in (self.triangles, self.vertex_normals, self.tri_material, self.tri_emitter, self.reflectance,
-                  self.twosided, self.emitter_radiance, self.camera.to_world):
+                  self.twosided, self.emitter_radiance, self.camera.to_world, self.emitter_kind,
+                  self.emitter_position, self.emitter_axis, self.emitter_cone):
             a = np.ascontiguousarray(a)
             h.update(f"{a.dtype.str}{a.shape}".encode())
             h.update(a.tobytes())
@@ -132,6 +149,7 @@ class SceneBuilder:
         self._tris, self._normals, self._mat, self._emit = [], [], [], []
         self._materials = {}  # (reflectance, twosided) -> id
         self.emitter_radiance = []
+        self.deltas = {}  # emitter id -> (kind, position, axis, cone) of point and spot emitters
         self.shapes = []
         self.dropped = 0
         self._n = 0
@@ -189,12 +207,31 @@ class SceneBuilder:
         self._n += len(tris)
         return len(tris)
 
+    def add_point_emitter(self, intensity, position, axis=None, cutoff_deg=None, beam_deg=None):
+        """A point light, or with an `axis` and angles a spot light (Mitsuba's linear falloff in angle between
+        the beam width and the cutoff). Returns its emitter id."""
+        e = len(self.emitter_radiance)
+        self.emitter_radiance.append(np.asarray(intensity, dtype=np.float64) * np.ones(3))
+        if axis is None:
+            self.deltas[e] = (EMITTER_POINT, np.asarray(position, float), np.zeros(3), np.zeros(4))
+        else:
+            c, b = np.radians(cutoff_deg), np.radians(beam_deg)
+            cone = np.array([np.cos(c), np.cos(b), c, 1.0 / (c - b) if c > b else np.inf])
+            self.deltas[e] = (EMITTER_SPOT, np.asarray(position, float), np.asarray(axis, float) /
+                              np.linalg.norm(axis), cone)
+        return e
+
     def build(self, camera, defaults=RenderSettings()):
         """The `Scene`; `defaults` are the render settings the scene declares."""
         if self._n == 0:
             raise ProbvisError(f"scene '{self.name}' contains no (non-degenerate) triangles")
         if not self.emitter_radiance:
-            raise ProbvisError(f"scene '{self.name}' has no emitter: add an area emitter to a shape")
+            raise ProbvisError(f"scene '{self.name}' has no emitter: add an area emitter to a shape, or a point or "
+                               "spot light")
+        e = len(self.emitter_radiance)
+        kind, position, axis, cone = np.zeros(e, np.int8), np.zeros((e, 3)), np.zeros((e, 3)), np.zeros((e, 4))
+        for k, (kd, pos, ax, cn) in self.deltas.items():
+            kind[k], position[k], axis[k], cone[k] = kd, pos, ax, cn
         mats = sorted(self._materials.items(), key=lambda kv: kv[1])
         scene = Scene(
             triangles=np.ascontiguousarray(np.concatenate(self._tris)),
@@ -204,6 +241,7 @@ class SceneBuilder:
             reflectance=np.array([k[0] for k, _ in mats], dtype=np.float64).reshape(-1, 3),
             twosided=np.array([k[1] for k, _ in mats], dtype=np.bool_),
             emitter_radiance=np.array(self.emitter_radiance, dtype=np.float64).reshape(-1, 3),
+            emitter_kind=kind, emitter_position=position, emitter_axis=axis, emitter_cone=cone,
             camera=camera,
             defaults=defaults.validate(),
             name=self.name,

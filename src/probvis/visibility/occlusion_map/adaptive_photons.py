@@ -9,6 +9,7 @@ uncertain, or when the budget is spent.
 import numpy as np
 
 from ...cases import CASE_PENUMBRA
+from ...scene.scene import EMITTER_AREA, EMITTER_POINT
 from .map import OcclusionMap
 from .photons import ADAPTIVE_STREAM, Photons, points_on_emitters, trace_photons
 
@@ -61,7 +62,11 @@ def refine(scene, bvh, emitters, photons: Photons, neighbours, groups, radius, b
         origin, n_e, _ = points_on_emitters(e.astype(np.int32), emitters.arrays, scene.triangles, seed,
                                             ADAPTIVE_STREAM, spent)
         d = target - origin
-        front = np.einsum("ij,ij->i", d, n_e) > 0.0
+        kind = emitters.arrays.kind[e]
+        cos_d = np.einsum("ij,ij->i", d, n_e) / np.maximum(np.linalg.norm(d, axis=1), 1e-300)
+        # towards the emitter's front: an area emitter's side, anywhere for a point light, inside a spot's cone
+        front = np.where(kind == EMITTER_AREA, cos_d > 0.0,
+                         (kind == EMITTER_POINT) | (cos_d > emitters.arrays.cone[e, 0]))
         new = trace_photons(scene, bvh, origin[front], d[front], e[front].astype(np.int32))
         photons = Photons.concatenate([photons, new])
         spent += n_new

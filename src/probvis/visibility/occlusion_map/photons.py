@@ -14,6 +14,7 @@ from numba import njit, prange
 from ...accel import all_hits
 from ...geometry import unit_normal
 from ...emitters import sample_on_emitter
+from ...scene.scene import EMITTER_AREA, EMITTER_POINT
 from ...rng import make_key, uniform
 
 MAX_HITS = 16
@@ -71,24 +72,45 @@ def points_on_emitters(emitter, es, triangles, seed, stream, first):
     keys = np.empty(n, np.uint64)
     for i in prange(n):
         key = make_key(seed, stream, first + i)
-        t, x, y, z = sample_on_emitter(emitter[i], es, triangles, uniform(key, 1), uniform(key, 2),
-                                       uniform(key, 3))
+        keys[i] = key
+        e = emitter[i]
+        if es.kind[e] != EMITTER_AREA:  # a point or spot light: its position, its axis (a point's is unused)
+            for c in range(3):
+                org[i, c], nrm[i, c] = es.position[e, c], es.axis[e, c]
+            continue
+        t, x, y, z = sample_on_emitter(e, es, triangles, uniform(key, 1), uniform(key, 2), uniform(key, 3))
         nx, ny, nz = unit_normal(triangles, t)
         eps = 1e-9 * (1.0 + max(abs(x), abs(y), abs(z)))
         org[i, 0], org[i, 1], org[i, 2] = x + eps * nx, y + eps * ny, z + eps * nz
         nrm[i, 0], nrm[i, 1], nrm[i, 2] = nx, ny, nz
-        keys[i] = key
     return org, nrm, keys
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def cosine_directions(nrm, keys):
-    """Per point a direction cosine-distributed about its normal (rng dimensions 4 and 5 of its key)."""
+def emission_directions(emitter, es, nrm, keys):
+    """Per photon origin a direction (rng dimensions 4 and 5 of its key): cosine-distributed about the normal
+    of an area emitter, uniform over the sphere for a point light and over the cutoff cone of a spot."""
     n = nrm.shape[0]
     dirs = np.empty((n, 3))
     for i in prange(n):
-        dirs[i, 0], dirs[i, 1], dirs[i, 2] = cosine_direction(nrm[i, 0], nrm[i, 1], nrm[i, 2], uniform(keys[i], 4),
-                                                              uniform(keys[i], 5))
+        e = emitter[i]
+        u1, u2 = uniform(keys[i], 4), uniform(keys[i], 5)
+        if es.kind[e] == EMITTER_AREA:
+            dirs[i, 0], dirs[i, 1], dirs[i, 2] = cosine_direction(nrm[i, 0], nrm[i, 1], nrm[i, 2], u1, u2)
+            continue
+        cos_lo = -1.0 if es.kind[e] == EMITTER_POINT else es.cone[e, 0]
+        z = 1.0 - u1 * (1.0 - cos_lo)  # uniform in solid angle down to cos_lo about the axis
+        r = math.sqrt(max(0.0, 1.0 - z * z))
+        lx, ly = r * math.cos(2.0 * math.pi * u2), r * math.sin(2.0 * math.pi * u2)
+        ax, ay, az = (0.0, 0.0, 1.0) if es.kind[e] == EMITTER_POINT else (es.axis[e, 0], es.axis[e, 1], es.axis[e, 2])
+        sign = 1.0 if az >= 0.0 else -1.0
+        a = -1.0 / (sign + az)
+        b = ax * ay * a
+        tx, ty, tz = 1.0 + sign * ax * ax * a, sign * b, -sign * ax
+        bx, by, bz = b, sign + ay * ay * a, -ay
+        dirs[i, 0] = lx * tx + ly * bx + z * ax
+        dirs[i, 1] = lx * ty + ly * by + z * ay
+        dirs[i, 2] = lx * tz + ly * bz + z * az
     return dirs
 
 
@@ -166,4 +188,4 @@ def shoot_photons(scene, bvh, emitters, n, seed):
     """`n` photon rays from the emitters, split by power."""
     emitter = np.repeat(np.arange(scene.n_emitters, dtype=np.int32), split_by_power(n, emitters.emitter_pmf))
     org, nrm, keys = points_on_emitters(emitter, emitters.arrays, scene.triangles, seed, PHOTON_STREAM, 0)
-    return trace_photons(scene, bvh, org, cosine_directions(nrm, keys), emitter)
+    return trace_photons(scene, bvh, org, emission_directions(emitter, emitters.arrays, nrm, keys), emitter)

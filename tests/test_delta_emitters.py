@@ -1,0 +1,75 @@
+"""Point and spot lights against Mitsuba 3 (scalar_rgb), and the occlusion map and probabilistic visibility
+staying unbiased with them (photons leave a point uniformly, a spot within its cone)."""
+import numpy as np
+import pytest
+
+import probvis
+from probvis import ProbvisError
+from tests.conftest import relmse, sensor, write_scene
+
+LIGHTS = """
+    <shape type="rectangle"><transform name="to_world"><scale value="2"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.6, 0.5"/></bsdf></shape>
+    <shape type="cube"><transform name="to_world"><scale x="0.25" y="0.4" z="0.3"/>
+        <rotate z="1" angle="30"/><translate x="-0.3" y="0.2" z="0.3"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.6, 0.3"/></bsdf></shape>
+    <emitter type="point"><point name="position" x="0.4" y="-0.2" z="1.2"/><rgb name="intensity" value="3, 2.5, 2"/>
+    </emitter>
+    <emitter type="point"><transform name="to_world"><translate x="-1" y="0.5" z="0.8"/></transform>
+        <rgb name="intensity" value="0.5, 0.8, 1.5"/></emitter>
+    <emitter type="spot"><transform name="to_world"><lookat origin="0.8, 0.9, 1.5" target="0.2, 0.1, 0"/></transform>
+        <rgb name="intensity" value="6"/><float name="cutoff_angle" value="25"/><float name="beam_width" value="12"/>
+    </emitter>"""
+
+
+@pytest.fixture(scope="module")
+def scene_file(tmp_path_factory):
+    d = tmp_path_factory.mktemp("delta")
+    return write_scene(d / "lights.xml", sensor(origin="0.3, -2.8, 1.7", target="0, 0, 0.3", up="0, 0, 1", fov=45,
+                                                spp="$spp", w=40, h=32, sr=1) + LIGHTS, '<default name="spp" value="16"/>')
+
+
+def test_point_and_spot_lights_match_mitsuba(scene_file):
+    """At one emitter sample per camera sample: Mitsuba 3.9's `direct` integrator gives each delta-light sample
+    full weight whatever `emitter_samples` is (its images are emitter_samples times too bright there), where
+    probvis averages the samples as for area lights (docs/decisions.md)."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+
+    def theirs(spp, seed):
+        return np.array(mi.render(mi.load_file(str(scene_file), spp=spp), seed=seed, spp=spp), dtype=np.float64)
+
+    ref = theirs(512, 100)
+    noise = np.mean([relmse(theirs(16, s), ref) for s in (1, 2)])
+    ours = probvis.render(scene_file, spp=16, shadow_rays=1, seed=1).image
+    assert relmse(ours, ref) <= 1.5 * noise
+    np.testing.assert_allclose(ours.reshape(-1, 3).mean(0), ref.reshape(-1, 3).mean(0), rtol=0.01)
+
+
+@pytest.mark.parametrize("visibility, options", [
+    ("occlusion-map", {"photons": 20000}),
+    ("occlusion-map", {"photons": 20000, "penumbra": "list"}),
+    ("probvis", {"photons": 20000, "estimator": "shifted"}),
+])
+def test_occlusion_map_with_point_lights_is_unbiased(scene_file, visibility, options):
+    """Same seeds, same camera samples: the per-seed difference from exact visibility averages to zero."""
+    scene = probvis.load_scene(scene_file)
+
+    def mean(seed, **vis):
+        return probvis.render(scene, spp=2, shadow_rays=2, seed=seed, **vis).image.mean()
+
+    diff = np.array([mean(s, visibility=visibility, visibility_options=options) - mean(s) for s in range(16)])
+    assert abs(diff.mean()) < 4 * np.std(diff, ddof=1) / np.sqrt(len(diff))
+    r = probvis.render(scene, spp=2, shadow_rays=2, visibility=visibility, visibility_options=options)
+    assert r.stats["estimator"]["photons"] > 0 and r.stats["cases"]["lit"]["count"] > 0
+
+
+@pytest.mark.parametrize("spot, message", [
+    ('<float name="cutoff_angle" value="0"/>', "cutoff_angle must be in (0, 90]"),
+    ('<float name="cutoff_angle" value="95"/>', "cutoff_angle must be in (0, 90]"),
+    ('<float name="cutoff_angle" value="20"/><float name="beam_width" value="30"/>', "beam_width must be in"),
+])
+def test_bad_spot_lights_are_named(tmp_path, spot, message):
+    body = sensor() + f"""<shape type="rectangle"/><emitter type="spot">{spot}</emitter>"""
+    with pytest.raises(ProbvisError, match=r"s.xml:\d+: <emitter>: " + message.replace("(", r"\(").replace("]", r"\]")):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", body))
