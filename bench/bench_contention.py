@@ -32,7 +32,7 @@ SPIN = "import time\nt = time.time()\nwhile time.time() - t < 600: pass"
 
 def render_seconds(args, env):
     stats = f"/tmp/bench-contention-{os.getpid()}.json"
-    subprocess.run([sys.executable, "-m", "probvis.cli", "render", *args, "-o", f"/tmp/bench-contention.exr",
+    subprocess.run([sys.executable, "-m", "probvis.cli", "render", *args, "-o", "/tmp/bench-contention.exr",
                     "--stats", stats, "-q"], env=env, check=True)
     with open(stats) as f:
         return json.load(f)["seconds"]["render"]

@@ -8,7 +8,7 @@ import pytest
 import probvis
 from probvis.camera import STREAM_CAMERA, camera_params, camera_rays
 from probvis.rng import make_key, uniform
-from tests.conftest import relmse, write_scene
+from tests.conftest import assert_matches_mitsuba, mitsuba_image, relmse, write_scene
 
 mi = pytest.importorskip("mitsuba")
 mi.set_variant("scalar_rgb")
@@ -90,11 +90,6 @@ def test_thin_lens_rays_meet_mitsuba_s_in_the_focal_plane(tmp_path):
     assert max(radii) <= 0.2 + 1e-9 and min(radii) < 0.1 < max(radii)  # spread over the aperture
 
 
-def mitsuba_render(path, spp, seed):
-    scene = mi.load_file(str(path), spp=spp)
-    return np.array(mi.render(scene, seed=seed, spp=spp), dtype=np.float64)
-
-
 @pytest.mark.parametrize("kind, params, rfilter", [
     ("perspective", '<float name="fov" value="45"/>', '<rfilter type="box"/>'),
     ("thinlens", '<float name="fov" value="45"/><float name="aperture_radius" value="0.15"/>'
@@ -104,12 +99,7 @@ def mitsuba_render(path, spp, seed):
 ])
 def test_images_match_mitsuba(tmp_path, kind, params, rfilter):
     """Same sample distribution as Mitsuba: no more error than Mitsuba's own at equal settings."""
-    path = scene_file(tmp_path, sensor_xml(kind, params, rfilter=rfilter))
-    ref = mitsuba_render(path, 512, seed=100)
-    theirs = [relmse(mitsuba_render(path, 16, seed=s), ref) for s in (1, 2)]
-    ours = probvis.render(path, spp=16, shadow_rays=4, seed=1).image
-    assert relmse(ours, ref) <= 1.5 * np.mean(theirs)
-    np.testing.assert_allclose(ours.reshape(-1, 3).mean(0), ref.reshape(-1, 3).mean(0), rtol=0.01)
+    assert_matches_mitsuba(scene_file(tmp_path, sensor_xml(kind, params, rfilter=rfilter)))
 
 
 def edge_scene(tmp_path, rfilter):
@@ -131,8 +121,8 @@ def test_filtered_images_converge_to_mitsuba_s(tmp_path, rfilter):
     own noise and the reference's explain (measured from a second seed of each), and a box filter's is not
     (no rfilter: Mitsuba's default, a Gaussian)."""
     path = edge_scene(tmp_path, rfilter)
-    ref = mitsuba_render(path, 1024, seed=100)
-    ref_noise = relmse(mitsuba_render(path, 1024, seed=7), ref) / 2
+    ref = mitsuba_image(path, 1024, seed=100)
+    ref_noise = relmse(mitsuba_image(path, 1024, seed=7), ref) / 2
     a, b = (probvis.render(path, spp=4096, seed=s).image for s in (1, 2))
     explained = relmse(a, b) / 2 + ref_noise
     assert relmse(a, ref) < 2.5 * explained

@@ -5,7 +5,7 @@ import pytest
 
 import probvis
 from probvis import ProbvisError
-from tests.conftest import relmse, sensor, write_scene
+from tests.conftest import assert_matches_mitsuba, sensor, write_scene
 
 LIGHTS = """
     <shape type="rectangle"><transform name="to_world"><scale value="2"/></transform>
@@ -33,17 +33,7 @@ def test_point_and_spot_lights_match_mitsuba(scene_file):
     """At one emitter sample per camera sample: Mitsuba 3.9's `direct` integrator gives each delta-light sample
     full weight whatever `emitter_samples` is (its images are emitter_samples times too bright there), where
     probvis averages the samples as for area lights (docs/decisions.md)."""
-    mi = pytest.importorskip("mitsuba")
-    mi.set_variant("scalar_rgb")
-
-    def theirs(spp, seed):
-        return np.array(mi.render(mi.load_file(str(scene_file), spp=spp), seed=seed, spp=spp), dtype=np.float64)
-
-    ref = theirs(512, 100)
-    noise = np.mean([relmse(theirs(16, s), ref) for s in (1, 2)])
-    ours = probvis.render(scene_file, spp=16, shadow_rays=1, seed=1).image
-    assert relmse(ours, ref) <= 1.5 * noise
-    np.testing.assert_allclose(ours.reshape(-1, 3).mean(0), ref.reshape(-1, 3).mean(0), rtol=0.01)
+    assert_matches_mitsuba(scene_file, shadow_rays=1)
 
 
 @pytest.mark.parametrize("visibility, options", [

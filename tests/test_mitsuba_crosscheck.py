@@ -1,18 +1,10 @@
 """Our images against Mitsuba 3 (scalar_rgb) on small scenes written here: same settings, same error."""
-import numpy as np
 import pytest
 import trimesh
 
-import probvis
-from tests.conftest import relmse, sensor, write_scene
+from tests.conftest import assert_matches_mitsuba, sensor, write_scene
 
-mi = pytest.importorskip("mitsuba")
-
-
-def mitsuba_render(path, spp, seed):
-    mi.set_variant("scalar_rgb")
-    scene = mi.load_file(str(path), spp=spp)
-    return np.array(mi.render(scene, seed=seed, spp=spp), dtype=np.float64)
+pytest.importorskip("mitsuba")
 
 
 @pytest.fixture(scope="module")
@@ -42,8 +34,4 @@ def scene_file(tmp_path_factory):
 
 def test_matches_mitsuba_at_equal_settings(scene_file):
     """Two emitters of different power (we choose by power, Mitsuba uniformly): same image, no more error."""
-    ref = mitsuba_render(scene_file, 1024, seed=100)
-    theirs = [relmse(mitsuba_render(scene_file, 16, seed=s), ref) for s in (1, 2)]
-    ours = probvis.render(scene_file, spp=16, shadow_rays=4, seed=1).image
-    assert relmse(ours, ref) <= 1.5 * np.mean(theirs)
-    np.testing.assert_allclose(ours.reshape(-1, 3).mean(0), ref.reshape(-1, 3).mean(0), rtol=0.01)
+    assert_matches_mitsuba(scene_file, reference_spp=1024)

@@ -179,3 +179,13 @@ def test_two_seeds_give_a_bias_column_and_biased_shortcuts_are_labelled(tmp_path
     assert row["exact"]["bias_ratio"] < 2.5 and row["om"]["bias_ratio"] < 2.5
     assert row["om-off"]["bias_ratio"] > 10 and row["om-off"]["biased"] and not row["om"]["biased"]
     assert "(biased)" in index.read_text() and "(biased)" in (tmp_path / "results.md").read_text()
+
+
+def test_timing_repeats_take_the_fastest_and_flag_disagreement(tmp_path):
+    study = dict(TINY, timing_repeats=3, shadow_rays=[1])
+    results, _, run = experiment(parse_experiment(study), tmp_path, progress=False, log=lambda m: None)
+    for r in results.cells:
+        assert len(r["seconds_repeats"]) == 3 and r["seconds"] == min(r["seconds_repeats"])
+        spread = (max(r["seconds_repeats"]) - r["seconds"]) / r["seconds"]
+        assert r["repeats_disagree"] == (spread > 0.25)
+    assert "fastest of 3 repeats" in (tmp_path / "index.html").read_text()

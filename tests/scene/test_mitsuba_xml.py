@@ -81,6 +81,9 @@ def test_obj_mesh_relative_path_and_twosided(tmp_path):
      "undefined parameter '$undefined'"),
     ("<emitter type='envmap'/>", "unsupported emitter type 'envmap'"),
     ("<texture type='bitmap'/>", "unsupported element"),
+    ("<shape type='instance'><ref id='nothing'/></shape>", "reference to unknown id 'nothing'"),
+    ("<shape type='serialized'><string name='filename' value='nope.serialized'/></shape>", "mesh file not found"),
+    ("<emitter type='spot'><float name='cutoff_angle' value='120'/></emitter>", "cutoff_angle must be in (0, 90]"),
 ])
 def test_unsupported_input_names_file_line_and_element(tmp_path, body, message):
     path = write_scene(tmp_path / "bad.xml", sensor() + LIGHT + "\n" + body)
@@ -131,3 +134,16 @@ def test_shared_scenes_load(shared):
         s = probvis.load_scene(shared / "scenes" / f"{name}.xml", res=32)
         assert s.n_triangles + s.dropped_degenerate == tris
         assert s.camera.width == 32 and s.defaults.spp == 16 and s.defaults.shadow_rays == 16
+
+
+@pytest.mark.parametrize("params, message", [
+    ('<string name="focal_length" value="fiftymm"/>', "focal_length must be of the form <x>mm"),
+    ('<string name="focal_length" value="-5mm"/>', "focal_length must be positive"),
+    ('<float name="fov" value="40"/><string name="focal_length" value="50mm"/>', "give either 'fov' or 'focal_length'"),
+])
+def test_bad_camera_parameters_name_file_and_line(tmp_path, params, message):
+    body = f"""<sensor type="perspective">{params}<film type="hdrfilm"><integer name="width" value="8"/>
+        <integer name="height" value="8"/><rfilter type="box"/></film></sensor>""" + LIGHT
+    path = write_scene(tmp_path / "cam.xml", body)
+    with pytest.raises(ProbvisError, match=rf"cam.xml:\d+: <sensor>: {message}"):
+        probvis.load_scene(path)

@@ -8,7 +8,7 @@ import pytest
 import probvis
 from probvis import ProbvisError
 from probvis.cli import main
-from tests.conftest import relmse, sensor, write_scene
+from tests.conftest import assert_matches_mitsuba, sensor, write_scene
 
 SHAPES = """
     <shape type="disk"><transform name="to_world"><scale value="2"/></transform>
@@ -25,20 +25,10 @@ SHAPES = """
 
 
 def test_disk_and_cylinder_match_mitsuba(tmp_path):
-    mi = pytest.importorskip("mitsuba")
-    mi.set_variant("scalar_rgb")
     path = write_scene(tmp_path / "shapes.xml", sensor(origin="0.3, -2.8, 1.7", target="0, 0, 0.3", up="0, 0, 1",
                                                         fov=45, spp="$spp", w=40, h=32) + SHAPES,
                        '<default name="spp" value="16"/>')
-
-    def theirs(spp, seed):
-        return np.array(mi.render(mi.load_file(str(path), spp=spp), seed=seed, spp=spp), dtype=np.float64)
-
-    ref = theirs(512, 100)
-    noise = np.mean([relmse(theirs(16, s), ref) for s in (1, 2)])
-    ours = probvis.render(path, spp=16, shadow_rays=4, seed=1).image
-    assert relmse(ours, ref) <= 1.5 * noise
-    np.testing.assert_allclose(ours.reshape(-1, 3).mean(0), ref.reshape(-1, 3).mean(0), rtol=0.01)
+    assert_matches_mitsuba(path)
 
 
 APPROXIMATED = """
@@ -125,8 +115,6 @@ def test_serialized_meshes_by_shape_index(tmp_path, version):
 
 def test_serialized_shapegroups_and_instances_match_mitsuba(tmp_path):
     """A serialized mesh instanced twice through a shapegroup, against Mitsuba's render of the same file."""
-    mi = pytest.importorskip("mitsuba")
-    mi.set_variant("scalar_rgb")
     from probvis.scene import shapes
 
     box_v, box_f = shapes.cube()
@@ -147,12 +135,4 @@ def test_serialized_shapegroups_and_instances_match_mitsuba(tmp_path):
     path = write_scene(tmp_path / "inst.xml", body, '<default name="spp" value="16"/>')
     scene = probvis.load_scene(path)
     assert scene.n_triangles == 2 + 2 * 4 + shapes.DISK_SEGMENTS
-
-    def theirs(spp, seed):
-        return np.array(mi.render(mi.load_file(str(path), spp=spp), seed=seed, spp=spp), dtype=np.float64)
-
-    ref = theirs(512, 100)
-    noise = np.mean([relmse(theirs(16, s), ref) for s in (1, 2)])
-    ours = probvis.render(path, spp=16, shadow_rays=4, seed=1).image
-    assert relmse(ours, ref) <= 1.5 * noise
-    np.testing.assert_allclose(ours.reshape(-1, 3).mean(0), ref.reshape(-1, 3).mean(0), rtol=0.01)
+    assert_matches_mitsuba(path)

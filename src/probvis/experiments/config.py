@@ -16,6 +16,7 @@ from ..visibility import estimator_class
 MAX_RESOLUTION = 1 << 15
 
 TOP_KEYS = {"name", "description", "spp", "shadow_rays", "seeds", "resolution", "target_relmse", "table_shadow_rays",
+            "timing_repeats",
             "reference", "scenes", "methods"}
 REFERENCE_KEYS = {"spp", "shadow_rays", "seed", "visibility"}
 SCENE_KEYS = {"name", "source", "defines", "reference", "reference_noise"}
@@ -64,6 +65,7 @@ class Experiment:
     table_shadow_rays: int
     resolution: tuple | None = None
     target_relmse: float | None = None
+    timing_repeats: int = 1  # renders of each cell; its seconds are the fastest (the image is the same)
 
 
 def _fail(where, message):
@@ -214,7 +216,7 @@ def parse_experiment(data, base=Path("."), source=""):
         spp=_int("spp", data.get("spp", 4), 1, MAX_SPP), seeds=_int_list("seeds", data.get("seeds", [0]), 0),
         reference=reference, baseline=baselines[0] if baselines else method_specs[0].name,
         resolution=resolution, target_relmse=None if target is None else float(target),
-        table_shadow_rays=table_rays)
+        table_shadow_rays=table_rays, timing_repeats=_int("timing_repeats", data.get("timing_repeats", 1), 1, 16))
 
 
 def load_experiment(path):

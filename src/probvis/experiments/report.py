@@ -230,8 +230,9 @@ class Report:
         exp, rays = self.exp, self.exp.table_shadow_rays
         lines = [f"At {exp.spp} spp × {rays} shadow rays per camera sample; seconds exclude JIT compilation, tests "
                  f"are shadow-ray triangle tests, efficiency = 1/(relMSE × seconds); changes against "
-                 f"{exp.baseline}; seconds = wall time of the render (median over seeds; † = the seeds' times "
-                 f"differ by more than {UNSTEADY:.0%}), which efficiency uses; bias = block-bias ratio of two seeds (about 1: converges to the reference; "
+                 f"{exp.baseline}; seconds = wall time of the render (the fastest of {exp.timing_repeats} "
+                 f"repeat(s), median over seeds; † = repeats or seeds differ by more than {UNSTEADY:.0%}), which "
+                 f"efficiency uses; bias = block-bias ratio of two seeds (about 1: converges to the reference; "
                  f"'biased': a shortcut chosen by its options).", "",
                  "| scene | method | seconds | tests | relMSE | bias | efficiency (× baseline) |",
                  "|---|---|---:|---:|---:|---:|---:|"]
@@ -271,9 +272,10 @@ class Report:
                             f"<td class=method>{e(m.name)}{' (baseline)' if base else ''}</td>{cells}</tr>")
         return (f"<table class=paper id=paper-table><caption>At {exp.spp} spp × {rays} shadow rays: render seconds "
                 f"and shadow-ray triangle tests with their change against the baseline ({e(exp.baseline)}), relMSE "
-                f"against the reference (seconds: the render's wall time without JIT compilation, median over the "
-                f"seeds, which also sets the efficiency; † marks a setting whose seeds' times differ by more than "
-                f"{UNSTEADY:.0%} — the machine was busy), bias (block means' error against the reference over their "
+                f"against the reference (seconds: the render's wall time without JIT compilation, the fastest of "
+                f"{exp.timing_repeats} repeat{'s' if exp.timing_repeats > 1 else ''} (timing_repeats), median over "
+                f"the seeds; it also sets the efficiency; † marks a setting whose repeats or seeds differ by more "
+                f"than {UNSTEADY:.0%} — the machine was busy), bias (block means' error against the reference over their "
                 f"seed-to-seed noise, two seeds: about 1 when the image converges to the reference, far more when "
                 f"not; 'biased' marks a shortcut chosen by the method's options) and efficiency 1/(relMSE × "
                 f"seconds) with its ratio to the baseline's.</caption>"

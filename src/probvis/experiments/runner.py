@@ -63,12 +63,17 @@ class RunSummary:
     reference_noise: dict = field(default_factory=dict)  # scene -> the reference's own per-pixel relMSE
 
 
-def render_task(scene, visibility, options, spp, shadow_rays, seed, threads):
-    """Worker side: render one task and return what the driver stores."""
+def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, repeats=1):
+    """Worker side: render one task (`repeats` times, keeping every repeat's seconds without compilation in
+    stats["seconds"]["repeats"]) and return what the driver stores."""
     from ..integrator import render
 
-    r = render(scene, spp=spp, shadow_rays=shadow_rays, seed=seed, visibility=visibility,
-               visibility_options=dict(options), threads=threads)
+    times = []
+    for _ in range(repeats):
+        r = render(scene, spp=spp, shadow_rays=shadow_rays, seed=seed, visibility=visibility,
+                   visibility_options=dict(options), threads=threads)
+        times.append(r.stats["seconds"]["total"] - r.stats["seconds"]["compile"])
+    r.stats["seconds"]["repeats"] = times
     return r.stats, r.image.astype(np.float32), r.aovs["triangle_tests"].astype(np.float32)
 
 
@@ -94,9 +99,9 @@ def estimator_fingerprint(visibility):
     return hashlib.sha256(Path(path).read_bytes()).hexdigest() if path else ""
 
 
-def task_key(scene_hash, method, spp, shadow_rays, seed):
+def task_key(scene_hash, method, spp, shadow_rays, seed, repeats=1):
     blob = json.dumps([code_fingerprint(), estimator_fingerprint(method.visibility), scene_hash, method.visibility,
-                       sorted(method.options.items()), spp, shadow_rays, seed], default=list)
+                       sorted(method.options.items()), spp, shadow_rays, seed, repeats], default=list)
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 
@@ -190,7 +195,8 @@ def plan(exp, scenes):
         for m in exp.methods:
             for sr in exp.shadow_rays:
                 for seed in exp.seeds:
-                    cells.append(Task(spec.name, m, exp.spp, sr, seed, task_key(h, m, exp.spp, sr, seed)))
+                    cells.append(Task(spec.name, m, exp.spp, sr, seed,
+                                      task_key(h, m, exp.spp, sr, seed, exp.timing_repeats)))
     return refs, cells
 
 
@@ -216,7 +222,7 @@ def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log
     log(f"experiment '{exp.name}': {len(cells)} cells ({out.cells_cached} cached), {len(refs)} rendered "
         f"references ({sum(cache.has(t.key) for t in refs)} cached), cache {cache.folder}")
     if todo:
-        _compute(todo, scenes, cache, workers, scheduler, progress, log)
+        _compute(todo, scenes, cache, workers, scheduler, progress, log, exp.timing_repeats)
     for spec in exp.scenes:
         if spec.reference is not None:
             out.reference_images[spec.name] = _reference_file(spec, scenes[spec.name])
@@ -232,14 +238,14 @@ def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log
     return out
 
 
-def _compute(todo, scenes, cache, workers, scheduler, progress, log):
+def _compute(todo, scenes, cache, workers, scheduler, progress, log, repeats=1):
     """Render `todo` on Dask and cache each render as it finishes. Ctrl-C and SIGTERM are deferred to the
     polling loop (`deferred_interrupts`): raised inside a Dask client call they leave a half-cancelled call
     whose clean-up logs a traceback."""
     with deferred_interrupts((signal.SIGINT, signal.SIGTERM)) as check_interrupt:
         client, cluster = _open_client(workers, scheduler)
         try:
-            _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt)
+            _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt, repeats)
         except (ProbvisError, KeyboardInterrupt):
             raise
         except Exception as exc:  # Dask's way of saying a worker went away: cancelled futures, lost workers
@@ -257,7 +263,7 @@ def _compute(todo, scenes, cache, workers, scheduler, progress, log):
                     pass
 
 
-def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt):
+def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt, repeats=1):
     """Submit the renders and store each as it finishes, checking for an interrupt every POLL_SECONDS."""
     from dask.distributed import wait
     from tqdm import tqdm
@@ -271,7 +277,7 @@ def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, c
     futures = {}
     for t in todo:
         f = client.submit(render_task, shared[t.scene], t.method.visibility, t.method.options, t.spp,
-                          t.shadow_rays, t.seed, threads, key=f"{'ref' if t.reference else 'cell'}-{t.key}",
+                          t.shadow_rays, t.seed, threads, 1 if t.reference else repeats, key=f"{'ref' if t.reference else 'cell'}-{t.key}",
                           priority=1 if t.reference else 0, pure=False)
         futures[f] = t
     failures = []

@@ -589,19 +589,16 @@ class _Reader:
         if kind == "box":
             self.params(node, {})
             return {"rfilter": "box"}
-        if kind == "tent":
-            props, _ = self.params(node, {"radius": ("float",)})
-            r = props.get("radius", 1.0)
-            if not 0 < r < 1e3:
-                self.fail(node, f"tent radius must be positive, got {r:g}")
-            return {"rfilter": "tent", "filter_radius": r}
-        if kind == "gaussian":
-            props, _ = self.params(node, {"stddev": ("float",)})
-            sd = props.get("stddev", 0.5)
-            if not 0 < sd < 1e3:
-                self.fail(node, f"gaussian stddev must be positive, got {sd:g}")
-            return {"rfilter": "gaussian", "filter_stddev": sd}
-        self.fail(node, f"unsupported rfilter '{kind}' (supported: box, tent, gaussian)")
+        # Mitsuba's parameter of each filter, its default, and the Camera field it sets
+        known = {"tent": ("radius", 1.0, "filter_radius"), "gaussian": ("stddev", 0.5, "filter_stddev")}
+        if kind not in known:
+            self.fail(node, f"unsupported rfilter '{kind}' (supported: box, tent, gaussian)")
+        name, default, field_name = known[kind]
+        props, _ = self.params(node, {name: ("float",)})
+        value = props.get(name, default)
+        if not 0 < value < 1e3:
+            self.fail(node, f"{kind} {name} must be positive, got {value:g}")
+        return {"rfilter": kind, field_name: value}
 
     def integrator(self, node):
         self.check_attrs(node, ("type", "id", "name"))
