@@ -16,7 +16,7 @@ from .cases import CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_UNKNOWN, CASE_VERIFI
 from .errors import ProbvisError
 from .parallel import spread
 from .rng import uniform
-from .scene.scene import EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT
+from .scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_POINT, EMITTER_SPOT
 
 _LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 POINTS_PER_BLOCK = 64  # shading points per parallel work item of `sample_emitters`
@@ -31,10 +31,11 @@ class EmitterArrays(NamedTuple):
     tris: np.ndarray  # scene triangle ids of all emitting triangles, grouped by emitter
     tri_prob: np.ndarray  # alias table of each emitter's triangles by area: keep probability of column k ...
     tri_alias: np.ndarray  # ... and the column (index within the emitter) taken otherwise
-    kind: np.ndarray  # (e,) EMITTER_AREA, EMITTER_POINT or EMITTER_SPOT
+    kind: np.ndarray  # (e,) EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT or EMITTER_DIRECTIONAL
     position: np.ndarray  # (e, 3) of a point or spot light
     axis: np.ndarray  # (e, 3) a spot's unit axis
     cone: np.ndarray  # (e, 4) a spot's cos cutoff, cos beam width, cutoff angle and 1 / transition width
+    sphere: np.ndarray  # (4,) centre and radius of the scene's bounding sphere (where directional light enters)
 
 
 @dataclass
@@ -106,15 +107,20 @@ def build_emitter_sampler(scene):
     kind = scene.emitter_kind
     lum = scene.emitter_radiance @ _LUMINANCE
     # flux: pi A L of an area emitter, 4 pi I of a point light, about 2 pi (1 - cos cutoff) I of a spot
-    power = np.where(kind == EMITTER_AREA, np.pi * area * lum,
-                     np.where(kind == EMITTER_POINT, 4 * np.pi * lum, 2 * np.pi * (1 - scene.emitter_cone[:, 0]) * lum))
+    lo, hi = scene.bounds()
+    sphere = np.append(0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-6))
+    # flux: pi A L of an area emitter, 4 pi I of a point light, about 2 pi (1 - cos cutoff) I of a spot, and
+    # E pi R^2 of a directional light through the scene's bounding sphere
+    power = np.select([kind == EMITTER_AREA, kind == EMITTER_POINT, kind == EMITTER_SPOT],
+                      [np.pi * area * lum, 4 * np.pi * lum, 2 * np.pi * (1 - scene.emitter_cone[:, 0]) * lum],
+                      np.pi * sphere[3] ** 2 * lum)
     area = np.where(kind == EMITTER_AREA, area, 1.0)
     if not np.any(power > 0):
         raise ProbvisError(f"scene '{scene.name}' has emitters, but all of them have zero power")
     pmf = power / power.sum()
     return EmitterSampler(EmitterArrays(pmf, area, offsets, order.astype(np.int64), tri_prob, tri_alias,
                                         kind.astype(np.int8), scene.emitter_position, scene.emitter_axis,
-                                        scene.emitter_cone), power)
+                                        scene.emitter_cone, sphere), power)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -257,6 +263,8 @@ def delta_falloff(es, e, dx, dy, dz):
 def emitter_irradiance(e, es, triangles, px, py, pz, nx, ny, nz):
     """Cosine-weighted solid angle of all of emitter `e`'s front-facing triangles above p's horizon (for a
     point or spot light: cos / d^2 times its falloff, so that intensity x this is the irradiance)."""
+    if es.kind[e] == EMITTER_DIRECTIONAL:
+        return max(-(nx * es.axis[e, 0] + ny * es.axis[e, 1] + nz * es.axis[e, 2]), 0.0)
     if es.kind[e] != EMITTER_AREA:
         wx, wy, wz = es.position[e, 0] - px, es.position[e, 1] - py, es.position[e, 2] - pz
         d2 = wx * wx + wy * wy + wz * wz
@@ -282,6 +290,13 @@ def _emitter_segment(slot, le, scale, rgb, u, es, triangles, fnormals, p, s, gn,
         # cosines times |w|: their signs need no square root, and cos_x cos_y / d2 = dot_x dot_y / d2^2
         dot_x = s[0] * wx + s[1] * wy + s[2] * wz
         dot_y = -(fnormals[lt, 0] * wx + fnormals[lt, 1] * wy + fnormals[lt, 2] * wz)
+    elif es.kind[le] == EMITTER_DIRECTIONAL:  # E cos_x: the segment leaves the scene against the light's travel
+        r2 = 2.0 * es.sphere[3]
+        yx, yy, yz = p[0] - es.axis[le, 0] * r2, p[1] - es.axis[le, 1] * r2, p[2] - es.axis[le, 2] * r2
+        wx, wy, wz = yx - p[0], yy - p[1], yz - p[2]
+        d2 = wx * wx + wy * wy + wz * wz
+        dot_x = s[0] * wx + s[1] * wy + s[2] * wz
+        dot_y = d2 * math.sqrt(d2)  # so that dot_x dot_y / d2^2 = cos_x
     else:  # a point or spot light: cos_x I / d2 = dot_x |w| / d2^2, times a spot's falloff
         yx, yy, yz = es.position[le, 0], es.position[le, 1], es.position[le, 2]
         wx, wy, wz = yx - p[0], yy - p[1], yz - p[2]

@@ -343,9 +343,20 @@ class _Reader:
         """A top-level `point` or `spot` emitter."""
         self.check_attrs(node, ("type", "id", "name"))
         kind = self.attr(node, "type")
-        if kind not in ("point", "spot"):
-            self.fail(node, f"unsupported emitter type '{kind}' at top level (supported: point, spot; area emitters "
-                            "attach to shapes)")
+        if kind not in ("point", "spot", "directional"):
+            self.fail(node, f"unsupported emitter type '{kind}' at top level (supported: point, spot, directional; "
+                            "area emitters attach to shapes)")
+        if kind == "directional":
+            props, _ = self.params(node, {"irradiance": ("rgb", "spectrum", "float"), "direction": ("vector",),
+                                          "to_world": ("transform",)})
+            if "direction" in props and "to_world" in props:
+                self.fail(node, "give either 'direction' or 'to_world', not both")
+            d = props.get("direction", props.get("to_world", np.eye(4))[:3, :3] @ np.array([0.0, 0.0, 1.0]))
+            e = props.get("irradiance", np.ones(3)) * np.ones(3)
+            if np.any(e < 0) or not np.linalg.norm(d) > 0:
+                self.fail(node, "a directional emitter needs a non-negative irradiance and a non-zero direction")
+            builder.add_directional_emitter(e, d)
+            return
         allowed = {"intensity": ("rgb", "spectrum", "float"), "to_world": ("transform",)}
         if kind == "point":
             allowed["position"] = ("point",)

@@ -7,7 +7,7 @@ import numpy as np
 from ..errors import ProbvisError
 from ..settings import RenderSettings
 
-EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT = 0, 1, 2
+EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT, EMITTER_DIRECTIONAL = 0, 1, 2, 3
 from . import transform as tf
 
 
@@ -219,6 +219,14 @@ class SceneBuilder:
             cone = np.array([np.cos(c), np.cos(b), c, 1.0 / (c - b) if c > b else np.inf])
             self.deltas[e] = (EMITTER_SPOT, np.asarray(position, float), np.asarray(axis, float) /
                               np.linalg.norm(axis), cone)
+        return e
+
+    def add_directional_emitter(self, irradiance, direction):
+        """A directional light: `irradiance` on a surface facing it, light travelling along `direction`."""
+        e = len(self.emitter_radiance)
+        self.emitter_radiance.append(np.asarray(irradiance, dtype=np.float64) * np.ones(3))
+        d = np.asarray(direction, float)
+        self.deltas[e] = (EMITTER_DIRECTIONAL, np.zeros(3), d / np.linalg.norm(d), np.zeros(4))
         return e
 
     def build(self, camera, defaults=RenderSettings()):

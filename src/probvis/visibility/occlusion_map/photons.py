@@ -14,7 +14,7 @@ from numba import njit, prange
 from ...accel import all_hits
 from ...geometry import unit_normal
 from ...emitters import sample_on_emitter
-from ...scene.scene import EMITTER_AREA, EMITTER_POINT
+from ...scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_POINT
 from ...rng import make_key, uniform
 
 MAX_HITS = 16
@@ -74,6 +74,17 @@ def points_on_emitters(emitter, es, triangles, seed, stream, first):
         key = make_key(seed, stream, first + i)
         keys[i] = key
         e = emitter[i]
+        if es.kind[e] == EMITTER_DIRECTIONAL:  # uniform on a disk facing the light, beyond the bounding sphere
+            r = es.sphere[3] * math.sqrt(uniform(key, 1))
+            phi = 2.0 * math.pi * uniform(key, 2)
+            ax, ay, az = es.axis[e, 0], es.axis[e, 1], es.axis[e, 2]
+            tx, ty, tz, bx, by, bz = _basis(ax, ay, az)
+            cu, su, far = r * math.cos(phi), r * math.sin(phi), 2.0 * es.sphere[3]
+            org[i, 0] = es.sphere[0] - far * ax + cu * tx + su * bx
+            org[i, 1] = es.sphere[1] - far * ay + cu * ty + su * by
+            org[i, 2] = es.sphere[2] - far * az + cu * tz + su * bz
+            nrm[i, 0], nrm[i, 1], nrm[i, 2] = ax, ay, az
+            continue
         if es.kind[e] != EMITTER_AREA:  # a point or spot light: its position, its axis (a point's is unused)
             for c in range(3):
                 org[i, c], nrm[i, c] = es.position[e, c], es.axis[e, c]
@@ -95,6 +106,9 @@ def emission_directions(emitter, es, nrm, keys):
     for i in prange(n):
         e = emitter[i]
         u1, u2 = uniform(keys[i], 4), uniform(keys[i], 5)
+        if es.kind[e] == EMITTER_DIRECTIONAL:
+            dirs[i, 0], dirs[i, 1], dirs[i, 2] = es.axis[e, 0], es.axis[e, 1], es.axis[e, 2]
+            continue
         if es.kind[e] == EMITTER_AREA:
             dirs[i, 0], dirs[i, 1], dirs[i, 2] = cosine_direction(nrm[i, 0], nrm[i, 1], nrm[i, 2], u1, u2)
             continue
@@ -103,15 +117,20 @@ def emission_directions(emitter, es, nrm, keys):
         r = math.sqrt(max(0.0, 1.0 - z * z))
         lx, ly = r * math.cos(2.0 * math.pi * u2), r * math.sin(2.0 * math.pi * u2)
         ax, ay, az = (0.0, 0.0, 1.0) if es.kind[e] == EMITTER_POINT else (es.axis[e, 0], es.axis[e, 1], es.axis[e, 2])
-        sign = 1.0 if az >= 0.0 else -1.0
-        a = -1.0 / (sign + az)
-        b = ax * ay * a
-        tx, ty, tz = 1.0 + sign * ax * ax * a, sign * b, -sign * ax
-        bx, by, bz = b, sign + ay * ay * a, -ay
+        tx, ty, tz, bx, by, bz = _basis(ax, ay, az)
         dirs[i, 0] = lx * tx + ly * bx + z * ax
         dirs[i, 1] = lx * ty + ly * by + z * ay
         dirs[i, 2] = lx * tz + ly * bz + z * az
     return dirs
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _basis(ax, ay, az):
+    """Two unit tangents completing the unit vector a to an orthonormal basis (Duff et al. 2017)."""
+    sign = 1.0 if az >= 0.0 else -1.0
+    a = -1.0 / (sign + az)
+    b = ax * ay * a
+    return 1.0 + sign * ax * ax * a, sign * b, -sign * ax, b, sign + ay * ay * a, -ay
 
 
 @njit(cache=True, error_model="numpy", inline="always")
