@@ -145,3 +145,16 @@ def test_estimators_lists_every_estimator_with_its_options(capsys):
     assert listed["exact"]["fused_any_hit"] and listed["exact"]["options"] == []
     assert [a["name"] for a in listed["occlusion-map"]["aovs"]] == ["cases"]
     assert {p["name"] for p in listed["probvis"]["phases"]} >= {"photons", "lookup", "grouping"}
+
+
+def test_first_run_says_it_compiles_kernels(tmp_path, capsys, monkeypatch):
+    """On a cold kernel cache the CLI says so before compiling (here the cache is warm: pretend it is not)."""
+    from probvis import integrator
+
+    monkeypatch.setattr(integrator, "_cold_cache", lambda: True)
+    monkeypatch.setattr(integrator, "_warmed", set())
+    assert main(["render", "quad-shadow", "-D", "res=8", "-o", str(tmp_path / "c.exr")]) == 0
+    assert "probvis: compiling kernels (first run only, about 1-3 minutes on 2 cores)" in capsys.readouterr().err
+    monkeypatch.setattr(integrator, "_warmed", set())
+    assert main(["render", "quad-shadow", "-D", "res=8", "-o", str(tmp_path / "c.exr"), "-q"]) == 0
+    assert "compiling" not in capsys.readouterr().err  # -q: nothing

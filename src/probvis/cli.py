@@ -211,7 +211,7 @@ def _cmd_render(args):
     options = {o.name: getattr(args, o.name) for o in cls.options if getattr(args, o.name) is not None}
     result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed, threads=args.threads,
                     visibility=cls, visibility_options=options, defines=_defines(args.defines), strict=args.strict,
-                    clamp_negative=args.clamp_negative, progress=not args.quiet and sys.stderr.isatty())
+                    clamp_negative=args.clamp_negative, progress=not args.quiet)
     for path in outputs:
         write_image(path, result.image, args.exposure)
     if args.tests_image:

@@ -35,7 +35,7 @@ from .settings import RenderSettings
 from .visibility import ShadingPoints, ShadowQuery, VisibilityEstimator, estimator_class
 
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
-COMPILE_SECONDS = 150  # what the first run's kernel compilation takes on 2 cores, to say so beforehand
+COMPILE_TIME = "1-3 minutes"  # what the first run's kernel compilation takes on 2 cores (60-150 s measured)
 MEMORY_HINTS = {"film": "the resolution (-D res, resolution=)", "photons": "--photons",
                 "lookups": "--neighbours or --shadow-rays", "batch": "--spp or --shadow-rays"}
 
@@ -88,7 +88,7 @@ def render_pass(scene, settings, estimator, progress=False):
     film = Film(width, height, spp, scene.n_emitters, [a.name for a in estimator.aovs if a.kind == "segment"])
     n_segments, camera_hits, case_totals = 0, 0, [0] * N_CASES
     bar = None
-    if progress:
+    if progress and sys.stderr.isatty():
         from tqdm import tqdm
 
         bar = tqdm(total=n_pix_total, unit="px", unit_scale=True, desc=f"render {scene.name}", leave=False)
@@ -184,7 +184,8 @@ def _warm_up(cls, options, progress):
     t0 = time.perf_counter()
     cold = progress and _cold_cache()
     if cold:
-        print(f"probvis: compiling kernels (first run only, about {COMPILE_SECONDS} s on 2 cores)", file=sys.stderr)
+        print(f"probvis: compiling kernels (first run only, about {COMPILE_TIME} on 2 cores)", file=sys.stderr,
+              flush=True)
     with _CompileProgress() if cold and sys.stderr.isatty() else nullcontext():
         render_pass(quad_shadow(res=4), RenderSettings(spp=1, shadow_rays=2), cls(**options))
     _warmed.add(key)
@@ -202,7 +203,9 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     loading the scene (like Mitsuba's `-D`); `strict` makes approximated appearance an error. `visibility` is an estimator name (built-in, installed, or
     `module:Class`), class or instance, with `visibility_options` for a name or class. `clamp_negative` sets
     negative pixels (from probabilistic visibility) to zero: biased, the image gets too bright on average; the
-    stats report by how much. Returns a `RenderResult` whose `.stats` is JSON-serialisable.
+    stats report by how much. `progress` says so on stderr when the kernels compile (with a bar on a
+    terminal) and shows a progress bar over the batches on a terminal. Returns a `RenderResult` whose `.stats`
+    is JSON-serialisable.
     """
     t_start, cpu_start = time.perf_counter(), time.process_time()
     if not isinstance(scene, Scene):
