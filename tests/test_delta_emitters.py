@@ -7,12 +7,13 @@ import probvis
 from probvis import ProbvisError
 from tests.conftest import assert_matches_mitsuba, sensor, write_scene
 
-LIGHTS = """
+GROUND = """
     <shape type="rectangle"><transform name="to_world"><scale value="2"/></transform>
         <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.6, 0.5"/></bsdf></shape>
     <shape type="cube"><transform name="to_world"><scale x="0.25" y="0.4" z="0.3"/>
         <rotate z="1" angle="30"/><translate x="-0.3" y="0.2" z="0.3"/></transform>
-        <bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.6, 0.3"/></bsdf></shape>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.6, 0.3"/></bsdf></shape>"""
+LIGHTS = GROUND + """
     <emitter type="point"><point name="position" x="0.4" y="-0.2" z="1.2"/><rgb name="intensity" value="3, 2.5, 2"/>
     </emitter>
     <emitter type="point"><transform name="to_world"><translate x="-1" y="0.5" z="0.8"/></transform>
@@ -65,12 +66,7 @@ def test_bad_spot_lights_are_named(tmp_path, spot, message):
         probvis.load_scene(write_scene(tmp_path / "s.xml", body))
 
 
-SUN = """
-    <shape type="rectangle"><transform name="to_world"><scale value="2"/></transform>
-        <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.6, 0.5"/></bsdf></shape>
-    <shape type="cube"><transform name="to_world"><scale x="0.25" y="0.4" z="0.3"/>
-        <rotate z="1" angle="30"/><translate x="-0.3" y="0.2" z="0.3"/></transform>
-        <bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.6, 0.3"/></bsdf></shape>
+SUN = GROUND + """
     <emitter type="directional"><vector name="direction" x="0.4" y="0.6" z="-1"/>
         <rgb name="irradiance" value="2, 1.8, 1.5"/></emitter>"""
 
