@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from probvis.emitters import EmitterArrays, alias_table, sample_on_emitter
+from probvis.emitters import EmitterArrays, alias_table, environment_arrays, sample_on_emitter
 
 
 def alias_distribution(prob, alias):
@@ -48,7 +48,8 @@ def test_points_are_uniform_by_area_on_a_mesh_emitter():
     areas = np.array([1.0, 2.0, 3.0, 4.0])
     prob, alias = alias_table(areas)
     table = EmitterArrays(np.ones(1), np.ones(1), np.array([0, 4]), np.arange(4), prob, alias, np.zeros(1, np.int8),
-                          np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 4)), np.ones(4))  # one area emitter: 0..3
+                          np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 4)), np.ones(4),
+                          *environment_arrays(None)[0])  # one area emitter: triangles 0..3
     n = 200_000
     tri, pts = _sample_many(table, triangles, n, 3)
     share = areas / areas.sum()

@@ -1,6 +1,7 @@
-"""Stage 3 of a render: emitter sampling. Area emitters; an emitter is chosen by power, a triangle of it by area
-(alias table), a point uniformly on that triangle. Also the analytic irradiance of an emitter (Lambert's
-polygon formula) for shading points the visibility estimator declares fully lit.
+"""Stage 3 of a render: emitter sampling. An emitter is chosen by power; on an area emitter a triangle by area
+(alias table) and a point uniformly on it; point, spot and directional lights are deltas; an environment
+(Mitsuba's `envmap` or `constant`) gives a direction by luminance. Also the analytic irradiance of an emitter
+(Lambert's polygon formula) for shading points the visibility estimator declares fully lit.
 
 `sample_emitters` fills, for every shading point, `shadow_rays` slots of shadow segments with their
 unoccluded contributions; `point_samples` is its per-point body, shared with the fused exact kernel.
@@ -16,7 +17,7 @@ from .cases import CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_UNKNOWN, CASE_VERIFI
 from .errors import ProbvisError
 from .parallel import spread
 from .rng import uniform
-from .scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_POINT, EMITTER_SPOT
+from .scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, EMITTER_SPOT
 
 _LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 POINTS_PER_BLOCK = 64  # shading points per parallel work item of `sample_emitters`
@@ -36,6 +37,18 @@ class EmitterArrays(NamedTuple):
     axis: np.ndarray  # (e, 3) a spot's unit axis
     cone: np.ndarray  # (e, 4) a spot's cos cutoff, cos beam width, cutoff angle and 1 / transition width
     sphere: np.ndarray  # (4,) centre and radius of the scene's bounding sphere (where directional light enters)
+    # The environment emitter (a black placeholder when the scene has none). Its radiance is Mitsuba's:
+    # bilinear between pixel centres of the latitude-longitude map (u = atan2(x, -z) / 2 pi, v = acos(y) / pi
+    # in the map's frame), the first column repeated after the last. Sampling picks a cell between four pixel
+    # centres by its largest corner luminance times its solid angle (alias table), then a direction uniform in
+    # solid angle within it: the pdf is constant per cell and positive wherever the radiance is not zero.
+    env_image: np.ndarray  # (h, w + 1, 3) the map with its first column repeated at the end
+    env_cell_prob: np.ndarray  # (w (h - 1),) alias table of the cells, row-major from the +y pole ...
+    env_cell_alias: np.ndarray
+    env_cell_pdf: np.ndarray  # (w (h - 1),) solid-angle density of a direction in each cell
+    env_to_world: np.ndarray  # (3, 3) map frame -> world
+    env_to_local: np.ndarray  # (3, 3) its inverse
+    env_shift: float  # half a texel in u: pixel column j is centred at u = (j + 0.5) / w
 
 
 @dataclass
@@ -89,8 +102,83 @@ def alias_table(weights):
     return prob, alias
 
 
+def environment_arrays(env):
+    """The `env_*` fields of `EmitterArrays` for a scene's `Environment` (None: a black placeholder), and the
+    integral of its luminance over the sphere (for its power)."""
+    image = np.zeros((2, 1, 3)) if env is None else env.image
+    h, w = image.shape[:2]
+    ext = np.ascontiguousarray(np.concatenate([image, image[:, :1]], axis=1))
+    lum = np.abs(ext) @ _LUMINANCE
+    corners = np.stack([lum[:-1, :-1], lum[:-1, 1:], lum[1:, :-1], lum[1:, 1:]])
+    cos_t = np.cos(np.linspace(0.0, np.pi, h))
+    solid = (2.0 * np.pi / w) * (cos_t[:-1] - cos_t[1:])[:, None] * np.ones((1, w))
+    weight = (corners.max(axis=0) * solid).ravel()
+    total = weight.sum()
+    cell_pdf = weight / (total * solid.ravel()) if total > 0 else np.zeros_like(weight)
+    prob, alias = alias_table(weight)
+    to_world = np.eye(3) if env is None else env.to_world
+    integral = float((corners.mean(axis=0) * solid).sum())
+    return (ext, prob, alias, cell_pdf, to_world, np.linalg.inv(to_world), 0.5 / w), integral
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def environment_radiance(es, dx, dy, dz):
+    """Mitsuba's envmap radiance (before its scale) arriving from world direction d (any length)."""
+    m = es.env_to_local
+    x = m[0, 0] * dx + m[0, 1] * dy + m[0, 2] * dz
+    y = m[1, 0] * dx + m[1, 1] * dy + m[1, 2] * dz
+    z = m[2, 0] * dx + m[2, 1] * dy + m[2, 2] * dz
+    r = math.sqrt(x * x + y * y + z * z)
+    u = math.atan2(x, -z) * (0.5 / math.pi) - es.env_shift
+    u -= math.floor(u)
+    v = math.acos(min(max(y / r, -1.0), 1.0)) / math.pi
+    h, w1 = es.env_image.shape[0], es.env_image.shape[1]
+    return _bilinear(es.env_image, u * (w1 - 1), v * (h - 1))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _bilinear(image, fx, fy):
+    """Bilinear interpolation of `image` at pixel coordinates (fx, fy), pixel (i, j) at (j, i)."""
+    i = min(int(fy), image.shape[0] - 2)
+    j = min(int(fx), image.shape[1] - 2)
+    wx, wy = fx - j, fy - i
+    out = [0.0, 0.0, 0.0]
+    for c in range(3):
+        top = (1.0 - wx) * image[i, j, c] + wx * image[i, j + 1, c]
+        bottom = (1.0 - wx) * image[i + 1, j, c] + wx * image[i + 1, j + 1, c]
+        out[c] = (1.0 - wy) * top + wy * bottom
+    return out[0], out[1], out[2]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def sample_environment(es, u1, u2, u3):
+    """A world direction towards the environment, by its cells: (dx, dy, dz, solid-angle pdf, and the radiance
+    r, g, b before the emitter's scale)."""
+    h, w = es.env_image.shape[0], es.env_image.shape[1] - 1
+    n = es.env_cell_prob.shape[0]
+    x = u1 * n
+    k = min(np.int64(x), n - 1)
+    other = es.env_cell_alias[k]
+    k = k if x - k < es.env_cell_prob[k] else other
+    i, j = k // w, k % w
+    step = math.pi / (h - 1)
+    c0, c1 = math.cos(i * step), math.cos((i + 1) * step)
+    cos_t = c0 - u3 * (c0 - c1)
+    theta = math.acos(min(max(cos_t, -1.0), 1.0))
+    sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+    phi = 2.0 * math.pi * ((j + u2) / w + es.env_shift)
+    lx, ly, lz = math.sin(phi) * sin_t, cos_t, -math.cos(phi) * sin_t
+    m = es.env_to_world
+    dx = m[0, 0] * lx + m[0, 1] * ly + m[0, 2] * lz
+    dy = m[1, 0] * lx + m[1, 1] * ly + m[1, 2] * lz
+    dz = m[2, 0] * lx + m[2, 1] * ly + m[2, 2] * lz
+    r = math.sqrt(dx * dx + dy * dy + dz * dz)
+    l0, l1, l2 = _bilinear(es.env_image, j + u2, min(theta / step, h - 1.0))
+    return dx / r, dy / r, dz / r, es.env_cell_pdf[k], l0, l1, l2
+
+
 def build_emitter_sampler(scene):
-    """The `EmitterSampler` of a scene's area emitters."""
+    """The `EmitterSampler` of a scene's emitters."""
     e = scene.n_emitters
     tri_area = 0.5 * np.linalg.norm(np.cross(scene.triangles[:, 1] - scene.triangles[:, 0],
                                              scene.triangles[:, 2] - scene.triangles[:, 0]), axis=1)
@@ -106,13 +194,15 @@ def build_emitter_sampler(scene):
             tri_area[order[offsets[i]:offsets[i + 1]]])
     kind = scene.emitter_kind
     lum = scene.emitter_radiance @ _LUMINANCE
-    # flux: pi A L of an area emitter, 4 pi I of a point light, about 2 pi (1 - cos cutoff) I of a spot
     lo, hi = scene.bounds()
     sphere = np.append(0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-6))
+    env, env_integral = environment_arrays(scene.environment)
     # flux: pi A L of an area emitter, 4 pi I of a point light, about 2 pi (1 - cos cutoff) I of a spot, and
-    # E pi R^2 of a directional light through the scene's bounding sphere
-    power = np.select([kind == EMITTER_AREA, kind == EMITTER_POINT, kind == EMITTER_SPOT],
-                      [np.pi * area * lum, 4 * np.pi * lum, 2 * np.pi * (1 - scene.emitter_cone[:, 0]) * lum],
+    # through the scene's bounding sphere E pi R^2 of a directional light and pi R^2 times the integral of L
+    # over the sphere of an environment
+    power = np.select([kind == EMITTER_AREA, kind == EMITTER_POINT, kind == EMITTER_SPOT, kind == EMITTER_ENVIRONMENT],
+                      [np.pi * area * lum, 4 * np.pi * lum, 2 * np.pi * (1 - scene.emitter_cone[:, 0]) * lum,
+                       np.pi * sphere[3] ** 2 * env_integral * lum],
                       np.pi * sphere[3] ** 2 * lum)
     area = np.where(kind == EMITTER_AREA, area, 1.0)
     if not np.any(power > 0):
@@ -120,7 +210,7 @@ def build_emitter_sampler(scene):
     pmf = power / power.sum()
     return EmitterSampler(EmitterArrays(pmf, area, offsets, order.astype(np.int64), tri_prob, tri_alias,
                                         kind.astype(np.int8), scene.emitter_position, scene.emitter_axis,
-                                        scene.emitter_cone, sphere), power)
+                                        scene.emitter_cone, sphere, *env), power)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -262,7 +352,10 @@ def delta_falloff(es, e, dx, dy, dz):
 @njit(cache=True, error_model="numpy")
 def emitter_irradiance(e, es, triangles, px, py, pz, nx, ny, nz):
     """Cosine-weighted solid angle of all of emitter `e`'s front-facing triangles above p's horizon (for a
-    point or spot light: cos / d^2 times its falloff, so that intensity x this is the irradiance)."""
+    point or spot light: cos / d^2 times its falloff, so that intensity x this is the irradiance; for an
+    environment pi, exact for a constant one, whose image is ones: an envmap's lit points are sampled instead)."""
+    if es.kind[e] == EMITTER_ENVIRONMENT:
+        return math.pi
     if es.kind[e] == EMITTER_DIRECTIONAL:
         return max(-(nx * es.axis[e, 0] + ny * es.axis[e, 1] + nz * es.axis[e, 2]), 0.0)
     if es.kind[e] != EMITTER_AREA:
@@ -283,6 +376,7 @@ def _emitter_segment(slot, le, scale, rgb, u, es, triangles, fnormals, p, s, gn,
     point p (shading normal s, geometric normal gn): segment, contribution `rgb` x `scale` x cos cos / d^2
     (`scale` holds area / (pdf of the emitter x samples x pi)) and the active flag. No branches: the slot is
     written whether or not the emitter point faces p, and `active` says which."""
+    t0 = t1 = t2 = 1.0  # the environment's radiance / pdf of its direction, per channel
     if es.kind[le] == EMITTER_AREA:
         lt, yx, yy, yz = sample_on_emitter(le, es, triangles, u[0], u[1], u[2])
         wx, wy, wz = yx - p[0], yy - p[1], yz - p[2]
@@ -297,6 +391,16 @@ def _emitter_segment(slot, le, scale, rgb, u, es, triangles, fnormals, p, s, gn,
         d2 = wx * wx + wy * wy + wz * wz
         dot_x = s[0] * wx + s[1] * wy + s[2] * wz
         dot_y = d2 * math.sqrt(d2)  # so that dot_x dot_y / d2^2 = cos_x
+    elif es.kind[le] == EMITTER_ENVIRONMENT:  # L(w) cos_x / pdf(w): the segment leaves the scene along w
+        dx, dy, dz, pdf, t0, t1, t2 = sample_environment(es, u[0], u[1], u[2])
+        inv = 1.0 / pdf if pdf > 0.0 else 0.0
+        t0, t1, t2 = t0 * inv, t1 * inv, t2 * inv
+        r2 = 2.0 * es.sphere[3]
+        yx, yy, yz = p[0] + dx * r2, p[1] + dy * r2, p[2] + dz * r2
+        wx, wy, wz = yx - p[0], yy - p[1], yz - p[2]
+        d2 = wx * wx + wy * wy + wz * wz
+        dot_x = s[0] * wx + s[1] * wy + s[2] * wz
+        dot_y = d2 * math.sqrt(d2) if pdf > 0.0 else 0.0
     else:  # a point or spot light: cos_x I / d2 = dot_x |w| / d2^2, times a spot's falloff
         yx, yy, yz = es.position[le, 0], es.position[le, 1], es.position[le, 2]
         wx, wy, wz = yx - p[0], yy - p[1], yz - p[2]
@@ -306,7 +410,7 @@ def _emitter_segment(slot, le, scale, rgb, u, es, triangles, fnormals, p, s, gn,
     g = dot_x * dot_y * scale / (d2 * d2)
     off = eps if gn[0] * wx + gn[1] * wy + gn[2] * wz > 0.0 else -eps
     ox, oy, oz = p[0] + off * gn[0], p[1] + off * gn[1], p[2] + off * gn[2]
-    contrib[slot, 0], contrib[slot, 1], contrib[slot, 2] = rgb[0] * g, rgb[1] * g, rgb[2] * g
+    contrib[slot, 0], contrib[slot, 1], contrib[slot, 2] = rgb[0] * g * t0, rgb[1] * g * t1, rgb[2] * g * t2
     s_org[slot, 0], s_org[slot, 1], s_org[slot, 2] = ox, oy, oz
     s_dir[slot, 0], s_dir[slot, 1], s_dir[slot, 2] = yx - ox, yy - oy, yz - oz
     s_emit[slot] = le
@@ -392,3 +496,14 @@ def sample_emitters(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org,
                 i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, i * n_shadow, s_org, s_dir, contrib, s_emit,
                 active, False)[:3]
     return analytic
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def add_environment(emitted, prim, dirs, es, scale):
+    """Add the environment's radiance (times `scale`, per channel) to the camera rays that miss the scene."""
+    for i in prange(prim.shape[0]):
+        if prim[i] < 0:
+            l0, l1, l2 = environment_radiance(es, dirs[i, 0], dirs[i, 1], dirs[i, 2])
+            emitted[i, 0] += l0 * scale[0]
+            emitted[i, 1] += l1 * scale[1]
+            emitted[i, 2] += l2 * scale[2]

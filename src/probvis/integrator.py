@@ -22,7 +22,7 @@ from . import memory
 from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
-from .emitters import build_emitter_sampler, sample_emitters
+from .emitters import add_environment, build_emitter_sampler, sample_emitters
 from .errors import ProbvisError
 from .film import Film, accumulate
 from .fused_exact import shade_exact
@@ -30,6 +30,7 @@ from .interaction import scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
 from .render_stats import render_stats
 from .scene import Scene, load_scene
+from .scene.scene import EMITTER_ENVIRONMENT
 from .segments import SegmentBuffers, compact
 from .settings import RenderSettings
 from .visibility import ShadingPoints, ShadowQuery, VisibilityEstimator, estimator_class
@@ -79,6 +80,7 @@ def render_pass(scene, settings, estimator, progress=False):
     cam = camera_params(scene.camera)
     geom = scene_arrays(scene)
     es = emitters.arrays
+    env_scale = scene.emitter_radiance[scene.emitter_kind == EMITTER_ENVIRONMENT]  # what camera rays that miss see
     width, height = scene.camera.width, scene.camera.height
     n_pix_total = width * height
     spp, n_shadow = settings.spp, settings.shadow_rays
@@ -100,6 +102,8 @@ def render_pass(scene, settings, estimator, progress=False):
                 org, dirs, tmin, tmax, keys = camera_rays(cam, spp, settings.seed, p0, p1)
                 prim, _, b1, b2, cam_node, cam_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
                 its = surface_interactions(geom, prim, b1, b2, dirs)
+                for scale in env_scale:
+                    add_environment(its.emitted, prim, dirs, es, scale)
                 cases = estimator.classify(ShadingPoints(its.position, its.normal,
                                                          np.where(its.material >= 0, prim, -1), keys))
                 if cases is None:

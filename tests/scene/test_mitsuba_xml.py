@@ -79,7 +79,7 @@ def test_obj_mesh_relative_path_and_twosided(tmp_path):
     ("<shape type='rectangle'><transform name='to_world'><shear/></transform></shape>", "unsupported transform"),
     ("<shape type='rectangle'><boolean name='flip_normals' value='$undefined'/></shape>",
      "undefined parameter '$undefined'"),
-    ("<emitter type='envmap'/>", "unsupported emitter type 'envmap'"),
+    ("<emitter type='skydome'/>", "unsupported emitter type 'skydome'"),
     ("<texture type='bitmap'/>", "unsupported element"),
     ("<shape type='instance'><ref id='nothing'/></shape>", "reference to unknown id 'nothing'"),
     ("<shape type='serialized'><string name='filename' value='nope.serialized'/></shape>", "mesh file not found"),

@@ -1,4 +1,5 @@
-"""Image files: EXR (float32, signed values kept), PFM, and PNG (sRGB tonemap with exposure).
+"""Image files: EXR (float32, signed values kept), PFM, and PNG (sRGB tonemap with exposure); textures and
+environment maps read as linear RGB from EXR, Radiance HDR, PFM, PNG or JPEG.
 
 Every writer goes through a temporary file in the destination folder and an atomic rename, so an
 interrupted or failed write never leaves a partial file under the requested name.
@@ -104,6 +105,57 @@ def read_exr(path, channel=None):
         raise
     except Exception as exc:
         raise ProbvisError(f"cannot read EXR {path}: {exc}") from None
+
+
+def srgb_to_linear(v):
+    """The sRGB transfer function's inverse, for 8-bit images."""
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+def read_linear_rgb(path):
+    """An image file as linear RGB (h, w, 3) float64, as Mitsuba's bitmap loader gives it: EXR, HDR and PFM as
+    stored, PNG and JPEG decoded from sRGB; grey images are repeated over the channels and alpha dropped.
+    Raises `ProbvisError` naming the file when it is missing or unreadable."""
+    path = Path(path)
+    if not path.is_file():
+        raise ProbvisError(f"image not found: {path}")
+    ext = path.suffix.lower()
+    if ext == ".exr":
+        img = read_exr(path)
+    elif ext == ".pfm":
+        try:
+            img = read_pfm(path)
+        except (ValueError, OSError) as exc:
+            raise ProbvisError(f"cannot read PFM image {path}: {exc}") from None
+    elif ext == ".hdr":
+        import cv2
+
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ProbvisError(f"cannot read Radiance HDR image {path}")
+        img = img[..., ::-1] if img.ndim == 3 else img
+    elif ext in (".png", ".jpg", ".jpeg"):
+        import imageio.v3 as iio
+
+        try:
+            raw = iio.imread(path)
+        except Exception as exc:
+            raise ProbvisError(f"cannot read image {path}: {exc}") from None
+        if raw.dtype.kind != "u":
+            raise ProbvisError(f"{path}: unsupported pixel type {raw.dtype}")
+        img = srgb_to_linear(raw.astype(np.float64) / np.iinfo(raw.dtype).max)
+    else:
+        raise ProbvisError(f"{path}: unsupported image format '{ext}' (supported: .exr, .hdr, .pfm, .png, .jpg)")
+    img = np.asarray(img, dtype=np.float64)
+    if img.ndim == 2:
+        img = img[..., None]
+    if img.shape[2] in (2, 4):
+        img = img[..., :-1]  # alpha
+    if img.shape[2] == 1:
+        img = np.repeat(img, 3, axis=2)
+    if not np.all(np.isfinite(img)):
+        raise ProbvisError(f"{path}: the image has NaN or infinite pixels")
+    return np.ascontiguousarray(img)
 
 
 def write_pfm(path, image):

@@ -12,6 +12,7 @@ import defusedxml.sax
 import numpy as np
 
 from ..errors import ProbvisError
+from ..io.image import read_linear_rgb
 from ..settings import RenderSettings
 from . import shapes as shp
 from . import transform as tf
@@ -343,9 +344,12 @@ class _Reader:
         """A top-level `point` or `spot` emitter."""
         self.check_attrs(node, ("type", "id", "name"))
         kind = self.attr(node, "type")
-        if kind not in ("point", "spot", "directional"):
-            self.fail(node, f"unsupported emitter type '{kind}' at top level (supported: point, spot, directional; "
-                            "area emitters attach to shapes)")
+        if kind not in ("point", "spot", "directional", "envmap", "constant"):
+            self.fail(node, f"unsupported emitter type '{kind}' at top level (supported: point, spot, directional, "
+                            "envmap, constant; area emitters attach to shapes)")
+        if kind in ("envmap", "constant"):
+            self.environment(node, kind, builder)
+            return
         if kind == "directional":
             props, _ = self.params(node, {"irradiance": ("rgb", "spectrum", "float"), "direction": ("vector",),
                                           "to_world": ("transform",)})
@@ -380,6 +384,37 @@ class _Reader:
             self.fail(node, f"beam_width must be in [0, cutoff_angle], got {beam:g}")
         axis = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
         builder.add_point_emitter(intensity, m[:3, 3], axis, cutoff, beam)
+
+    def environment(self, node, kind, builder):
+        """A top-level `envmap` (image file, scale, to_world) or `constant` (radiance) emitter."""
+        if kind == "constant":
+            props, _ = self.params(node, {"radiance": ("rgb", "spectrum", "float")})
+            rad = props.get("radiance", np.ones(3)) * np.ones(3)
+            if np.any(rad < 0):
+                self.fail(node, "radiance must be non-negative")
+            image, m, scale = np.ones((2, 1, 3)), None, rad  # the radiance as the scale: lit points' closed form
+        else:
+            props, _ = self.params(node, {"filename": ("string",), "scale": ("float",), "to_world": ("transform",),
+                                          "mis_compensation": ("boolean",)})
+            if "filename" not in props:
+                self.fail(node, "envmap needs a 'filename'")
+            path = Path(props["filename"])
+            path = path if path.is_absolute() else self.path.parent / path
+            try:
+                image = read_linear_rgb(path)
+            except ProbvisError as exc:
+                self.fail(node, str(exc))
+            if image.shape[1] < 2 or image.shape[0] < 3:
+                self.fail(node, f"{path}: the environment map resolution must be at least 2x3 pixels")
+            m, scale = props.get("to_world"), props.get("scale", 1.0)
+            if m is not None and not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-6):
+                self.fail(node, "an envmap's to_world must be a rotation (no scale or shear)")
+            if scale < 0:
+                self.fail(node, "scale must be non-negative")
+        try:
+            builder.add_environment(image, m, scale, constant=kind == "constant")
+        except ProbvisError as exc:
+            self.fail(node, str(exc))
 
     def shape(self, node, builder, outer=None):
         """Add a shape to `builder`; `outer` is an instance's transform, applied after the shape's own."""

@@ -7,8 +7,20 @@ import numpy as np
 from ..errors import ProbvisError
 from ..settings import RenderSettings
 
-EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT, EMITTER_DIRECTIONAL = 0, 1, 2, 3
 from . import transform as tf
+
+EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT = 0, 1, 2, 3, 4
+
+
+@dataclass
+class Environment:
+    """Light from infinitely far away: Mitsuba's `envmap` (a latitude-longitude `image`, linear RGB, rows from
+    the +y pole down) or `constant` (`constant` is True and the image one colour). `to_world` is the rotation
+    from the map's frame to the world; the emitter's radiance row holds the `scale`."""
+
+    image: np.ndarray  # (h, w, 3)
+    to_world: np.ndarray  # (3, 3)
+    constant: bool = False
 
 
 @dataclass
@@ -75,6 +87,7 @@ class Scene:
     emitter_position: np.ndarray = None
     emitter_axis: np.ndarray = None
     emitter_cone: np.ndarray = None
+    environment: Environment = None  # the one environment emitter, if any (its id: emitter_kind == 4)
 
     def __post_init__(self):
         e = len(self.emitter_radiance)
@@ -114,7 +127,8 @@ class Scene:
         h = hashlib.sha256()
         for a in (self.triangles, self.vertex_normals, self.tri_material, self.tri_emitter, self.reflectance,
                   self.twosided, self.emitter_radiance, self.camera.to_world, self.emitter_kind,
-                  self.emitter_position, self.emitter_axis, self.emitter_cone):
+                  self.emitter_position, self.emitter_axis, self.emitter_cone,
+                  *((self.environment.image, self.environment.to_world) if self.environment else ())):
             a = np.ascontiguousarray(a)
             h.update(f"{a.dtype.str}{a.shape}".encode())
             h.update(a.tobytes())
@@ -150,6 +164,7 @@ class SceneBuilder:
         self._materials = {}  # (reflectance, twosided) -> id
         self.emitter_radiance = []
         self.deltas = {}  # emitter id -> (kind, position, axis, cone) of point and spot emitters
+        self.environment = None
         self.shapes = []
         self.dropped = 0
         self._n = 0
@@ -229,13 +244,30 @@ class SceneBuilder:
         self.deltas[e] = (EMITTER_DIRECTIONAL, np.zeros(3), d / np.linalg.norm(d), np.zeros(4))
         return e
 
+    def add_environment(self, image, to_world=None, scale=1.0, constant=False):
+        """The scene's environment emitter (at most one): a latitude-longitude `image` (h >= 2 rows, w >= 1
+        columns, linear RGB) times `scale` (a number or RGB), rotated by `to_world` (4x4 or 3x3)."""
+        if self.environment is not None:
+            raise ProbvisError("only one environment emitter (envmap or constant) can be specified per scene")
+        img = np.asarray(image, dtype=np.float64)
+        if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 2 or img.shape[1] < 1:
+            raise ProbvisError(f"an environment map needs at least 2 rows and 1 column of RGB, got {img.shape}")
+        if not np.all(np.isfinite(img)):
+            raise ProbvisError("the environment map has NaN or infinite pixels")
+        m = np.eye(3) if to_world is None else np.asarray(to_world, dtype=np.float64)[:3, :3]
+        e = len(self.emitter_radiance)
+        self.emitter_radiance.append(np.ones(3) * np.asarray(scale, dtype=np.float64))
+        self.deltas[e] = (EMITTER_ENVIRONMENT, np.zeros(3), np.zeros(3), np.zeros(4))
+        self.environment = Environment(np.ascontiguousarray(img), m, constant)
+        return e
+
     def build(self, camera, defaults=RenderSettings()):
         """The `Scene`; `defaults` are the render settings the scene declares."""
         if self._n == 0:
             raise ProbvisError(f"scene '{self.name}' contains no (non-degenerate) triangles")
         if not self.emitter_radiance:
-            raise ProbvisError(f"scene '{self.name}' has no emitter: add an area emitter to a shape, or a point or "
-                               "spot light")
+            raise ProbvisError(f"scene '{self.name}' has no emitter: add an area emitter to a shape, or a point, "
+                               "spot, directional, envmap or constant emitter")
         e = len(self.emitter_radiance)
         kind, position, axis, cone = np.zeros(e, np.int8), np.zeros((e, 3)), np.zeros((e, 3)), np.zeros((e, 4))
         for k, (kd, pos, ax, cn) in self.deltas.items():
@@ -250,6 +282,7 @@ class SceneBuilder:
             twosided=np.array([k[1] for k, _ in mats], dtype=np.bool_),
             emitter_radiance=np.array(self.emitter_radiance, dtype=np.float64).reshape(-1, 3),
             emitter_kind=kind, emitter_position=position, emitter_axis=axis, emitter_cone=cone,
+            environment=self.environment,
             camera=camera,
             defaults=defaults.validate(),
             name=self.name,

@@ -9,7 +9,7 @@ uncertain, or when the budget is spent.
 import numpy as np
 
 from ...cases import CASE_PENUMBRA
-from ...scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_POINT
+from ...scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT
 from .map import OcclusionMap
 from .photons import ADAPTIVE_STREAM, Photons, points_on_emitters, trace_photons
 
@@ -62,8 +62,9 @@ def refine(scene, bvh, emitters, photons: Photons, neighbours, groups, radius, b
         origin, n_e, _ = points_on_emitters(e.astype(np.int32), emitters.arrays, scene.triangles, seed,
                                             ADAPTIVE_STREAM, spent)
         kind = emitters.arrays.kind[e]
-        sun = kind == EMITTER_DIRECTIONAL  # its light arrives along its axis: start beyond the scene, aimed
-        origin[sun] = target[sun] - 2.0 * emitters.arrays.sphere[3] * emitters.arrays.axis[e[sun]]
+        # directional and environment light arrive along their "normal": start beyond the scene, aimed
+        sun = (kind == EMITTER_DIRECTIONAL) | (kind == EMITTER_ENVIRONMENT)
+        origin[sun] = target[sun] - 2.0 * emitters.arrays.sphere[3] * n_e[sun]
         d = target - origin
         cos_d = np.einsum("ij,ij->i", d, n_e) / np.maximum(np.linalg.norm(d, axis=1), 1e-300)
         # towards the emitter's front: an area emitter's side, anywhere for a point light, inside a spot's cone

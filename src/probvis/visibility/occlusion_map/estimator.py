@@ -9,6 +9,7 @@ from ...accel import occluded_segments, visibility_from_lists
 from ...errors import ProbvisError
 from ...geometry import unit_normals
 from ...rng import uniforms
+from ...scene.scene import EMITTER_ENVIRONMENT
 from ..base import (CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, CASE_VERIFIED, Aov, Option, Phase,
                     VisibilityEstimator, VisibilityResult)
 from . import verification
@@ -98,6 +99,10 @@ class OcclusionMapVisibility(VisibilityEstimator):
         if p.radius is not None and p.radius > diagonal:
             raise ProbvisError(f"radius {p.radius:g} is larger than the scene (diagonal {diagonal:.4g}): every photon "
                                "would be every point's neighbour; use a radius well below the scene's size")
+        # an envmap has no closed-form irradiance: its "lit" points are sampled and tested like unknown ones
+        env = scene.environment
+        self.no_closed_form = ([] if env is None or env.constant else
+                               np.flatnonzero(scene.emitter_kind == EMITTER_ENVIRONMENT))
         n = self.photon_rays(scene, settings)
         t_geom = time.perf_counter()
         self.fnormal = unit_normals(scene.triangles)
@@ -153,6 +158,8 @@ class OcclusionMapVisibility(VisibilityEstimator):
         with_lists = self.with_lists
         self.lookup = self.map.lookup(points.position, g, with_lists=with_lists)
         lk, st = self.lookup, self._stats
+        for e in self.no_closed_form:
+            lk.case[lk.case[:, e] == CASE_LIT, e] = CASE_UNKNOWN
         pen = lk.case == CASE_PENUMBRA
         self.cases = lk.case
         if self.verify is not None:

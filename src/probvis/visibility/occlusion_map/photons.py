@@ -13,8 +13,8 @@ from numba import njit, prange
 
 from ...accel import all_hits
 from ...geometry import unit_normal
-from ...emitters import sample_on_emitter
-from ...scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_POINT
+from ...emitters import sample_environment, sample_on_emitter
+from ...scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT
 from ...rng import make_key, uniform
 
 MAX_HITS = 16
@@ -65,7 +65,8 @@ class Photons:
 def points_on_emitters(emitter, es, triangles, seed, stream, first):
     """Points uniform by area on the given emitters (`es` is the `EmitterArrays`; point i from
     rng key (seed, stream, first + i)), each nudged off its triangle along the front normal; returns points,
-    unit front normals and the keys."""
+    unit front normals and the keys. Directional and environment light starts on a disk facing it beyond the
+    scene's bounding sphere, its "normal" the direction it travels (an environment's by luminance)."""
     n = emitter.shape[0]
     org = np.empty((n, 3))
     nrm = np.empty((n, 3))
@@ -74,10 +75,13 @@ def points_on_emitters(emitter, es, triangles, seed, stream, first):
         key = make_key(seed, stream, first + i)
         keys[i] = key
         e = emitter[i]
-        if es.kind[e] == EMITTER_DIRECTIONAL:  # uniform on a disk facing the light, beyond the bounding sphere
+        if es.kind[e] == EMITTER_DIRECTIONAL or es.kind[e] == EMITTER_ENVIRONMENT:
             r = es.sphere[3] * math.sqrt(uniform(key, 1))
             phi = 2.0 * math.pi * uniform(key, 2)
             ax, ay, az = es.axis[e, 0], es.axis[e, 1], es.axis[e, 2]
+            if es.kind[e] == EMITTER_ENVIRONMENT:
+                wx, wy, wz = sample_environment(es, uniform(key, 4), uniform(key, 5), uniform(key, 6))[:3]
+                ax, ay, az = -wx, -wy, -wz
             tx, ty, tz, bx, by, bz = _basis(ax, ay, az)
             cu, su, far = r * math.cos(phi), r * math.sin(phi), 2.0 * es.sphere[3]
             org[i, 0] = es.sphere[0] - far * ax + cu * tx + su * bx
@@ -100,14 +104,15 @@ def points_on_emitters(emitter, es, triangles, seed, stream, first):
 @njit(cache=True, parallel=True, error_model="numpy")
 def emission_directions(emitter, es, nrm, keys):
     """Per photon origin a direction (rng dimensions 4 and 5 of its key): cosine-distributed about the normal
-    of an area emitter, uniform over the sphere for a point light and over the cutoff cone of a spot."""
+    of an area emitter, uniform over the sphere for a point light and over the cutoff cone of a spot; directional
+    and environment light keep the direction `points_on_emitters` gave."""
     n = nrm.shape[0]
     dirs = np.empty((n, 3))
     for i in prange(n):
         e = emitter[i]
         u1, u2 = uniform(keys[i], 4), uniform(keys[i], 5)
-        if es.kind[e] == EMITTER_DIRECTIONAL:
-            dirs[i, 0], dirs[i, 1], dirs[i, 2] = es.axis[e, 0], es.axis[e, 1], es.axis[e, 2]
+        if es.kind[e] == EMITTER_DIRECTIONAL or es.kind[e] == EMITTER_ENVIRONMENT:  # along the "normal"
+            dirs[i, 0], dirs[i, 1], dirs[i, 2] = nrm[i, 0], nrm[i, 1], nrm[i, 2]
             continue
         if es.kind[e] == EMITTER_AREA:
             dirs[i, 0], dirs[i, 1], dirs[i, 2] = cosine_direction(nrm[i, 0], nrm[i, 1], nrm[i, 2], u1, u2)

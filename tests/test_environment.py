@@ -1,0 +1,147 @@
+"""Environment emitters (`envmap`, `constant`) against Mitsuba 3 (scalar_rgb): radiance per direction, renders,
+image files; and the occlusion map and probabilistic visibility staying unbiased under them."""
+import numpy as np
+import pytest
+
+import probvis
+from probvis import ProbvisError
+from probvis.emitters import build_emitter_sampler, environment_radiance, sample_environment
+from probvis.io.image import read_linear_rgb, write_exr
+from tests.conftest import assert_matches_mitsuba, sensor, write_scene
+
+GROUND = """
+    <shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.6, 0.5"/></bsdf></shape>
+    <shape type="cube"><transform name="to_world"><scale value="0.5"/><rotate y="1" angle="20"/>
+        <translate y="0.5"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.3, 0.6, 0.2"/></bsdf></shape>"""
+ENVMAP = """
+    <emitter type="envmap"><string name="filename" value="sky.exr"/><float name="scale" value="1.5"/>
+        <transform name="to_world"><rotate y="1" angle="30"/><rotate x="1" angle="10"/></transform></emitter>"""
+CONSTANT = """
+    <emitter type="constant"><rgb name="radiance" value="0.8, 1.0, 1.2"/></emitter>"""
+CAMERA = dict(origin="0, 3, 5", target="0, 0.3, 0", fov=55, spp="$spp", w=40, h=30, sr=1)
+
+
+def sky(h=16, w=32):
+    """A skewed random sky with a small bright sun."""
+    img = np.random.default_rng(3).random((h, w, 3)) ** 3 * 2
+    img[3:5, 5:8] = 6.0
+    return img.astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    d = tmp_path_factory.mktemp("environment")
+    write_exr(d / "sky.exr", sky())
+    spp = '<default name="spp" value="16"/>'
+    return {"envmap": write_scene(d / "envmap.xml", sensor(**CAMERA) + GROUND + ENVMAP, spp),
+            "constant": write_scene(d / "constant.xml", sensor(**CAMERA) + GROUND + CONSTANT, spp)}
+
+
+def test_envmap_radiance_is_mitsubas_in_every_direction(scenes):
+    """Bilinear between pixel centres, half a texel in, the map rotated by to_world and scaled."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    ours = probvis.load_scene(scenes["envmap"])
+    es = build_emitter_sampler(ours).arrays
+    emitter = mi.load_file(str(scenes["envmap"]), spp=1).emitters()[0]
+    dirs = np.random.default_rng(0).normal(size=(200, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    for d in dirs:
+        si = mi.SurfaceInteraction3f()
+        si.wi = mi.Vector3f(*(-d))
+        expected = np.array(emitter.eval(si))
+        got = np.array(environment_radiance(es, *d)) * ours.emitter_radiance[0]
+        np.testing.assert_allclose(got, expected, rtol=2e-5, atol=1e-5)
+
+
+def test_environment_sampling_integrates_the_radiance(scenes):
+    """E[L(w) / pdf(w)] over sampled directions is the integral of L over the sphere (by quadrature), within 4
+    standard errors; the radiance a sample carries is the radiance of its direction."""
+    es = build_emitter_sampler(probvis.load_scene(scenes["envmap"])).arrays
+    u = np.random.default_rng(1).random((40000, 3))
+    samples = np.array([sample_environment(es, *v) for v in u])
+    d, pdf, radiance = samples[:, :3], samples[:, 3], samples[:, 4:]
+    assert np.all(pdf > 0)
+    np.testing.assert_allclose(radiance[:50], [environment_radiance(es, *w) for w in d[:50]], rtol=1e-9, atol=1e-12)
+    ratio = radiance / pdf[:, None]
+    theta = (np.arange(400) + 0.5) * np.pi / 400
+    phi = (np.arange(800) + 0.5) * 2 * np.pi / 800
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    grid = np.stack([np.sin(t) * np.sin(p), np.cos(t), -np.sin(t) * np.cos(p)], -1).reshape(-1, 3)
+    weight = (np.sin(t) * (np.pi / 400) * (2 * np.pi / 800)).ravel()
+    integral = (np.array([environment_radiance(es, *w) for w in grid]) * weight[:, None]).sum(0)
+    se = ratio.std(0, ddof=1) / np.sqrt(len(ratio))
+    assert np.all(np.abs(ratio.mean(0) - integral) < 4 * se), (ratio.mean(0), integral, se)
+
+
+@pytest.mark.parametrize("kind", ["envmap", "constant"])
+def test_environment_lit_scene_matches_mitsuba(scenes, kind):
+    """Camera rays that miss see the environment; one emitter sample per camera sample, as Mitsuba's."""
+    assert_matches_mitsuba(scenes[kind], shadow_rays=1)
+
+
+@pytest.mark.parametrize("kind, visibility, options", [
+    ("envmap", "occlusion-map", {"photons": 20000}),
+    ("envmap", "probvis", {"photons": 20000, "estimator": "shifted"}),
+    ("constant", "occlusion-map", {"photons": 20000, "penumbra": "list"}),
+    ("constant", "probvis", {"photons": 20000}),
+])
+def test_occlusion_map_under_an_environment_is_unbiased(scenes, kind, visibility, options):
+    """Photons come from a disk beyond the scene, directions by the map's luminance; a constant environment's
+    lit points take its closed form (pi L), an envmap's are sampled. Paired by seed with exact visibility, the
+    difference averages to zero."""
+    scene = probvis.load_scene(scenes[kind])
+
+    def mean(seed, **vis):
+        return probvis.render(scene, spp=2, shadow_rays=2, seed=seed, **vis).image.mean()
+
+    diff = np.array([mean(s, visibility=visibility, visibility_options=options) - mean(s) for s in range(12)])
+    assert abs(diff.mean()) < 4 * np.std(diff, ddof=1) / np.sqrt(len(diff))
+    r = probvis.render(scene, spp=2, shadow_rays=2, visibility=visibility, visibility_options=options)
+    assert r.stats["estimator"]["photons"] > 0
+    cases = r.stats["cases"]
+    assert (cases["lit"]["count"] > 0) == (kind == "constant")
+
+
+@pytest.mark.parametrize("suffix", [".hdr", ".png", ".exr"])
+def test_image_files_read_as_mitsuba_reads_them(tmp_path, suffix):
+    """Linear RGB as Mitsuba's bitmap loader gives it (PNG decoded from sRGB)."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    import cv2
+    import imageio.v3 as iio
+
+    img = np.random.default_rng(2).random((6, 9, 3)).astype(np.float32) * 4
+    path = tmp_path / f"img{suffix}"
+    if suffix == ".hdr":
+        cv2.imwrite(str(path), img[..., ::-1])
+    elif suffix == ".png":
+        iio.imwrite(path, (img / 4 * 255).astype(np.uint8))
+    else:
+        write_exr(path, img)
+    expected = np.array(mi.Bitmap(str(path)).convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False))
+    np.testing.assert_allclose(read_linear_rgb(path), expected, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("emitter, message", [
+    ('<emitter type="envmap"><string name="filename" value="missing.exr"/></emitter>', "image not found"),
+    ('<emitter type="envmap"><string name="filename" value="broken.hdr"/></emitter>', "cannot read Radiance HDR"),
+    ('<emitter type="envmap"><string name="filename" value="tiny.exr"/></emitter>', "at least 2x3 pixels"),
+    ('<emitter type="envmap"><string name="filename" value="sky.exr"/><transform name="to_world"><scale value="2"/>'
+     '</transform></emitter>', "must be a rotation"),
+    ('<emitter type="envmap"><string name="filename" value="sky.txt"/></emitter>', "unsupported image format"),
+    ('<emitter type="envmap"/>', "needs a 'filename'"),
+    ('<emitter type="constant"/><emitter type="constant"/>', "only one environment emitter"),
+    ('<emitter type="constant"><rgb name="radiance" value="-1"/></emitter>', "non-negative"),
+])
+def test_bad_environment_names_file_and_line(tmp_path, emitter, message):
+    write_exr(tmp_path / "sky.exr", sky())
+    write_exr(tmp_path / "tiny.exr", sky(2, 2))
+    (tmp_path / "broken.hdr").write_text("not an image")
+    (tmp_path / "sky.txt").write_text("not an image")
+    path = write_scene(tmp_path / "bad.xml", sensor() + GROUND + emitter)
+    with pytest.raises(ProbvisError, match=message) as err:
+        probvis.load_scene(path)
+    assert "bad.xml:" in str(err.value)
