@@ -418,10 +418,10 @@ def _emitter_segment(slot, le, scale, rgb, u, es, triangles, fnormals, p, s, gn,
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def point_samples(i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, base, s_org, s_dir, contrib, s_emit,
+def point_samples(i, geom, es, prim, pos, nrm, mat, refl, cases, keys, n_shadow, base, s_org, s_dir, contrib, s_emit,
                   active, dense):
-    """Direct light at shading point `i` (`geom` is the `SceneArrays`), per emitter as the visibility
-    estimator's `cases` say:
+    """Direct light at shading point `i` (`geom` is the `SceneArrays`, `refl` the points' albedo), per emitter as
+    the visibility estimator's `cases` say:
 
     lit (case 1) emitters are integrated analytically (Lambert's polygon formula, no noise, no rays),
     shadowed (case 2) ones contribute nothing, and the others, verified lit and shadowed ones included, are
@@ -432,7 +432,7 @@ def point_samples(i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, base,
     constant in each caller) only the active samples are kept, in slots base..base + m - 1 (a sample is
     written at base + m and kept by advancing m). Returns the analytic radiance and m (0 without `dense`).
     """
-    triangles, fnormals, refl, radiance = geom.triangles, geom.face_normals, geom.reflectance, geom.emitter_radiance
+    triangles, fnormals, radiance = geom.triangles, geom.face_normals, geom.emitter_radiance
     pmf, area = es.pmf, es.area
     inv_pi = 1.0 / math.pi
     a0 = a1 = a2 = 0.0
@@ -448,9 +448,9 @@ def point_samples(i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, base,
     for e in range(pmf.shape[0]):
         if cases[i, e] & CASE_MASK == CASE_LIT:
             f = emitter_irradiance(e, es, triangles, p[0], p[1], p[2], s[0], s[1], s[2]) * inv_pi
-            a0 += refl[mi, 0] * radiance[e, 0] * f
-            a1 += refl[mi, 1] * radiance[e, 1] * f
-            a2 += refl[mi, 2] * radiance[e, 2] * f
+            a0 += refl[i, 0] * radiance[e, 0] * f
+            a1 += refl[i, 1] * radiance[e, 1] * f
+            a2 += refl[i, 2] * radiance[e, 2] * f
     total, only = sampled_share(pmf, cases, i)
     if total <= 0.0:
         for j in range(n_shadow):
@@ -461,7 +461,7 @@ def point_samples(i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, base,
     key = keys[i]
     if only >= 0:  # a single emitter: no choice (its random dimension is simply not drawn)
         scale = area[only] * inv_pi / n_shadow
-        rgb = (refl[mi, 0] * radiance[only, 0], refl[mi, 1] * radiance[only, 1], refl[mi, 2] * radiance[only, 2])
+        rgb = (refl[i, 0] * radiance[only, 0], refl[i, 1] * radiance[only, 1], refl[i, 2] * radiance[only, 2])
         for j in range(n_shadow):
             u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
             slot = base + m if dense else base + j
@@ -472,7 +472,7 @@ def point_samples(i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, base,
         return a0, a1, a2, m
     for j in range(n_shadow):
         le, p_e = choose_emitter(pmf, cases, i, total, uniform(key, 2 + 4 * j))
-        rgb = (refl[mi, 0] * radiance[le, 0], refl[mi, 1] * radiance[le, 1], refl[mi, 2] * radiance[le, 2])
+        rgb = (refl[i, 0] * radiance[le, 0], refl[i, 1] * radiance[le, 1], refl[i, 2] * radiance[le, 2])
         u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
         slot = base + m if dense else base + j
         _emitter_segment(slot, le, area[le] * inv_pi / (p_e * n_shadow), rgb, u, es, triangles, fnormals, p, s,
@@ -483,7 +483,8 @@ def point_samples(i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, base,
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def sample_emitters(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org, s_dir, contrib, s_emit, active):
+def sample_emitters(geom, es, prim, pos, nrm, mat, albedo, cases, keys, n_shadow, s_org, s_dir, contrib, s_emit,
+                    active):
     """`point_samples` of every shading point, point i in slots i * n_shadow onwards; returns the analytic
     radiance per point."""
     n = prim.shape[0]
@@ -493,8 +494,8 @@ def sample_emitters(geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, s_org,
         blk = spread(it, n_blocks)
         for i in range(blk * POINTS_PER_BLOCK, min(n, (blk + 1) * POINTS_PER_BLOCK)):
             analytic[i, 0], analytic[i, 1], analytic[i, 2] = point_samples(
-                i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, i * n_shadow, s_org, s_dir, contrib, s_emit,
-                active, False)[:3]
+                i, geom, es, prim, pos, nrm, mat, albedo, cases, keys, n_shadow, i * n_shadow, s_org, s_dir, contrib,
+                s_emit, active, False)[:3]
     return analytic
 
 

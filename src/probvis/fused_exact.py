@@ -15,7 +15,8 @@ PIXELS_PER_BLOCK = 4  # pixels per parallel work item
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def shade_exact(geom, es, bvh, prim, pos, nrm, mat, cases, keys, emitted, cam_node, cam_tri, spp, n_shadow, n_pix):
+def shade_exact(geom, es, bvh, prim, pos, nrm, mat, albedo, cases, keys, emitted, cam_node, cam_tri, spp, n_shadow,
+                n_pix):
     """The film of a batch of whole pixels with exact visibility: `film.accumulate`'s outputs and the number of
     shadow segments per pixel."""
     root2 = root_record(bvh.root)
@@ -40,8 +41,8 @@ def shade_exact(geom, es, bvh, prim, pos, nrm, mat, cases, keys, emitted, cam_no
                 i = q * spp + s
                 counts[q, CAM_TRI] += cam_tri[i]
                 counts[q, CAM_NODE] += cam_node[i]
-                a0, a1, a2, m = point_samples(i, geom, es, prim, pos, nrm, mat, cases, keys, n_shadow, 0, org, dirs,
-                                              contrib, s_emit, active, True)
+                a0, a1, a2, m = point_samples(i, geom, es, prim, pos, nrm, mat, albedo, cases, keys, n_shadow, 0,
+                                              org, dirs, contrib, s_emit, active, True)
                 for lo in range(0, m, MAX_PACKET):
                     occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, min(MAX_PACKET, m - lo), work, occ,
                                     sh_node, sh_tri)

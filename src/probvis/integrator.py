@@ -78,7 +78,7 @@ def render_pass(scene, settings, estimator, progress=False):
     t2 = time.perf_counter()
 
     cam = camera_params(scene.camera)
-    geom = scene_arrays(scene)
+    geom, textures = scene_arrays(scene)
     es = emitters.arrays
     env_scale = scene.emitter_radiance[scene.emitter_kind == EMITTER_ENVIRONMENT]  # what camera rays that miss see
     width, height = scene.camera.width, scene.camera.height
@@ -101,7 +101,7 @@ def render_pass(scene, settings, estimator, progress=False):
                 p1 = min(n_pix_total, p0 + per_batch)
                 org, dirs, tmin, tmax, keys = camera_rays(cam, spp, settings.seed, p0, p1)
                 prim, _, b1, b2, cam_node, cam_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
-                its = surface_interactions(geom, prim, b1, b2, dirs)
+                its = surface_interactions(geom, textures, prim, b1, b2, dirs)
                 for scale in env_scale:
                     add_environment(its.emitted, prim, dirs, es, scale)
                 cases = estimator.classify(ShadingPoints(its.position, its.normal,
@@ -115,14 +115,14 @@ def render_pass(scene, settings, estimator, progress=False):
                         case_totals[c] += int((shaded == c).sum())
                 if fused:
                     img, m2, cnt, n_seg = shade_exact(geom, es, bvh.arrays, prim, its.position, its.normal,
-                                                      its.material, cases, keys, its.emitted, cam_node, cam_tri, spp,
-                                                      n_shadow, p1 - p0)
+                                                      its.material, its.albedo, cases, keys, its.emitted, cam_node,
+                                                      cam_tri, spp, n_shadow, p1 - p0)
                     n_q = int(n_seg.sum())
                 else:
                     s_org, s_dir, contrib, s_emit, active = buffers.slots(len(prim) * n_shadow)
                     emitted = its.emitted + sample_emitters(geom, es, prim, its.position, its.normal, its.material,
-                                                            cases, keys, n_shadow, s_org, s_dir, contrib, s_emit,
-                                                            active)
+                                                            its.albedo, cases, keys, n_shadow, s_org, s_dir, contrib,
+                                                            s_emit, active)
                     offsets = compact(active, s_org, s_dir, s_emit, keys, n_shadow, *buffers.segments())
                     n_q = int(offsets[-1])
                     query = ShadowQuery(origin=buffers.org[:n_q], direction=buffers.dirs[:n_q],

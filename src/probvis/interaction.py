@@ -1,7 +1,7 @@
 """Stage 2 of a render: the surface interaction at each camera ray's closest hit.
 
 Gives the radiance of an emitter seen directly, the shading point, its shading normal turned to the camera's
-side and its material. As in Mitsuba 3, a plain `diffuse` BSDF is one-sided (nothing is reflected from its
+side, its material and its albedo (the material's reflectance, or its texture at the point's uv). As in Mitsuba 3, a plain `diffuse` BSDF is one-sided (nothing is reflected from its
 back) and area emitters emit from their front side only.
 """
 import math
@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit, prange
 
 from .geometry import unit_normals
+from .texture import texture_arrays, texture_value
 
 
 class SceneArrays(NamedTuple):
@@ -24,12 +25,17 @@ class SceneArrays(NamedTuple):
     reflectance: np.ndarray  # (materials, 3)
     twosided: np.ndarray  # (materials,)
     emitter_radiance: np.ndarray  # (emitters, 3)
+    material_texture: np.ndarray  # (materials,) index into the `TextureArrays`, -1 for none
+    tri_uv: np.ndarray  # (n, 3, 2) the corners' uv (a placeholder when no material has a texture)
 
 
 def scene_arrays(scene):
-    """The `SceneArrays` of a `Scene` (unit face normals computed here, once per render)."""
+    """The `SceneArrays` of a `Scene` (unit face normals computed here, once per render) and its
+    `TextureArrays`."""
+    uv = scene.tri_uv if scene.tri_uv is not None else np.zeros((1, 3, 2))
     return SceneArrays(scene.triangles, scene.vertex_normals, unit_normals(scene.triangles), scene.tri_material,
-                       scene.tri_emitter, scene.reflectance, scene.twosided, scene.emitter_radiance)
+                       scene.tri_emitter, scene.reflectance, scene.twosided, scene.emitter_radiance,
+                       scene.material_texture, uv), texture_arrays(scene.textures)
 
 
 class Interactions(NamedTuple):
@@ -41,10 +47,11 @@ class Interactions(NamedTuple):
     position: np.ndarray  # (m, 3)
     normal: np.ndarray  # (m, 3) shading normal on the camera's side
     material: np.ndarray  # (m,) int32
+    albedo: np.ndarray  # (m, 3) diffuse reflectance at the point
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _surface(geom, prim, b1, b2, dirs):
+def _surface(geom, tx, prim, b1, b2, dirs):
     triangles, vnormals, tri_mat, tri_emit = geom.triangles, geom.vertex_normals, geom.tri_material, geom.tri_emitter
     twosided, radiance = geom.twosided, geom.emitter_radiance
     n = prim.shape[0]
@@ -52,6 +59,7 @@ def _surface(geom, prim, b1, b2, dirs):
     pos = np.zeros((n, 3))
     nrm = np.zeros((n, 3))
     mat = np.full(n, -1, np.int32)
+    albedo = np.zeros((n, 3))
     for i in prange(n):
         tri = prim[i]
         if tri < 0:
@@ -77,10 +85,20 @@ def _surface(geom, prim, b1, b2, dirs):
             pos[i, k] = c0 * triangles[tri, 0, k] + c1 * triangles[tri, 1, k] + c2 * triangles[tri, 2, k]
         nrm[i, 0], nrm[i, 1], nrm[i, 2] = sx, sy, sz
         mat[i] = m
-    return emitted, pos, nrm, mat
+        t = geom.material_texture[m]
+        if t < 0:
+            for k in range(3):
+                albedo[i, k] = geom.reflectance[m, k]
+        else:
+            uv = geom.tri_uv
+            u = c0 * uv[tri, 0, 0] + c1 * uv[tri, 1, 0] + c2 * uv[tri, 2, 0]
+            v = c0 * uv[tri, 0, 1] + c1 * uv[tri, 1, 1] + c2 * uv[tri, 2, 1]
+            albedo[i, 0], albedo[i, 1], albedo[i, 2] = texture_value(tx, t, u, v)
+    return emitted, pos, nrm, mat, albedo
 
 
-def surface_interactions(geom, prim, b1, b2, dirs):
-    """`Interactions` of camera rays with directions `dirs` that hit triangles `prim` at barycentrics (b1, b2)."""
-    emitted, pos, nrm, mat = _surface(geom, prim, b1, b2, dirs)
-    return Interactions(prim, emitted, pos, nrm, mat)
+def surface_interactions(geom, textures, prim, b1, b2, dirs):
+    """`Interactions` of camera rays with directions `dirs` that hit triangles `prim` at barycentrics (b1, b2);
+    `textures` are the scene's `TextureArrays`."""
+    emitted, pos, nrm, mat, albedo = _surface(geom, textures, prim, b1, b2, dirs)
+    return Interactions(prim, emitted, pos, nrm, mat, albedo)

@@ -100,10 +100,10 @@ def test_serialized_meshes_by_shape_index(tmp_path, version):
 
     box_v, box_f = shapes.cube()
     path = write_serialized(tmp_path / "m.serialized", [(box_v, box_f, None), TETRA], version)
-    v, f, n = shapes.load_serialized(path, 1)
+    v, f, n, _ = shapes.load_serialized(path, 1)
     np.testing.assert_array_equal(v, TETRA[0])
     np.testing.assert_array_equal(f, TETRA[1])
-    v, f, _ = shapes.load_serialized(path, 0)
+    v, f, _, _ = shapes.load_serialized(path, 0)
     assert len(f) == 12
     with pytest.raises(ProbvisError, match="shape_index 2 is out of range"):
         shapes.load_serialized(path, 2)

@@ -112,9 +112,10 @@ def srgb_to_linear(v):
     return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
 
 
-def read_linear_rgb(path):
+def read_linear_rgb(path, raw=False):
     """An image file as linear RGB (h, w, 3) float64, as Mitsuba's bitmap loader gives it: EXR, HDR and PFM as
-    stored, PNG and JPEG decoded from sRGB; grey images are repeated over the channels and alpha dropped.
+    stored, PNG and JPEG decoded from sRGB (unless `raw`); grey images are repeated over the channels and alpha
+    dropped.
     Raises `ProbvisError` naming the file when it is missing or unreadable."""
     path = Path(path)
     if not path.is_file():
@@ -138,12 +139,13 @@ def read_linear_rgb(path):
         import imageio.v3 as iio
 
         try:
-            raw = iio.imread(path)
+            data = iio.imread(path, plugin="pillow")
         except Exception as exc:
             raise ProbvisError(f"cannot read image {path}: {exc}") from None
-        if raw.dtype.kind != "u":
-            raise ProbvisError(f"{path}: unsupported pixel type {raw.dtype}")
-        img = srgb_to_linear(raw.astype(np.float64) / np.iinfo(raw.dtype).max)
+        if data.dtype.kind != "u":
+            raise ProbvisError(f"{path}: unsupported pixel type {data.dtype}")
+        img = data.astype(np.float64) / np.iinfo(data.dtype).max
+        img = img if raw else srgb_to_linear(img)
     else:
         raise ProbvisError(f"{path}: unsupported image format '{ext}' (supported: .exr, .hdr, .pfm, .png, .jpg)")
     img = np.asarray(img, dtype=np.float64)

@@ -16,6 +16,7 @@ from ..io.image import read_linear_rgb
 from ..settings import RenderSettings
 from . import shapes as shp
 from . import transform as tf
+from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import Camera, SceneBuilder
 
 
@@ -224,25 +225,28 @@ class _Reader:
         self.check_attrs(node, ("type", "id", "name"))
         kind = self.attr(node, "type")
         if kind == "diffuse":
-            props, textures = self.params(node, {"reflectance": ("rgb", "spectrum", "float")}, ("texture",))
-            refl = props.get("reflectance", np.full(3, 0.5))
-            for tex in textures:
-                refl = self.texture_colour(tex)
-            refl = refl * np.ones(3)
-            if np.any(refl < 0) or np.any(refl > 1):
+            props, objs = self.params(node, {"reflectance": ("rgb", "spectrum", "float")}, ("texture", "ref"))
+            refl = props.get("reflectance", np.full(3, 0.5)) * np.ones(3)
+            texture = None
+            for ch in objs:
+                if self.attr(ch, "name", "reflectance", required=False) != "reflectance":
+                    self.fail(ch, "a diffuse bsdf takes only a 'reflectance' texture")
+                texture = self.resolve(ch, "texture") if ch.tag == "ref" else self.texture(ch)
+                refl = texture.mean() if texture is not None else np.full(3, 0.5)
+            if texture is None and (np.any(refl < 0) or np.any(refl > 1)):
                 self.fail(node, "reflectance must be within [0, 1]")
-            out = (refl, False)
+            out = (refl, False, texture)
         elif kind == "twosided":
             _, objs = self.params(node, {}, ("bsdf", "ref"))
             if len(objs) != 1:
                 self.fail(node, "twosided needs exactly one nested bsdf")
-            inner, _ = self.bsdf(objs[0])
-            out = (inner, True)
+            inner, _, texture = self.bsdf(objs[0])
+            out = (inner, True, texture)
         elif kind in _APPROXIMATED_BSDFS:
             colour = self.nearest_diffuse(node, kind)
             self.approximate(node, f"bsdf '{kind}'", f"rendered as diffuse with reflectance "
                                                      f"{', '.join(f'{c:.3g}' for c in colour)}")
-            out = (colour, kind in ("dielectric", "thindielectric", "roughdielectric"))
+            out = (colour, kind in ("dielectric", "thindielectric", "roughdielectric"), None)
         else:
             self.fail(node, f"unsupported bsdf type '{kind}' (supported: diffuse, twosided; approximated as diffuse: "
                             f"{', '.join(sorted(_APPROXIMATED_BSDFS))})")
@@ -274,18 +278,52 @@ class _Reader:
                 objects.append(ch)
         return props, objects
 
+    def texture(self, node):
+        """A `bitmap` or `checkerboard` texture as a `Texture`; None (grey 0.5, with a warning) for other types."""
+        if node.tag == "ref":
+            return self.resolve(node, "texture")
+        self.check_attrs(node, ("type", "id", "name"))
+        kind = self.attr(node, "type")
+        colour = ("rgb", "spectrum", "float")
+        if kind == "bitmap":
+            props, _ = self.params(node, {"filename": ("string",), "filter_type": ("string",),
+                                          "wrap_mode": ("string",), "raw": ("boolean",), "to_uv": ("transform",),
+                                          "format": ("string",), "accel": ("boolean",)})
+            if "filename" not in props:
+                self.fail(node, "bitmap needs a 'filename'")
+            filt, wrap = props.get("filter_type", "bilinear"), props.get("wrap_mode", "repeat")
+            if filt not in ("bilinear", "nearest"):
+                self.fail(node, f"filter_type must be bilinear or nearest, got '{filt}'")
+            if wrap not in WRAP_MODES:
+                self.fail(node, f"wrap_mode must be one of {', '.join(WRAP_MODES)}, got '{wrap}'")
+            path = Path(props["filename"])
+            try:
+                image = read_linear_rgb(path if path.is_absolute() else self.path.parent / path,
+                                        raw=props.get("raw", False))
+            except ProbvisError as exc:
+                self.fail(node, str(exc))
+            out = Texture(BITMAP, self.to_uv(props), image=image, wrap=WRAP_MODES[wrap], bilinear=filt == "bilinear")
+        elif kind == "checkerboard":
+            props, _ = self.params(node, {"color0": colour, "color1": colour, "to_uv": ("transform",)})
+            colours = np.array([props.get("color0", 0.4) * np.ones(3), props.get("color1", 0.2) * np.ones(3)])
+            out = Texture(CHECKERBOARD, self.to_uv(props), colours=colours)
+        else:
+            self.approximate(node, f"texture '{kind}'", "rendered as grey 0.5")
+            out = None
+        if "id" in node.attrs:
+            self.ids[node.attrs["id"]] = ("texture", out)
+        return out
+
+    @staticmethod
+    def to_uv(props):
+        """The (2, 3) affine map of a texture's `to_uv` (the 4x4 transform's x and y rows, without z)."""
+        m = props.get("to_uv", np.eye(4))
+        return m[np.ix_([0, 1], [0, 1, 3])]
+
     def texture_colour(self, node):
-        """Mean colour of a nested texture (checkerboard: its two colours' mean; others: grey 0.5)."""
-        props, _ = self.loose_params(node)
-        kind = node.attrs.get("type", "")
-        if kind == "checkerboard":
-            c0, c1 = props.get("color0", np.full(3, 0.4)), props.get("color1", np.full(3, 0.2))
-            mean = np.clip(0.5 * (np.ones(3) * c0 + np.ones(3) * c1), 0.0, 1.0)
-            self.approximate(node, "texture 'checkerboard'", f"rendered as its mean colour "
-                                                            f"{', '.join(f'{c:.3g}' for c in mean)}")
-            return mean
-        self.approximate(node, f"texture '{kind}'", "rendered as grey 0.5")
-        return np.full(3, 0.5)
+        """Mean colour of a texture nested in a BSDF probvis approximates."""
+        texture = self.texture(node)
+        return np.full(3, 0.5) if texture is None else np.clip(texture.mean(), 0.0, 1.0)
 
     def nearest_diffuse(self, node, kind):
         """The diffuse colour nearest to a BSDF probvis does not model (documented in docs/decisions.md)."""
@@ -437,7 +475,7 @@ class _Reader:
             return
         allowed = {"to_world": ("transform",), "flip_normals": ("boolean",)}
         if kind in ("obj", "ply"):
-            allowed |= {"filename": ("string",), "face_normals": ("boolean",)}
+            allowed |= {"filename": ("string",), "face_normals": ("boolean",), "flip_tex_coords": ("boolean",)}
         elif kind == "serialized":
             allowed |= {"filename": ("string",), "face_normals": ("boolean",), "shape_index": ("integer",)}
         elif kind == "sphere":
@@ -457,13 +495,17 @@ class _Reader:
             else:
                 if material is not None:
                     self.fail(ch, "a shape can carry only one bsdf")
-                refl, two = self.bsdf(ch)
-                material = builder.material(refl, two)
+                refl, two, texture = self.bsdf(ch)
+                if texture is not None and kind in ("cube", "disk", "cylinder", "sphere"):
+                    self.approximate(ch, f"texture on a '{kind}'", "rendered as its mean colour (probvis gives uv "
+                                                                   "only to meshes and rectangles)")
+                    texture = None
+                material = builder.material(refl, two, texture)
         m = props.get("to_world", np.eye(4))
         if outer is not None:
             m = outer @ m
         flip = props.get("flip_normals", False)
-        face_normals, vnormals = True, None
+        face_normals, vnormals, uv = True, None, None
         if kind in ("obj", "ply", "serialized"):
             fname = props.get("filename")
             if fname is None:
@@ -473,14 +515,15 @@ class _Reader:
                 self.fail(node, f"mesh file not found: {mesh_path}")
             try:
                 if kind == "serialized":
-                    v, f, vnormals = shp.load_serialized(mesh_path, props.get("shape_index", 0))
+                    v, f, vnormals, uv = shp.load_serialized(mesh_path, props.get("shape_index", 0))
                 else:
-                    v, f, vnormals = shp.load_mesh(mesh_path)
+                    v, f, vnormals, uv = shp.load_mesh(mesh_path, props.get("flip_tex_coords"))
             except ProbvisError as exc:
                 self.fail(node, str(exc))
             face_normals = props.get("face_normals", False)
         elif kind == "rectangle":
             v, f = shp.rectangle()
+            uv = 0.5 * (v[:, :2] + 1.0)  # Mitsuba's: 0 to 1 along x and y
         elif kind == "cube":
             v, f = shp.cube()
         elif kind == "disk":
@@ -500,7 +543,7 @@ class _Reader:
             flip = not flip  # analytic shapes orient by the normal transform, not by the mirrored winding
         name = node.attrs.get("id", f"{kind}@{node.line}")
         try:
-            builder.add_mesh(name, kind, v, f, m, material, radiance, face_normals, vnormals, flip)
+            builder.add_mesh(name, kind, v, f, m, material, radiance, face_normals, vnormals, flip, uv)
         except ProbvisError as exc:
             self.fail(node, str(exc))
 
@@ -691,10 +734,10 @@ class _Reader:
                 if camera is not None:
                     self.fail(ch, "only one sensor is supported")
                 camera, spp, seed = self.sensor(ch)
-            elif ch.tag == "bsdf":
+            elif ch.tag in ("bsdf", "texture"):
                 if "id" not in ch.attrs:
-                    self.fail(ch, "a top-level bsdf needs an 'id'")
-                self.bsdf(ch)
+                    self.fail(ch, f"a top-level {ch.tag} needs an 'id'")
+                self.bsdf(ch) if ch.tag == "bsdf" else self.texture(ch)
             elif ch.tag == "shape":
                 self.shape(ch, builder)
             elif ch.tag == "emitter":

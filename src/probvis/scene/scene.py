@@ -88,9 +88,16 @@ class Scene:
     emitter_axis: np.ndarray = None
     emitter_cone: np.ndarray = None
     environment: Environment = None  # the one environment emitter, if any (its id: emitter_kind == 4)
+    # reflectance textures: material m's is textures[material_texture[m]] (-1: none, `reflectance` holds its
+    # colour), looked up at the corners' uv `tri_uv` (n, 3, 2); None when no material has a texture
+    textures: list = field(default_factory=list)
+    material_texture: np.ndarray = None
+    tri_uv: np.ndarray = None
 
     def __post_init__(self):
         e = len(self.emitter_radiance)
+        if self.material_texture is None:
+            self.material_texture = np.full(len(self.reflectance), -1, np.int32)
         if self.emitter_kind is None:
             self.emitter_kind = np.zeros(e, np.int8)
             self.emitter_position = np.zeros((e, 3))
@@ -128,7 +135,10 @@ class Scene:
         for a in (self.triangles, self.vertex_normals, self.tri_material, self.tri_emitter, self.reflectance,
                   self.twosided, self.emitter_radiance, self.camera.to_world, self.emitter_kind,
                   self.emitter_position, self.emitter_axis, self.emitter_cone,
-                  *((self.environment.image, self.environment.to_world) if self.environment else ())):
+                  *((self.environment.image, self.environment.to_world) if self.environment else ()),
+                  self.material_texture, *((self.tri_uv,) if self.tri_uv is not None else ()),
+                  *(a for t in self.textures for a in (t.to_uv, t.image if t.image is not None else t.colours,
+                                                       np.array([t.kind, t.wrap, t.bilinear])))):
             a = np.ascontiguousarray(a)
             h.update(f"{a.dtype.str}{a.shape}".encode())
             h.update(a.tobytes())
@@ -160,8 +170,9 @@ class SceneBuilder:
 
     def __init__(self, name="scene", source=""):
         self.name, self.source = name, source
-        self._tris, self._normals, self._mat, self._emit = [], [], [], []
-        self._materials = {}  # (reflectance, twosided) -> id
+        self._tris, self._normals, self._mat, self._emit, self._uv = [], [], [], [], []
+        self._materials = {}  # (reflectance, twosided, texture index) -> id
+        self.textures = []
         self.emitter_radiance = []
         self.deltas = {}  # emitter id -> (kind, position, axis, cone) of point and spot emitters
         self.environment = None
@@ -169,15 +180,23 @@ class SceneBuilder:
         self.dropped = 0
         self._n = 0
 
-    def material(self, reflectance, twosided=False):
-        key = (tuple(float(x) for x in np.broadcast_to(reflectance, 3)), bool(twosided))
+    def material(self, reflectance, twosided=False, texture=None):
+        """The id of a diffuse material: its `reflectance`, or a `Texture` (reflectance then its mean)."""
+        t = -1
+        if texture is not None:
+            t = next((k for k, x in enumerate(self.textures) if x is texture), len(self.textures))
+            if t == len(self.textures):
+                self.textures.append(texture)
+            reflectance = texture.mean()
+        key = (tuple(float(x) for x in np.broadcast_to(reflectance, 3)), bool(twosided), t)
         if key not in self._materials:
             self._materials[key] = len(self._materials)
         return self._materials[key]
 
     def add_mesh(self, name, kind, vertices, faces, to_world=None, material=None, radiance=None,
-                 face_normals=True, vertex_normals=None, flip_normals=False):
-        """Add a triangle mesh in object space; `to_world` is applied here. Returns the number kept."""
+                 face_normals=True, vertex_normals=None, flip_normals=False, uv=None):
+        """Add a triangle mesh in object space; `to_world` is applied here; `uv` (per vertex) default to the
+        barycentric coordinates, as Mitsuba's. Returns the number of triangles kept."""
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces, dtype=np.int64)
         if not np.all(np.isfinite(v)):
@@ -197,6 +216,11 @@ class SceneBuilder:
         keep = area2 > 1e-14 * scale * scale
         self.dropped += int((~keep).sum())
         tris, f, cross, area2 = tris[keep], f[keep], cross[keep], area2[keep]
+        if uv is None:  # the corners' barycentric coordinates, in the file's vertex order
+            corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+            self._uv.append(np.broadcast_to(corners[::-1] if flip_normals else corners, (len(f), 3, 2)))
+        else:
+            self._uv.append(np.asarray(uv, dtype=np.float64)[f])
         fn = cross / area2[:, None]
         if face_normals or len(tris) == 0:
             normals = np.repeat(fn[:, None, :], 3, axis=1)
@@ -273,6 +297,7 @@ class SceneBuilder:
         for k, (kd, pos, ax, cn) in self.deltas.items():
             kind[k], position[k], axis[k], cone[k] = kd, pos, ax, cn
         mats = sorted(self._materials.items(), key=lambda kv: kv[1])
+        material_texture = np.array([k[2] for k, _ in mats], np.int32)
         scene = Scene(
             triangles=np.ascontiguousarray(np.concatenate(self._tris)),
             vertex_normals=np.ascontiguousarray(np.concatenate(self._normals)),
@@ -283,6 +308,9 @@ class SceneBuilder:
             emitter_radiance=np.array(self.emitter_radiance, dtype=np.float64).reshape(-1, 3),
             emitter_kind=kind, emitter_position=position, emitter_axis=axis, emitter_cone=cone,
             environment=self.environment,
+            textures=self.textures,
+            material_texture=material_texture,
+            tri_uv=np.ascontiguousarray(np.concatenate(self._uv)) if self.textures else None,
             camera=camera,
             defaults=defaults.validate(),
             name=self.name,

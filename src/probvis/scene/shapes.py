@@ -1,9 +1,19 @@
 """Triangle meshes for the shapes probvis knows: Mitsuba's rectangle and cube, a tessellated sphere, mesh files."""
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from ..errors import ProbvisError
+
+
+class MeshData(NamedTuple):
+    """A mesh as read from a file: vertices, faces, and per-vertex normals and uv where the file has them."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray = None
+    uv: np.ndarray = None
 
 
 def rectangle():
@@ -80,8 +90,9 @@ def _obj_problem(path):
     return None
 
 
-def load_mesh(path):
-    """Read an OBJ or PLY file with trimesh: (vertices, faces, vertex normals or None), order preserved."""
+def load_mesh(path, flip_tex_coords=None):
+    """Read an OBJ or PLY file with trimesh as `MeshData`, order preserved. Texture coordinates are flipped
+    vertically (v -> 1 - v) by default for OBJ and not for PLY, as Mitsuba's `flip_tex_coords` defaults."""
     import trimesh
 
     path = Path(path)
@@ -100,7 +111,14 @@ def load_mesh(path):
     n = None
     if "vertex_normals" in mesh._cache.cache:  # normals stored in the file
         n = np.asarray(mesh.vertex_normals, dtype=np.float64)
-    return v, f, n
+    uv = getattr(mesh.visual, "uv", None)
+    if uv is not None and len(uv) == len(v):
+        uv = np.asarray(uv, dtype=np.float64).copy()
+        if path.suffix.lower() == ".obj" if flip_tex_coords is None else flip_tex_coords:
+            uv[:, 1] = 1.0 - uv[:, 1]
+    else:
+        uv = None
+    return MeshData(v, f, n, uv)
 
 
 DISK_SEGMENTS = 256  # a tessellated disk's area is (n / 2 pi) sin(2 pi / n) of the disk's: 0.99990 at 256
@@ -138,7 +156,7 @@ _SER_NORMALS, _SER_TEXCOORDS, _SER_COLORS, _SER_DOUBLE = 0x0001, 0x0002, 0x0008,
 
 def load_serialized(path, shape_index=0):
     """Mesh `shape_index` of a Mitsuba `.serialized` file (format versions 3 and 4: a zlib stream per mesh, an
-    offset table at the end): (vertices, faces, vertex normals or None)."""
+    offset table at the end) as `MeshData`."""
     import struct
     import zlib
 
@@ -181,8 +199,7 @@ def load_serialized(path, shape_index=0):
 
         v = take(3 * n_v, real).reshape(-1, 3).astype(np.float64)
         n = take(3 * n_v, real).reshape(-1, 3).astype(np.float64) if flags & _SER_NORMALS else None
-        if flags & _SER_TEXCOORDS:
-            take(2 * n_v, real)
+        uv = take(2 * n_v, real).reshape(-1, 2).astype(np.float64) if flags & _SER_TEXCOORDS else None
         if flags & _SER_COLORS:
             take(3 * n_v, real)
         f = take(3 * n_f, np.uint64 if n_v > 0xFFFFFFFF else np.uint32).reshape(-1, 3).astype(np.int64)
@@ -190,4 +207,4 @@ def load_serialized(path, shape_index=0):
         raise ProbvisError(f"{path}: corrupt serialized mesh {shape_index} ({exc})") from None
     if len(f) == 0:
         raise ProbvisError(f"mesh {shape_index} of {path} contains no triangles")
-    return v, f, n
+    return MeshData(v, f, n, uv)

@@ -1,0 +1,134 @@
+"""Reflectance textures (`bitmap`, `checkerboard`) at the uv of meshes and rectangles, against Mitsuba 3
+(scalar_rgb): OBJ texture coordinates flipped as Mitsuba flips them, PLY's not, to_uv, wrap modes, filters."""
+import numpy as np
+import pytest
+
+import probvis
+from probvis import ProbvisError
+from probvis.io.image import write_exr
+from tests.conftest import assert_matches_mitsuba, sensor, write_scene
+
+LIGHT = """
+    <shape type="rectangle"><transform name="to_world"><scale value="0.6"/><rotate x="1" angle="180"/>
+        <translate x="0.3" y="0.2" z="2.2"/></transform>
+        <emitter type="area"><rgb name="radiance" value="12"/></emitter></shape>
+    <shape type="cube"><transform name="to_world"><scale value="0.2"/><translate x="0.4" y="-0.3" z="0.4"/></transform>
+    </shape>"""
+QUAD_OBJ = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
+QUAD_PLY = """ply
+format ascii 1.0
+element vertex 4
+property float x
+property float y
+property float z
+property float u
+property float v
+element face 2
+property list uchar int vertex_indices
+end_header
+-1 -1 0 0 0
+1 -1 0 1 0
+1 1 0 1 1
+-1 1 0 0 1
+3 0 1 2
+3 0 2 3
+"""
+
+
+def picture(h=12, w=16):
+    """An asymmetric colour image: any flip, shift or wrong filter shows."""
+    y, x = np.mgrid[0:h, 0:w]
+    img = np.stack([x / (w - 1), y / (h - 1), ((x // 3 + y // 2) % 2) * 0.8 + 0.1], -1)
+    img[1, 2] = [1.0, 0.0, 0.0]
+    return img.astype(np.float32)
+
+
+def textured(shape, texture, transform='<scale value="1.2"/>'):
+    return f"""
+    <shape type="{shape}"><transform name="to_world">{transform}</transform>
+        <bsdf type="diffuse">{texture}</bsdf></shape>"""
+
+
+CASES = {
+    "bitmap-png-rectangle": textured("rectangle", '<texture type="bitmap" name="reflectance">'
+                                                  '<string name="filename" value="pic.png"/></texture>'),
+    "bitmap-exr-obj-to_uv-mirror": textured('obj"><string name="filename" value="quad.obj"/><foo type="',
+                                            '<texture type="bitmap" name="reflectance"><string name="filename" '
+                                            'value="pic.exr"/><string name="wrap_mode" value="mirror"/>'
+                                            '<transform name="to_uv"><scale x="2" y="1.5"/></transform></texture>'),
+    "bitmap-nearest-clamp-ply": textured('ply"><string name="filename" value="quad.ply"/><foo type="',
+                                         '<texture type="bitmap" name="reflectance"><string name="filename" '
+                                         'value="pic.exr"/><string name="filter_type" value="nearest"/>'
+                                         '<string name="wrap_mode" value="clamp"/><transform name="to_uv">'
+                                         '<scale value="1.4"/><translate x="-0.2" y="-0.1"/></transform></texture>'),
+    "checkerboard-obj": textured('obj"><string name="filename" value="quad.obj"/><foo type="',
+                                 '<texture type="checkerboard" name="reflectance"><rgb name="color0" '
+                                 'value="0.9, 0.2, 0.1"/><rgb name="color1" value="0.1, 0.3, 0.8"/>'
+                                 '<transform name="to_uv"><scale value="5"/></transform></texture>'),
+}
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    import imageio.v3 as iio
+
+    d = tmp_path_factory.mktemp("textures")
+    write_exr(d / "pic.exr", picture())
+    iio.imwrite(d / "pic.png", (picture() * 255).astype(np.uint8))
+    (d / "quad.obj").write_text(QUAD_OBJ)
+    (d / "quad.ply").write_text(QUAD_PLY)
+    return d
+
+
+def scene_file(folder, name):
+    body = CASES[name].replace('<foo type="">', "")
+    return write_scene(folder / f"{name}.xml", sensor(origin="0, -0.4, 3", target="0, 0, 0", fov=45, spp="$spp",
+                                                      w=32, h=32, sr=1) + LIGHT + body,
+                       '<default name="spp" value="16"/>')
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_textured_surface_matches_mitsuba(folder, name):
+    assert_matches_mitsuba(scene_file(folder, name), shadow_rays=1)
+
+
+def test_texture_is_looked_up_per_point(folder):
+    """The image is not one colour: the textured render's pixels vary more than the light alone explains."""
+    r = probvis.render(scene_file(folder, "checkerboard-obj"), spp=4, shadow_rays=1)
+    ratio = r.image[8:24, 8:24, 2] / np.maximum(r.image[8:24, 8:24, 0], 1e-9)
+    assert ratio.max() > 4 * ratio.min()
+
+
+@pytest.mark.parametrize("texture, message", [
+    ('<texture type="bitmap" name="reflectance"><string name="filename" value="nope.png"/></texture>',
+     "image not found"),
+    ('<texture type="bitmap" name="reflectance"><string name="filename" value="bad.png"/></texture>',
+     "cannot read image"),
+    ('<texture type="bitmap" name="reflectance"/>', "needs a 'filename'"),
+    ('<texture type="bitmap" name="reflectance"><string name="filename" value="pic.exr"/>'
+     '<string name="wrap_mode" value="tile"/></texture>', "wrap_mode must be one of"),
+    ('<ref name="reflectance" id="nothing"/>', "unknown id 'nothing'"),
+])
+def test_bad_texture_names_file_and_line(folder, texture, message):
+    (folder / "bad.png").write_text("not a png")
+    path = write_scene(folder / "bad.xml", sensor() + LIGHT + textured("rectangle", texture))
+    with pytest.raises(ProbvisError, match=message) as err:
+        probvis.load_scene(path)
+    assert "bad.xml:" in str(err.value)
+
+
+def test_texture_on_a_tessellated_shape_warns_and_strict_refuses(folder):
+    body = textured("sphere", '<texture type="checkerboard" name="reflectance"/>')
+    path = write_scene(folder / "sphere.xml", sensor() + LIGHT + body)
+    with pytest.warns(UserWarning, match="texture on a 'sphere'.*mean colour"):
+        scene = probvis.load_scene(path)
+    assert np.allclose(scene.reflectance[-1], 0.3)
+    with pytest.raises(ProbvisError, match="texture on a 'sphere'"):
+        probvis.load_scene(path, strict=True)
+
+
+def test_top_level_texture_by_reference(folder):
+    body = ('<texture type="checkerboard" id="chk"><rgb name="color0" value="0.9"/></texture>' +
+            textured("rectangle", '<ref name="reflectance" id="chk"/>'))
+    scene = probvis.load_scene(write_scene(folder / "ref.xml", sensor() + LIGHT + body))
+    assert len(scene.textures) == 1 and scene.tri_uv is not None
