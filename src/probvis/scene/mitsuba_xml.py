@@ -573,8 +573,9 @@ class _Reader:
         allowed = {"fov": ("float",), "focal_length": ("string", "float"), "fov_axis": ("string",),
                    "to_world": ("transform",), "near_clip": ("float",), "far_clip": ("float",),
                    "srf": ("spectrum", "rgb")}
-        if kind == "perspective":
-            allowed.update(principal_point_offset_x=("float",), principal_point_offset_y=("float",))
+        if kind == "perspective":  # focus_distance is read by every projective camera; a pinhole ignores it
+            allowed.update(principal_point_offset_x=("float",), principal_point_offset_y=("float",),
+                           focus_distance=("float",))
         else:
             allowed.update(aperture_radius=("float",), focus_distance=("float",))
         props, objs = self.params(node, allowed, ("sampler", "film"))
