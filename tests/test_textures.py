@@ -61,6 +61,17 @@ CASES = {
                                          'value="pic.exr"/><string name="filter_type" value="nearest"/>'
                                          '<string name="wrap_mode" value="clamp"/><transform name="to_uv">'
                                          '<scale value="1.4"/><translate x="-0.2" y="-0.1"/></transform></texture>'),
+    "checkerboard-sphere": textured("sphere", '<texture type="checkerboard" name="reflectance"><rgb name="color0" '
+                                              'value="0.9, 0.2, 0.1"/><transform name="to_uv"><scale x="8" y="4"/>'
+                                              '</transform></texture>', '<scale value="0.6"/><rotate x="1" angle="70"/>'
+                                                                        '<rotate z="1" angle="20"/>'
+                                                                        '<translate x="-0.6" y="-0.7"/>'),
+    "bitmap-disk": textured("disk", '<texture type="bitmap" name="reflectance"><string name="filename" '
+                                    'value="pic.exr"/></texture>', '<rotate z="1" angle="-30"/>'),
+    "bitmap-cylinder": textured("cylinder", '<texture type="bitmap" name="reflectance"><string name="filename" '
+                                            'value="pic.png"/><transform name="to_uv"><scale x="2"/></transform>'
+                                            '</texture>', '<scale x="0.6" y="0.6" z="1.2"/><rotate x="1" angle="80"/>'
+                                                          '<translate z="-0.2"/>'),
     "checkerboard-obj": textured('obj"><string name="filename" value="quad.obj"/><foo type="',
                                  '<texture type="checkerboard" name="reflectance"><rgb name="color0" '
                                  'value="0.9, 0.2, 0.1"/><rgb name="color1" value="0.1, 0.3, 0.8"/>'
@@ -117,13 +128,13 @@ def test_bad_texture_names_file_and_line(folder, texture, message):
     assert "bad.xml:" in str(err.value)
 
 
-def test_texture_on_a_tessellated_shape_warns_and_strict_refuses(folder):
-    body = textured("sphere", '<texture type="checkerboard" name="reflectance"/>')
-    path = write_scene(folder / "sphere.xml", sensor() + LIGHT + body)
-    with pytest.warns(UserWarning, match="texture on a 'sphere'.*mean colour"):
+def test_texture_on_a_cube_warns_and_strict_refuses(folder):
+    body = textured("cube", '<texture type="checkerboard" name="reflectance"/>', '<scale value="0.3"/>')
+    path = write_scene(folder / "cube.xml", sensor() + LIGHT + body)
+    with pytest.warns(UserWarning, match="texture on a 'cube'.*mean colour"):
         scene = probvis.load_scene(path)
     assert np.allclose(scene.reflectance[-1], 0.3)
-    with pytest.raises(ProbvisError, match="texture on a 'sphere'"):
+    with pytest.raises(ProbvisError, match="texture on a 'cube'"):
         probvis.load_scene(path, strict=True)
 
 

@@ -18,6 +18,7 @@ from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import Camera, SceneBuilder
+from .spectrum import spectrum_to_rgb
 
 
 @dataclass
@@ -147,14 +148,30 @@ class _Reader:
             return raw.lower() == "true"
         if tag == "string":
             return raw
+        if tag == "spectrum" and ":" in raw:
+            return self.sampled_spectrum(node, raw)
         if tag in ("rgb", "spectrum"):
             vals = self.numbers(node, raw, (1, 3))
             if tag == "spectrum" and len(vals) != 1:
-                self.fail(node, "only constant spectra (a single value) are supported")
+                self.fail(node, "a spectrum is one value or wavelength:value pairs")
             if len(vals) not in (1, 3):
                 self.fail(node, f"expected 1 or 3 values, got '{raw}'")
             return np.array(vals, dtype=np.float64) * np.ones(3)
         self.fail(node, "unsupported property type")
+
+    def sampled_spectrum(self, node, raw):
+        """RGB of `wavelength:value` pairs, as Mitsuba's RGB variants reduce them (emission for radiance,
+        intensity and irradiance, else a reflectance)."""
+        try:
+            pairs = [tuple(float(x) for x in item.split(":")) for item in re.split(r",\s*|\s+(?=\d)", raw.strip())
+                     if item]
+            w, v = np.array(pairs, dtype=np.float64).T
+        except ValueError:
+            self.fail(node, f"expected wavelength:value pairs, got '{raw}'")
+        if len(w) < 2 or np.any(np.diff(w) <= 0) or not np.all(np.isfinite(v)):
+            self.fail(node, "a sampled spectrum needs two or more finite values at increasing wavelengths")
+        emission = node.attrs.get("name") in ("radiance", "intensity", "irradiance")
+        return spectrum_to_rgb(w, v, reflectance=not emission)
 
     def transform(self, node):
         self.check_attrs(node, ("name",))
@@ -270,8 +287,8 @@ class _Reader:
             if ch.tag in ("rgb", "spectrum", "float", "integer", "boolean", "string"):
                 name = self.attr(ch, "name")
                 raw = self.attr(ch, "value")
-                if ch.tag == "spectrum" and (":" in raw or len(raw.replace(",", " ").split()) != 1):
-                    props[name] = np.full(3, 0.5)  # a sampled spectrum: its colour is not modelled
+                if ch.tag == "spectrum" and ":" not in raw and len(raw.replace(",", " ").split()) != 1:
+                    props[name] = np.full(3, 0.5)  # not a spectrum Mitsuba would read: its colour is not modelled
                 else:
                     props[name] = self.value(ch)
             elif ch.tag in ("bsdf", "ref", "texture"):
@@ -496,9 +513,9 @@ class _Reader:
                 if material is not None:
                     self.fail(ch, "a shape can carry only one bsdf")
                 refl, two, texture = self.bsdf(ch)
-                if texture is not None and kind in ("cube", "disk", "cylinder", "sphere"):
-                    self.approximate(ch, f"texture on a '{kind}'", "rendered as its mean colour (probvis gives uv "
-                                                                   "only to meshes and rectangles)")
+                if texture is not None and kind == "cube":
+                    self.approximate(ch, "texture on a 'cube'", "rendered as its mean colour (probvis gives a "
+                                                                "cube no uv)")
                     texture = None
                 material = builder.material(refl, two, texture)
         m = props.get("to_world", np.eye(4))
@@ -539,6 +556,8 @@ class _Reader:
                 self.fail(node, "sphere radius must be positive")
             m = m @ tf.translate(props.get("center", np.zeros(3))) @ tf.scale([r, r, r])
             face_normals = False
+        if kind in ("disk", "sphere", "cylinder"):
+            uv = shp.analytic_uv(kind, v[f])
         if kind in ("rectangle", "disk", "sphere", "cylinder") and np.linalg.det(m[:3, :3]) < 0:
             flip = not flip  # analytic shapes orient by the normal transform, not by the mirrored winding
         name = node.attrs.get("id", f"{kind}@{node.line}")
@@ -549,7 +568,7 @@ class _Reader:
 
     def cylinder_frame(self, node, props):
         """Object-to-shape transform of Mitsuba's cylinder from p0 to p1 with a radius (the unit cylinder's z
-        axis along p1 - p0)."""
+        axis along p1 - p0, x and y as Mitsuba's frame of that axis)."""
         p0, p1 = props.get("p0", np.zeros(3)), props.get("p1", np.array([0.0, 0.0, 1.0]))
         r = props.get("radius", 1.0)
         axis = np.asarray(p1, float) - np.asarray(p0, float)
@@ -557,10 +576,11 @@ class _Reader:
         if not (r > 0 and length > 0):
             self.fail(node, "a cylinder needs a positive radius and p0 != p1")
         z = axis / length
-        helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        x = np.cross(helper, z)
-        x /= np.linalg.norm(x)
-        y = np.cross(z, x)
+        # Mitsuba's Frame3f(z): Duff et al.'s orthonormal basis, which fixes where the uv's phi starts
+        sign = 1.0 if z[2] >= 0.0 else -1.0
+        a, b = -1.0 / (sign + z[2]), z[0] * z[1] * -1.0 / (sign + z[2])
+        x = np.array([1.0 + sign * z[0] * z[0] * a, sign * b, -sign * z[0]])
+        y = np.array([b, sign + z[1] * z[1] * a, -z[1]])
         frame = np.eye(4)
         frame[:3, 0], frame[:3, 1], frame[:3, 2], frame[:3, 3] = x * r, y * r, z * length, p0
         return frame

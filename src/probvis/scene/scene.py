@@ -195,8 +195,9 @@ class SceneBuilder:
 
     def add_mesh(self, name, kind, vertices, faces, to_world=None, material=None, radiance=None,
                  face_normals=True, vertex_normals=None, flip_normals=False, uv=None):
-        """Add a triangle mesh in object space; `to_world` is applied here; `uv` (per vertex) default to the
-        barycentric coordinates, as Mitsuba's. Returns the number of triangles kept."""
+        """Add a triangle mesh in object space; `to_world` is applied here; `uv` (per vertex, or per face
+        corner as (faces, 3, 2)) default to the barycentric coordinates, as Mitsuba's. Returns the number of
+        triangles kept."""
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces, dtype=np.int64)
         if not np.all(np.isfinite(v)):
@@ -219,6 +220,9 @@ class SceneBuilder:
         if uv is None:  # the corners' barycentric coordinates, in the file's vertex order
             corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
             self._uv.append(np.broadcast_to(corners[::-1] if flip_normals else corners, (len(f), 3, 2)))
+        elif np.ndim(uv) == 3:  # per corner, one row per face as given
+            self._uv.append(np.asarray(uv, dtype=np.float64)[keep][:, ::-1] if flip_normals else
+                            np.asarray(uv, dtype=np.float64)[keep])
         else:
             self._uv.append(np.asarray(uv, dtype=np.float64)[f])
         fn = cross / area2[:, None]

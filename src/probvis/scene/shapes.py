@@ -64,6 +64,25 @@ def uv_sphere(rings=32, segments=64):
     return v, np.array(faces, dtype=np.int64), v.copy()
 
 
+def analytic_uv(kind, corners):
+    """Per-corner uv (n, 3, 2) of a tessellated `sphere`, `disk` or `cylinder` in object space, Mitsuba's
+    parameterisations sampled at the corners: sphere (phi / 2 pi, theta / pi) about +z, disk (r, phi / 2 pi),
+    cylinder (phi / 2 pi, z), phi from +x in [0, 2 pi). A triangle across the phi = 0 seam gets its small phi
+    raised by 2 pi, and a corner on the axis (a pole, the disk's centre) the mean phi of the other two."""
+    x, y, z = corners[..., 0], corners[..., 1], corners[..., 2]
+    phi = np.arctan2(y, x) / (2 * np.pi) % 1.0
+    on_axis = np.hypot(x, y) < 1e-12
+    phi = np.where(on_axis, np.nan, phi)
+    wrap = np.nanmax(phi, axis=1, keepdims=True) - np.nanmin(phi, axis=1, keepdims=True) > 0.5
+    phi = np.where(wrap & (phi < 0.5), phi + 1.0, phi)
+    phi = np.where(on_axis, np.nanmean(phi, axis=1, keepdims=True), phi)
+    if kind == "sphere":
+        return np.stack([phi, np.arccos(np.clip(z / np.linalg.norm(corners, axis=2), -1, 1)) / np.pi], -1)
+    if kind == "disk":
+        return np.stack([np.hypot(x, y), phi], -1)
+    return np.stack([phi, z], -1)
+
+
 def _obj_problem(path):
     """The first face of an OBJ file that refers to a vertex it does not have, as 'file:line: ...' (None if
     none does). Only run on a file the reader rejected, to say where."""
