@@ -123,11 +123,12 @@ def render_pass(scene, settings, estimator, progress=False):
                     emitted = its.emitted + sample_emitters(geom, es, prim, its.position, its.normal, its.material,
                                                             its.albedo, cases, keys, n_shadow, s_org, s_dir, contrib,
                                                             s_emit, active)
-                    offsets = compact(active, s_org, s_dir, s_emit, keys, n_shadow, *buffers.segments())
+                    offsets = compact(active, s_org, s_dir, s_emit, contrib, keys, n_shadow, *buffers.segments())
                     n_q = int(offsets[-1])
                     query = ShadowQuery(origin=buffers.org[:n_q], direction=buffers.dirs[:n_q],
                                         tmax=buffers.tmax[:n_q], point=buffers.point[:n_q],
-                                        emitter=buffers.emit[:n_q], key=buffers.key[:n_q])
+                                        emitter=buffers.emit[:n_q], key=buffers.key[:n_q],
+                                        weight=buffers.weight[:n_q])
                     res = estimator.evaluate(query)
                     img, m2, cnt = accumulate(emitted, contrib, active, offsets, res.value, cam_node, cam_tri,
                                               res.node_tests, res.triangle_tests, spp, n_shadow, p1 - p0)

@@ -23,6 +23,7 @@ class SegmentBuffers:
         self.point = np.empty(n_slots, np.int64)
         self.emit = np.empty(n_slots, np.int32)
         self.key = np.empty(n_slots, np.uint64)
+        self.weight = np.empty(n_slots)
         self.tmax = np.full(n_slots, 1.0 - SHADOW_EPSILON)
 
     def slots(self, m):
@@ -30,13 +31,14 @@ class SegmentBuffers:
         return self.s_org[:m], self.s_dir[:m], self.contrib[:m], self.s_emit[:m], self.active[:m]
 
     def segments(self):
-        """The dense segment arrays `compact` fills: origin, direction, camera sample, emitter, rng key."""
-        return self.org, self.dirs, self.point, self.emit, self.key
+        """The dense segment arrays `compact` fills: origin, direction, camera sample, emitter, rng key, weight."""
+        return self.org, self.dirs, self.point, self.emit, self.key, self.weight
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def compact(active, s_org, s_dir, s_emit, keys, n_shadow, org, dirs, point, emit, rkey):
-    """Gather the active shadow slots into the front of the dense arrays, in slot order.
+def compact(active, s_org, s_dir, s_emit, contrib, keys, n_shadow, org, dirs, point, emit, rkey, weight):
+    """Gather the active shadow slots into the front of the dense arrays, in slot order, with each segment's
+    `weight`: the luminance of its unoccluded contribution.
 
     Returns `offsets`: `offsets[i]:offsets[i + 1]` is the dense range of camera sample i (so the film can
     walk it) and `offsets[-1]` the number of segments.
@@ -59,6 +61,7 @@ def compact(active, s_org, s_dir, s_emit, keys, n_shadow, org, dirs, point, emit
                     dirs[k, c] = s_dir[slot, c]
                 point[k] = i
                 emit[k] = s_emit[slot]
+                weight[k] = 0.212671 * contrib[slot, 0] + 0.715160 * contrib[slot, 1] + 0.072169 * contrib[slot, 2]
                 rkey[k] = mix64(keys[i] + np.uint64(j + 1))
                 k += 1
     return offsets

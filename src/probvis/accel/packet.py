@@ -244,11 +244,12 @@ def closest_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     return prim, t, b1, b2, n_node, n_tri
 
 
-def occluded_segments(bvh, origin, direction, tmax, point):
-    """Occlusion of shadow segments (t in (0, tmax)), traversed in packets of equal `point` (the segments of
-    one shading point; contiguous runs are packed, so sort by point): occluded flag, node and triangle tests
-    per segment."""
-    return any_hit_packets(bvh.arrays, origin, direction, np.zeros(len(tmax)), tmax, packet_starts(point))
+def occluded_segments(bvh, origin, direction, tmax, point, tmin=None):
+    """Occlusion of shadow segments (t in (tmin, tmax), tmin 0 by default), traversed in packets of equal
+    `point` (the segments of one shading point; contiguous runs are packed, so sort by point): occluded flag,
+    node and triangle tests per segment."""
+    tmin = np.zeros(len(tmax)) if tmin is None else tmin
+    return any_hit_packets(bvh.arrays, origin, direction, tmin, tmax, packet_starts(point))
 
 
 def nearest_hits(bvh, org, dirs, tmin, tmax):

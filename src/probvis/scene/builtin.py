@@ -64,7 +64,7 @@ def quad_shadow(res=64, spp=16, shadow_rays=16, seed=0):
     return b.build(cam, RenderSettings(spp, shadow_rays, seed))
 
 
-def canopy(res=256, spp=16, shadow_rays=16, seed=0, leaves=3000, layout_seed=2013):
+def canopy(res=256, spp=16, shadow_rays=16, seed=0, leaves=3000, layout_seed=2013, leaf_size=0.07):
     """A slab of small random leaf triangles over the ground under a square light: penumbra everywhere."""
     rng = np.random.default_rng(layout_seed)
     b = SceneBuilder("canopy", "builtin:canopy")
@@ -74,7 +74,7 @@ def canopy(res=256, spp=16, shadow_rays=16, seed=0, leaves=3000, layout_seed=201
     b.add_mesh("ground", "rectangle", v, f, tf.rotate([1, 0, 0], -90) @ tf.scale([3, 3, 3]), soil)
     centres = np.column_stack([rng.uniform(-1.6, 1.6, leaves), rng.uniform(1.0, 1.8, leaves),
                                rng.uniform(-1.6, 1.6, leaves)])
-    offsets = rng.normal(scale=0.07, size=(leaves, 3, 3))
+    offsets = rng.normal(scale=leaf_size, size=(leaves, 3, 3))
     lv = (centres[:, None, :] + offsets).reshape(-1, 3)
     lf = np.arange(3 * leaves).reshape(-1, 3)
     b.add_mesh("leaves", "mesh", lv, lf, None, leaf)
@@ -109,11 +109,42 @@ def box_city(res=256, spp=16, shadow_rays=16, seed=0, blocks=24, layout_seed=7):
     return b.build(cam, RenderSettings(spp, shadow_rays, seed))
 
 
+def heavy_scan(res=256, spp=16, shadow_rays=16, seed=0, subdivisions=8):
+    """A scanned-like occluder of 1.3M triangles (an icosphere subdivided 8 times, its radius displaced by
+    smooth bumps and fine noise) on a floor under a large square light: geometry whose BVH leaves the cache."""
+    import trimesh
+
+    b = SceneBuilder("heavy-scan", "builtin:heavy-scan")
+    v, f = shp.rectangle()
+    b.add_mesh("floor", "rectangle", v, f, tf.scale([3, 3, 1]), b.material((0.75, 0.75, 0.72)))
+    ico = trimesh.creation.icosphere(subdivisions=subdivisions)
+    p = np.asarray(ico.vertices)
+    noise = np.random.default_rng(20140).standard_normal(len(p))
+    r = 1.0 + 0.15 * np.sin(5 * p[:, 0]) * np.cos(4 * p[:, 1]) + 0.05 * np.sin(17 * p[:, 2] + 3 * p[:, 0])
+    r += 0.002 * noise
+    blob = tf.translate([0, 0, 0.95]) @ tf.scale([0.8, 0.6, 0.8])
+    b.add_mesh("scan", "mesh", p * r[:, None], np.asarray(ico.faces), blob, b.material((0.6, 0.45, 0.35)))
+    light = tf.translate([0.4, -0.2, 3.2]) @ tf.rotate([1, 0, 0], 180) @ tf.scale([1.0, 1.0, 1])
+    b.add_mesh("light", "rectangle", v, f, light, None, radiance=(9.0, 9.0, 8.5))
+    cam = Camera(tf.look_at([0, -4.2, 3.4], [0, 0, 0.5], [0, 0, 1]), 45.0, res, res)
+    return b.build(cam, RenderSettings(spp, shadow_rays, seed))
+
+
+def heavy_canopy(res=256, spp=16, shadow_rays=16, seed=0, leaves=1_000_000, layout_seed=2014):
+    """A million random leaf triangles in a slab over the ground under a square light: dense foliage, every
+    ground point in penumbra behind hundreds of tiny blockers."""
+    scene = canopy(res, spp, shadow_rays, seed, leaves=leaves, layout_seed=layout_seed, leaf_size=0.0045)
+    scene.name, scene.source = "heavy-canopy", "builtin:heavy-canopy"
+    return scene
+
+
 BUILTINS = {
     "cornell-box": (cornell_box, "Cornell box with two boxes and a sphere, small ceiling light"),
     "canopy": (canopy, "3,000 random leaf triangles over the ground: penumbra everywhere"),
     "box-city": (box_city, "a grid of boxes under a large tilted light: long penumbrae, many blockers"),
     "quad-shadow": (quad_shadow, "one square blocker over a floor: umbra, penumbra and lit regions"),
+    "heavy-scan": (heavy_scan, "a 1.3M-triangle scanned-like occluder on a floor under a large light"),
+    "heavy-canopy": (heavy_canopy, "a million leaf triangles over the ground: dense foliage, penumbra everywhere"),
 }
 
 

@@ -16,6 +16,7 @@ BUILTIN = {
     "exact": "probvis.visibility.exact:ExactVisibility",
     "occlusion-map": "probvis.visibility.occlusion_map:OcclusionMapVisibility",
     "probvis": "probvis.visibility.probabilistic:ProbabilisticVisibility",
+    "proxy": "probvis.visibility.proxy:ProxyVisibility",
 }
 
 

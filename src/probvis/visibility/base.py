@@ -165,6 +165,7 @@ class ShadowQuery:
     point: np.ndarray  # (n,) shading point (index into the batch's `ShadingPoints`), non-decreasing
     emitter: np.ndarray  # (n,) emitter id of the sampled point
     key: np.ndarray  # (n,) uint64 rng key, unique per segment, for stochastic estimators (see `probvis.rng`)
+    weight: np.ndarray = None  # (n,) luminance of the unoccluded contribution, for efficiency-aware choices
 
 
 @dataclass

@@ -1,0 +1,133 @@
+"""Geometry proxies: simplified stand-ins of a scene's heavy meshes, for visibility estimators that test less
+geometry and correct stochastically (Billen, Lagae and Dutré, "Probabilistic Visibility Evaluation using
+Geometry Proxies", EGSR 2014).
+
+Each shape of at least `min_triangles` triangles is welded into an indexed mesh and decimated by quadric error
+(the `fast-simplification` package: Garland-Heckbert quadrics, the same fast algorithm as pyfqmr, maintained
+by the PyVista project) to `ratio` of its triangles or to `triangles`; smaller shapes enter the proxy
+geometry unchanged. A shape the decimator cannot handle keeps its own triangles, with a warning: a proxy is
+only ever an approximation that the estimator corrects, so a missing one costs speed, never correctness.
+Proxies are cached on disk (`PROBVIS_CACHE_DIR`, default `~/.cache/probvis`), keyed by the SHA-256 of the
+shape's triangles and the decimation target.
+"""
+import hashlib
+import os
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+MIN_TRIANGLES = 4096  # shapes below this are cheap already: they enter the proxy geometry unchanged
+CACHE_VERSION = 1
+
+
+@dataclass
+class ProxyGeometry:
+    """The proxy triangles (decimated heavy shapes plus the other shapes as they are) and a report per
+    decimated shape."""
+
+    triangles: np.ndarray  # (m, 3, 3)
+    shapes: list = field(default_factory=list)  # dicts: name, triangles, proxy_triangles, seconds, cached
+    seconds: float = 0.0
+    # how far a proxy may stray from its mesh (the largest mean edge length of a decimated shape's proxy): a
+    # segment starting on a heavy mesh ignores proxy geometry this close to its origin, where the proxy would
+    # otherwise shadow the mesh's own lit surface
+    clearance: float = 0.0
+
+    @property
+    def n_decimated(self):
+        return sum(1 for s in self.shapes if s["proxy_triangles"] is not None)
+
+
+def cache_dir():
+    """Where proxies are cached."""
+    return Path(os.environ.get("PROBVIS_CACHE_DIR") or Path.home() / ".cache" / "probvis") / "proxies"
+
+
+def target_count(n, ratio=None, triangles=None):
+    """Triangles a shape of n triangles is decimated to: `triangles` if given, else round(ratio n), at least 4."""
+    return max(4, int(triangles) if triangles is not None else int(round(ratio * n)))
+
+
+def weld(tris):
+    """An indexed mesh (vertices, faces) of a triangle soup, equal corners merged."""
+    flat = np.ascontiguousarray(tris.reshape(-1, 3))
+    keys = flat.view(np.dtype((np.void, flat.dtype.itemsize * 3))).ravel()
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    return flat[first], inverse.reshape(-1, 3).astype(np.int64)
+
+
+def decimate(tris, target):
+    """The proxy triangles of one shape (a triangle soup) decimated to about `target` triangles, or None and why
+    when the decimator cannot produce a valid, smaller mesh."""
+    import fast_simplification
+
+    vertices, faces = weld(tris)
+    if len(faces) <= target:
+        return None, f"it has no more than {target} triangles"
+    try:
+        pv, pf = fast_simplification.simplify(vertices.astype(np.float64), faces.astype(np.int32),
+                                              target_reduction=1.0 - target / len(faces))
+    except Exception as exc:  # the library raises various types on meshes it rejects
+        return None, f"the decimator failed ({type(exc).__name__}: {exc})"
+    pv, pf = np.asarray(pv, dtype=np.float64), np.asarray(pf, dtype=np.int64)
+    if (pf.ndim != 2 or len(pf) == 0 or len(pf) >= len(faces) or pf.min() < 0 or pf.max() >= len(pv)
+            or not np.all(np.isfinite(pv))):
+        return None, "the decimator returned no valid smaller mesh"
+    return np.ascontiguousarray(pv[pf]), None
+
+
+def _cache_key(tris, target):
+    h = hashlib.sha256()
+    h.update(f"proxy v{CACHE_VERSION} target {target} {tris.dtype.str}{tris.shape}".encode())
+    h.update(np.ascontiguousarray(tris).tobytes())
+    return h.hexdigest()
+
+
+def _cached_decimate(tris, target, use_cache):
+    """`decimate` through the on-disk cache: (triangles or None, why not, whether it came from the cache)."""
+    path = cache_dir() / f"{_cache_key(tris, target)}.npy" if use_cache else None
+    if path is not None and path.is_file():
+        try:
+            return np.load(path), None, True
+        except (OSError, ValueError):
+            pass  # a damaged cache entry is rebuilt
+    out, why = decimate(tris, target)
+    if out is not None and path is not None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            with open(tmp, "wb") as f:
+                np.save(f, out)
+            os.replace(tmp, path)
+        except OSError as exc:
+            warnings.warn(f"proxies: cannot cache in {path.parent} ({exc.strerror or exc})", stacklevel=3)
+    return out, why, False
+
+
+def build_proxies(scene, ratio=0.01, triangles=None, min_triangles=MIN_TRIANGLES, use_cache=True):
+    """`ProxyGeometry` of a scene: shapes of at least `min_triangles` decimated to `ratio` of their triangles
+    (or to `triangles` each), the others kept."""
+    t0 = time.perf_counter()
+    parts, report, clearance = [], [], 0.0
+    for shape in scene.shapes:
+        tris = scene.triangles[shape.first_triangle:shape.first_triangle + shape.n_triangles]
+        if shape.n_triangles < min_triangles or shape.emitter >= 0:
+            parts.append(tris)
+            continue
+        target = target_count(shape.n_triangles, ratio, triangles)
+        t = time.perf_counter()
+        proxy, why, cached = _cached_decimate(tris, target, use_cache)
+        if proxy is None:
+            warnings.warn(f"proxies: shape '{shape.name}' keeps its {shape.n_triangles} triangles: {why}",
+                          stacklevel=2)
+        parts.append(tris if proxy is None else proxy)
+        if proxy is not None:
+            edges = np.linalg.norm(proxy - np.roll(proxy, 1, axis=1), axis=2)
+            clearance = max(clearance, float(edges.mean()))
+        report.append({"name": shape.name, "triangles": shape.n_triangles,
+                       "proxy_triangles": None if proxy is None else len(proxy),
+                       "seconds": time.perf_counter() - t, "cached": cached})
+    return ProxyGeometry(np.ascontiguousarray(np.concatenate(parts)), report, time.perf_counter() - t0, clearance)

@@ -1,0 +1,182 @@
+"""Proxy visibility: every segment is tested against simplified proxy geometry, and a random fraction q of them
+against the scene as well, as the control variate V = V_P + B (V - V_P) / q with B ~ Bernoulli(q) (Billen,
+Lagae and Dutré, EGSR 2014). Unbiased for any q > 0; it pays where the proxy test is much cheaper than the
+exact one (heavy meshes whose BVH leaves the cache) and the two rarely disagree.
+
+Efficiency-aware q (`q=auto`): with ρ the proxy test's cost relative to an exact one and δ the mismatch energy
+E[(V - V_P)² w²] relative to the variance of exactly-tested contributions w V (w the segment's unoccluded
+contribution), the estimator's variance × cost is σ² (1 - δ + δ/q)(ρ + q) in units of an exact test's, least
+at q = √(δ ρ / (1 - δ)), where the gain over exact visibility is G = 1 / (√(ρ (1 - δ)) + √δ)². ρ (measured
+seconds per segment of both traversals) and δ (per emitter, from the segments traced both ways) are running
+estimates over earlier batches, so a batch's q never depends on its own draws; the first batch uses
+`PILOT_Q`. An emitter whose predicted G falls below 1 gets exact visibility only: proxies that do not pay are
+not used.
+
+A proxy strays from its mesh by about its edge length, so a segment leaving a heavy mesh's own surface would
+often hit the proxy at once: the proxy test ignores the first `ProxyGeometry.clearance` of every segment (any
+V_P is a valid control variate; this one just agrees with V more often).
+"""
+import time
+
+import numpy as np
+
+from ..accel import build_bvh, occluded_segments
+from ..errors import ProbvisError
+from ..proxies import MIN_TRIANGLES, build_proxies
+from ..rng import uniforms
+from .base import Aov, Option, Phase, VisibilityEstimator, VisibilityResult
+
+PILOT_Q = 0.5  # q of the first batch, before anything is measured
+Q_MIN = 0.02  # auto: never test fewer segments exactly than this
+MIN_MEASURED = 256  # segments of an emitter tested both ways before its measured δ is trusted
+CORRECTION_DIM = 1 << 21  # rng dimension of a segment's Bernoulli draw, apart from other estimators' draws
+
+
+def _parse_q(value):
+    if value == "auto":
+        return None
+    try:
+        q = float(value)
+    except ValueError:
+        return f"must be auto or a probability in (0, 1], got {value!r}"
+    return None if 0.0 < q <= 1.0 else f"must be auto or a probability in (0, 1], got {value!r}"
+
+
+def predicted_gain(rho, delta):
+    """Efficiency of the control variate at its best q relative to exact visibility."""
+    return 1.0 / (np.sqrt(rho * (1.0 - delta)) + np.sqrt(delta)) ** 2
+
+
+def best_q(rho, delta):
+    """The q minimising variance x cost, within [Q_MIN, 1]."""
+    return float(np.clip(np.sqrt(delta * rho / max(1.0 - delta, 1e-12)), Q_MIN, 1.0))
+
+
+class ProxyVisibility(VisibilityEstimator):
+    name = "proxy"
+    summary = "proxy geometry for every segment, the scene for a random fraction q (control variate, unbiased)"
+    options = (
+        Option("ratio", float, 0.01, "share of a heavy mesh's triangles its proxy keeps, in (0, 1)",
+               check=lambda r: None if 0.0 < r < 1.0 else f"must be in (0, 1), got {r:g}"),
+        Option("triangles", int, None, "triangles of each proxy (instead of ratio)", minimum=4),
+        Option("min_triangles", int, MIN_TRIANGLES, "meshes with fewer triangles are used as they are",
+               minimum=4),
+        Option("q", str, "auto", "probability of also testing a segment exactly: auto (efficiency-aware, per "
+               "emitter) or a number in (0, 1]", check=_parse_q, metavar="auto|Q"),
+        Option("cache", bool, True, "cache proxies on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
+    )
+    phases = (
+        Phase("proxies", "prepare", "decimating heavy meshes (or reading them from the cache)"),
+        Phase("proxy_bvh", "prepare", "building the proxy geometry's BVH"),
+        Phase("proxy_trace", "batch", "testing segments against the proxies"),
+        Phase("exact_trace", "batch", "testing the chosen segments against the scene"),
+    )
+    aovs = (Aov("exact_tested", "shadow segments also tested against the scene, per camera sample"),)
+
+    def prepare(self, scene, bvh, emitters, settings):
+        super().prepare(scene, bvh, emitters, settings)
+        p = self.params
+        for shape in scene.shapes:
+            if p.triangles is not None and p.min_triangles <= shape.n_triangles <= p.triangles:
+                raise ProbvisError(f"triangles {p.triangles} is not below the {shape.n_triangles} of mesh "
+                                   f"'{shape.name}' (or raise min_triangles above it)")
+        with self.timed("proxies"):
+            self.proxies = build_proxies(scene, p.ratio, p.triangles, p.min_triangles, p.cache)
+        with self.timed("proxy_bvh"):
+            self.proxy_bvh = build_bvh(self.proxies.triangles)
+        e = scene.n_emitters
+        self.fixed_q = None if p.q == "auto" else float(p.q)
+        self.q = np.full(e, self.fixed_q or PILOT_Q)
+        self.exact_only = np.zeros(e, bool)
+        # running sums over segments tested both ways, per emitter: count, Σ (V - V_P)² w², Σ w V, Σ (w V)²
+        self.sums = np.zeros((e, 4))
+        self.cost = np.zeros(4)  # proxy seconds, proxy segments, exact seconds, exact segments
+        self.tests = {"proxy": np.zeros(2, np.int64), "scene": np.zeros(2, np.int64)}
+        self.decided = 0
+        if self.proxies.n_decimated == 0:
+            self.exact_only[:] = True  # nothing to gain: every segment is tested exactly
+
+    def _update_q(self):
+        """q (and exact-only) per emitter from the measurements of earlier batches."""
+        if self.fixed_q is not None or self.cost[1] == 0 or self.cost[3] == 0:
+            return
+        rho = (self.cost[0] / self.cost[1]) / (self.cost[2] / self.cost[3])
+        self.rho = rho
+        for e in range(len(self.q)):
+            n, mismatch, s1, s2 = self.sums[e]
+            if self.exact_only[e] or n < MIN_MEASURED:
+                continue
+            variance = s2 / n - (s1 / n) ** 2
+            delta = 1.0 if variance <= 0 else min(mismatch / n / variance, 1.0)
+            if predicted_gain(rho, delta) < 1.0:
+                self.exact_only[e] = True
+            else:
+                self.q[e] = best_q(rho, delta)
+        self.decided += 1
+
+    def evaluate(self, query):
+        self._update_q()
+        n = len(query.tmax)
+        exact_only = self.exact_only[query.emitter]
+        q = np.where(exact_only, 1.0, self.q[query.emitter])
+        on_proxy = np.flatnonzero(~exact_only)
+        traced = exact_only | (uniforms(query.key, CORRECTION_DIM) < q)
+        on_scene = np.flatnonzero(traced)
+        v_p = np.ones(n)
+        node, tri = np.zeros(n, np.int64), np.zeros(n, np.int64)
+        t0 = time.perf_counter()
+        with self.timed("proxy_trace"):
+            d = query.direction[on_proxy]
+            tmin = self.proxies.clearance / np.sqrt(np.einsum("ij,ij->i", d, d))
+            occ, pn, pt = occluded_segments(self.proxy_bvh, query.origin[on_proxy], d, query.tmax[on_proxy],
+                                            query.point[on_proxy], tmin)
+        t1 = time.perf_counter()
+        v_p[on_proxy] = 1.0 - occ
+        node[on_proxy] += pn
+        tri[on_proxy] += pt
+        with self.timed("exact_trace"):
+            occ, sn, st = occluded_segments(self.bvh, query.origin[on_scene], query.direction[on_scene],
+                                            query.tmax[on_scene], query.point[on_scene])
+        t2 = time.perf_counter()
+        v = 1.0 - occ
+        node[on_scene] += sn
+        tri[on_scene] += st
+        self.tests["proxy"] += (int(pn.sum()), int(pt.sum()))
+        self.tests["scene"] += (int(sn.sum()), int(st.sum()))
+        value = np.where(exact_only, 0.0, v_p)
+        value[on_scene] += np.where(exact_only[on_scene], v, (v - v_p[on_scene]) / q[on_scene])
+        both = on_scene[~exact_only[on_scene]]
+        if len(both):
+            self.cost += (t1 - t0, len(on_proxy), t2 - t1, len(on_scene))
+            w = query.weight[both] if query.weight is not None else np.ones(len(both))
+            vb = v[~exact_only[on_scene]]
+            np.add.at(self.sums, (query.emitter[both], 0), 1.0)
+            np.add.at(self.sums, (query.emitter[both], 1), ((vb - v_p[both]) * w) ** 2)
+            np.add.at(self.sums, (query.emitter[both], 2), w * vb)
+            np.add.at(self.sums, (query.emitter[both], 3), (w * vb) ** 2)
+        return VisibilityResult(value, node, tri, aovs={"exact_tested": traced.astype(float)})
+
+    def memory_estimate(self, scene, settings, batch_samples):
+        p = self.params
+        heavy = sum(s.n_triangles for s in scene.shapes if s.n_triangles >= p.min_triangles)
+        kept = scene.n_triangles - heavy + (p.ratio * heavy if p.triangles is None else p.triangles * 8)
+        return {"proxy geometry and its BVH (ratio, triangles)": int(kept * 200)}
+
+    def stats(self):
+        out = super().stats()
+        n, mismatch, s1, s2 = self.sums.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            variance = s2 / n - (s1 / n) ** 2
+            delta = np.where(variance > 0, mismatch / n / variance, np.nan)
+        rho = getattr(self, "rho", None)
+        out.update({
+            "proxies": self.proxies.shapes, "proxy_triangles": len(self.proxies.triangles),
+            "tests": {k: {"node": int(v[0]), "triangle": int(v[1])} for k, v in self.tests.items()},
+            "cost_ratio": rho,
+            "emitters": [{"q": None if x else float(qq), "exact_only": bool(x), "segments_measured": int(c),
+                          "mismatch_energy": None if not np.isfinite(d) else float(d),
+                          "predicted_gain": (None if rho is None or not np.isfinite(d) else
+                                             float(predicted_gain(rho, min(d, 1.0))))}
+                         for qq, x, c, d in zip(self.q, self.exact_only, n, delta)],
+        })
+        return out

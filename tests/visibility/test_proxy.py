@@ -1,0 +1,148 @@
+"""Proxy visibility (the control variate V_P + B (V - V_P) / q): unbiased against exact visibility, per segment
+and per image; proxies built, cached and refused as documented."""
+import numpy as np
+import pytest
+import trimesh
+
+import probvis
+from probvis import ProbvisError
+from probvis.accel import build_bvh, occluded_segments
+from probvis.emitters import build_emitter_sampler
+from probvis.proxies import build_proxies, decimate
+from probvis.scene import SceneBuilder
+from probvis.scene import shapes as shp
+from probvis.scene import transform as tf
+from probvis.scene.scene import Camera
+from probvis.settings import RenderSettings
+from probvis.visibility import ShadowQuery
+from probvis.visibility.proxy import ProxyVisibility, best_q, predicted_gain
+
+
+@pytest.fixture(autouse=True)
+def cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("PROBVIS_CACHE_DIR", str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+def blob_scene(res=24):
+    """A bumpy 20,480-triangle blob over a floor under a square light."""
+    b = SceneBuilder("blob", "test:blob")
+    v, f = shp.rectangle()
+    b.add_mesh("floor", "rectangle", v, f, tf.scale([3, 3, 1]), b.material((0.7, 0.7, 0.7)))
+    ico = trimesh.creation.icosphere(subdivisions=5)
+    p = np.asarray(ico.vertices)
+    r = 1.0 + 0.2 * np.sin(6 * p[:, 0]) * np.cos(5 * p[:, 1])
+    b.add_mesh("blob", "mesh", p * r[:, None], ico.faces, tf.translate([0, 0, 1.0]) @ tf.scale([0.7, 0.7, 0.7]),
+               b.material((0.6, 0.5, 0.4)))
+    b.add_mesh("light", "rectangle", v, f, tf.translate([0.3, 0, 3]) @ tf.rotate([1, 0, 0], 180), None,
+               radiance=(5.0, 5.0, 5.0))
+    cam = Camera(tf.look_at([0, -4, 3], [0, 0, 0.6], [0, 0, 1]), 45.0, res, res)
+    return b.build(cam, RenderSettings(2, 4, 0))
+
+
+OPTIONS = {"ratio": 0.02, "min_triangles": 1000}
+
+
+def segments(scene, n=4000, seed=0):
+    """Random segments from the floor and the blob's neighbourhood to the light."""
+    rng = np.random.default_rng(seed)
+    org = np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.5, 1.5, n), rng.uniform(0.01, 1.8, n)])
+    end = np.column_stack([0.3 + rng.uniform(-1, 1, n), rng.uniform(-1, 1, n), np.full(n, 2.999)])
+    return org, end - org
+
+
+def test_each_segments_expectation_is_its_exact_visibility():
+    """Over 400 independent draws per segment, the mean estimate of every segment is within 5 SE of V (and
+    segments the proxy gets right always return V)."""
+    scene = blob_scene()
+    bvh = build_bvh(scene.triangles)
+    est = ProxyVisibility(q="0.3", **OPTIONS)
+    est.prepare(scene, bvh, build_emitter_sampler(scene), scene.defaults)
+    org, d = segments(scene)
+    n = len(org)
+    exact = 1.0 - occluded_segments(bvh, org, d, np.ones(n), np.arange(n))[0]
+    draws = np.array([est.evaluate(ShadowQuery(org, d, np.ones(n), np.arange(n), np.zeros(n, np.int32),
+                                               np.arange(n, dtype=np.uint64) * np.uint64(1000) + np.uint64(k),
+                                               np.ones(n))).value for k in range(400)])
+    mean, se = draws.mean(0), draws.std(0, ddof=1) / np.sqrt(len(draws))
+    disagree = se > 0
+    assert disagree.any() and (~disagree).any()
+    assert np.all(np.abs(mean - exact)[disagree] < 5 * se[disagree] + 1e-12)
+    np.testing.assert_array_equal(mean[~disagree], exact[~disagree])
+
+
+@pytest.mark.parametrize("q", ["auto", "0.1", "1"])
+def test_images_are_unbiased(q):
+    """Paired by seed with exact visibility, the image-mean difference averages to zero within 4 SE."""
+    scene = blob_scene()
+
+    def mean(seed, **vis):
+        return probvis.render(scene, spp=2, shadow_rays=4, seed=seed, **vis).image.mean()
+
+    options = dict(OPTIONS, q=q)
+    diff = np.array([mean(s, visibility="proxy", visibility_options=options) - mean(s) for s in range(12)])
+    assert abs(diff.mean()) < 4 * np.std(diff, ddof=1) / np.sqrt(len(diff)) + 1e-12
+    stats = probvis.render(scene, spp=2, shadow_rays=4, visibility="proxy", visibility_options=options).stats
+    e = stats["estimator"]
+    assert e["proxies"][0]["proxy_triangles"] < 1000 and e["tests"]["proxy"]["node"] > 0
+
+
+def test_proxies_are_cached_by_content(cache):
+    scene = blob_scene()
+    first = build_proxies(scene, **OPTIONS)
+    again = build_proxies(scene, **OPTIONS)
+    assert not first.shapes[0]["cached"] and again.shapes[0]["cached"]
+    np.testing.assert_array_equal(first.triangles, again.triangles)
+    assert len(list(cache.glob("proxies/*.npy"))) == 1
+    assert not build_proxies(scene, ratio=0.03, min_triangles=1000).shapes[0]["cached"]
+
+
+def test_a_mesh_the_decimator_cannot_handle_keeps_its_triangles(monkeypatch):
+    """Degenerate input (every triangle of zero area) gives no proxy; a decimator that fails gives none and a
+    warning, and the estimator then tests every segment exactly: the image equals exact visibility's."""
+    import fast_simplification
+
+    rng = np.random.default_rng(0)
+    flat = np.zeros((3000, 3, 3))
+    flat[:, 1, 0], flat[:, 2, 0] = 1.0, 2.0
+    out, why = decimate(flat + rng.uniform(size=(3000, 1, 3)), 30)
+    assert out is None and "no valid smaller mesh" in why
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("non-manifold edge")
+
+    monkeypatch.setattr(fast_simplification, "simplify", broken)
+    scene = blob_scene()
+    with pytest.warns(UserWarning, match="keeps its 20480 triangles: the decimator failed.*non-manifold"):
+        r = probvis.render(scene, spp=1, shadow_rays=2, visibility="proxy", visibility_options=OPTIONS)
+    np.testing.assert_array_equal(r.image, probvis.render(scene, spp=1, shadow_rays=2).image)
+    assert r.stats["estimator"]["emitters"][0]["exact_only"]
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"ratio": 0}, "ratio must be in (0, 1)"),
+    ({"ratio": 1.5}, "ratio must be in (0, 1)"),
+    ({"q": "0"}, "q must be auto or a probability in (0, 1]"),
+    ({"q": "1.5"}, "q must be auto or a probability in (0, 1]"),
+    ({"triangles": 30000, "min_triangles": 1000}, "triangles 30000 is not below the 20480 of mesh 'blob'"),
+])
+def test_bad_options_name_the_option(options, message):
+    with pytest.raises(ProbvisError, match=message.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[")):
+        probvis.render(blob_scene(8), spp=1, shadow_rays=1, visibility="proxy", visibility_options=options)
+
+
+def test_cli_names_the_flag(capsys):
+    from probvis.cli import main
+
+    assert main(["render", "quad-shadow", "--visibility", "proxy", "--ratio", "2", "-o", "x.exr"]) == 2
+    assert "probvis: error: argument --ratio: ratio must be in (0, 1), got 2" in capsys.readouterr().err
+
+
+def test_efficiency_model():
+    """The closed forms: at δ = 0 the gain is 1/ρ and q the floor; at ρ = 0.2, δ = 0.05 about 2.3; where the
+    proxy is as dear as the scene and wrong, below 1."""
+    assert predicted_gain(0.25, 0.0) == pytest.approx(4.0)
+    assert predicted_gain(0.2, 0.05) == pytest.approx(1 / (np.sqrt(0.19) + np.sqrt(0.05)) ** 2)
+    assert 2.0 < predicted_gain(0.2, 0.05) < 2.5
+    assert predicted_gain(1.0, 0.1) < 1.0
+    assert best_q(0.2, 0.0) == 0.02 and best_q(0.2, 0.05) == pytest.approx(np.sqrt(0.05 * 0.2 / 0.95))
