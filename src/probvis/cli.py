@@ -233,7 +233,7 @@ def _describe(cls):
     """An estimator's declarations as a JSON-serialisable dict."""
     return {
         "name": cls.name, "class": f"{cls.__module__}:{cls.__qualname__}", "summary": cls.summary,
-        "fused_any_hit": cls.fused_any_hit,
+        "fused_any_hit": cls.fused_any_hit is True, "fused_shade": bool(cls.fused_shade),
         "options": [{"name": o.name, "flag": o.flag, "type": o.describe_type(),
                      "default": list(o.default) if isinstance(o.default, tuple) else o.default, "help": o.help}
                     for o in cls.options],
@@ -252,7 +252,9 @@ def _cmd_estimators(args):
         return 0
     for d in described:
         print(f"{d['name']}  —  {d['summary']}")
-        print(f"    class {d['class']}" + ("; exact any-hit: the integrator may fuse it" if d["fused_any_hit"] else ""))
+        fusion = ("; exact any-hit: the integrator may fuse it" if d["fused_any_hit"] else
+                  "; renders through its own fused kernel" if d["fused_shade"] else "")
+        print(f"    class {d['class']}{fusion}")
         for o in d["options"]:
             default = "automatic" if o["default"] is None else _show(o["default"])
             print(f"    {o['flag']}  ({o['type']}; default {default})")

@@ -5,7 +5,8 @@
 
 Estimators that declare `fused_any_hit` (exact visibility) take a fused last three stages instead
 (`fused_exact`: sample, trace and sum a shading point's segments while they are in cache), with the staged
-path's numbers bit for bit. This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0`: each camera sample
+path's numbers bit for bit; estimators that declare `fused_shade` render whole pixels through their own fused
+kernel (`VisibilityEstimator.shade`). This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0`: each camera sample
 takes `shadow_rays` emitter samples (emitter by power, triangle by area, uniform point) with a Lambertian BRDF.
 """
 import sys
@@ -85,8 +86,8 @@ def render_pass(scene, settings, estimator, progress=False):
     n_pix_total = width * height
     spp, n_shadow = settings.spp, settings.shadow_rays
     per_batch = batch_pixels(scene, settings)
-    fused = estimator.fused_any_hit
-    buffers = None if fused else SegmentBuffers(per_batch * spp * n_shadow)
+    fused, own = estimator.fused_any_hit, estimator.fused_shade and not estimator.fused_any_hit
+    buffers = None if fused or own else SegmentBuffers(per_batch * spp * n_shadow)
     film = Film(width, height, spp, scene.n_emitters, [a.name for a in estimator.aovs if a.kind == "segment"])
     n_segments, camera_hits, case_totals = 0, 0, [0] * N_CASES
     bar = None
@@ -117,6 +118,10 @@ def render_pass(scene, settings, estimator, progress=False):
                     img, m2, cnt, n_seg = shade_exact(geom, es, bvh.arrays, prim, its.position, its.normal,
                                                       its.material, its.albedo, cases, keys, its.emitted, cam_node,
                                                       cam_tri, spp, n_shadow, p1 - p0)
+                    n_q = int(n_seg.sum())
+                elif own:
+                    img, m2, cnt, n_seg = estimator.shade(geom, es, its, cases, keys, cam_node, cam_tri, spp,
+                                                          n_shadow, p1 - p0)
                     n_q = int(n_seg.sum())
                 else:
                     s_org, s_dir, contrib, s_emit, active = buffers.slots(len(prim) * n_shadow)

@@ -23,6 +23,14 @@ def test_quick_preset_covers_every_estimator():
     assert exp.shadow_rays == (1, 4, 16, 64, 256)
 
 
+def test_proxies_experiment_parses(shared):
+    from pathlib import Path
+
+    exp = load_experiment(Path(__file__).resolve().parents[2] / "experiments" / "proxies.toml")
+    assert exp.seconds == "render" and exp.baseline == "exact"
+    assert {m.visibility for m in exp.methods} == {"exact", "proxy", "occlusion-map"}
+
+
 def test_paper_experiment_parses(shared):
     from pathlib import Path
 
@@ -32,6 +40,7 @@ def test_paper_experiment_parses(shared):
 
 
 def test_defaults_and_baseline():
+    assert parse_experiment(doc()).seconds == "total" and parse_experiment(doc(seconds="render")).seconds == "render"
     exp = parse_experiment(doc(shadow_rays=[16, 1]))
     assert exp.shadow_rays == (1, 16) and exp.baseline == "e" and exp.seeds == (0,)
     assert exp.reference.visibility == "exact"
@@ -60,6 +69,7 @@ def test_defaults_and_baseline():
     ({"resolution": [100000, 8]}, "resolution[0]: expected a whole number <= 32768"),
     ({"table_shadow_rays": 8}, "table_shadow_rays: 8 is not one of shadow_rays"),
     ({"methods": []}, "at least one [[methods]]"),
+    ({"seconds": "wall"}, "seconds: expected one of total, render, got 'wall'"),
 ])
 def test_mistakes_are_named(change, message):
     with pytest.raises(ProbvisError) as info:

@@ -49,3 +49,23 @@ def test_block_bias_ratio_tells_noise_from_bias():
     assert metrics.block_bias_ratio(a * 1.1, b * 1.1, ref) > 15
     # the reference's own noise counts where a method has none (an analytically lit region)
     assert metrics.block_bias_ratio(ref, ref, ref + 0.001, reference_noise=0.01) < 1
+
+
+def test_render_seconds_leave_out_loading_and_the_bvh():
+    """`seconds = "render"` counts the render and the estimator's preparation only."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from probvis.experiments.config import MethodSpec
+    from probvis.experiments.results import cell_row
+
+    stats = {"seconds": {"total": 10.0, "compile": 1.0, "load": 2.0, "bvh": 3.0, "prepare": 0.5, "render": 3.5,
+                         "repeats": [9.0, 8.5]},
+             "intersection_tests": {"shadow": {"triangle": 10, "node": 20}, "triangle": 11, "node": 22},
+             "camera_rays": 1, "shadow_rays": 1, "negative_pixels": {"negative_pixel_share": 0.0},
+             "negative_estimate_share": 0.0}
+    render = SimpleNamespace(stats=stats, image=np.ones((2, 2, 3)))
+    task = SimpleNamespace(scene="s", method=MethodSpec("e", "exact"), shadow_rays=1, spp=1, seed=0)
+    assert cell_row(task, render, np.ones((2, 2, 3)), "e")["seconds"] == 8.5
+    assert cell_row(task, render, np.ones((2, 2, 3)), "e", "render")["seconds"] == 3.5

@@ -16,7 +16,7 @@ from ..visibility import estimator_class
 MAX_RESOLUTION = 1 << 15
 
 TOP_KEYS = {"name", "description", "spp", "shadow_rays", "seeds", "resolution", "target_relmse", "table_shadow_rays",
-            "timing_repeats",
+            "timing_repeats", "seconds",
             "reference", "scenes", "methods"}
 REFERENCE_KEYS = {"spp", "shadow_rays", "seed", "visibility"}
 SCENE_KEYS = {"name", "source", "defines", "reference", "reference_noise"}
@@ -66,6 +66,9 @@ class Experiment:
     resolution: tuple | None = None
     target_relmse: float | None = None
     timing_repeats: int = 1  # renders of each cell; its seconds are the fastest (the image is the same)
+    seconds: str = "total"  # what a cell's seconds count: "total" (without JIT compile) or "render" (also
+    # without scene loading and the scene BVH, which every method shares: the render and the estimator's
+    # preparation)
 
 
 def _fail(where, message):
@@ -216,7 +219,14 @@ def parse_experiment(data, base=Path("."), source=""):
         spp=_int("spp", data.get("spp", 4), 1, MAX_SPP), seeds=_int_list("seeds", data.get("seeds", [0]), 0),
         reference=reference, baseline=baselines[0] if baselines else method_specs[0].name,
         resolution=resolution, target_relmse=None if target is None else float(target),
-        table_shadow_rays=table_rays, timing_repeats=_int("timing_repeats", data.get("timing_repeats", 1), 1, 16))
+        table_shadow_rays=table_rays, timing_repeats=_int("timing_repeats", data.get("timing_repeats", 1), 1, 16),
+        seconds=_choice("seconds", data.get("seconds", "total"), ("total", "render")))
+
+
+def _choice(where, value, choices):
+    if value not in choices:
+        _fail(where, f"expected one of {', '.join(choices)}, got {value!r}")
+    return value
 
 
 def load_experiment(path):

@@ -22,6 +22,7 @@ from ..io.image import atomic_path, tonemap_srgb, write_png
 from .results import UNSTEADY
 
 STATIC = ("viewer.js", "report.css")
+SECONDS_NOTE = {"total": "", "render": " and without scene loading and BVH building (seconds = render)"}
 
 
 def _slug(text):
@@ -230,7 +231,7 @@ class Report:
         exp, rays = self.exp, self.exp.table_shadow_rays
         lines = [f"At {exp.spp} spp × {rays} shadow rays per camera sample; seconds exclude JIT compilation, tests "
                  f"are shadow-ray triangle tests, efficiency = 1/(relMSE × seconds); changes against "
-                 f"{exp.baseline}; seconds = wall time of the render (the fastest of {exp.timing_repeats} "
+                 f"{exp.baseline}; seconds = wall time of the render{SECONDS_NOTE[exp.seconds]} (the fastest of {exp.timing_repeats} "
                  f"repeat(s), median over seeds; † = repeats or seeds differ by more than {UNSTEADY:.0%}), which "
                  f"efficiency uses; bias = block-bias ratio of two seeds (about 1: converges to the reference; "
                  f"'biased': a shortcut chosen by its options).", "",
@@ -272,7 +273,7 @@ class Report:
                             f"<td class=method>{e(m.name)}{' (baseline)' if base else ''}</td>{cells}</tr>")
         return (f"<table class=paper id=paper-table><caption>At {exp.spp} spp × {rays} shadow rays: render seconds "
                 f"and shadow-ray triangle tests with their change against the baseline ({e(exp.baseline)}), relMSE "
-                f"against the reference (seconds: the render's wall time without JIT compilation, the fastest of "
+                f"against the reference (seconds: the render's wall time without JIT compilation{SECONDS_NOTE[exp.seconds]}, the fastest of "
                 f"{exp.timing_repeats} repeat{'s' if exp.timing_repeats > 1 else ''} (timing_repeats), median over "
                 f"the seeds; it also sets the efficiency; † marks a setting whose repeats or seeds differ by more "
                 f"than {UNSTEADY:.0%} — the machine was busy), bias (block means' error against the reference over their "

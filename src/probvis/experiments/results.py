@@ -49,10 +49,14 @@ def biased_by_choice(stats):
     return bool(verification.get("biased")) or bool(stats["negative_pixels"].get("clamped"))
 
 
-def cell_row(task, render, reference, baseline_name):
+def cell_row(task, render, reference, baseline_name, counted="total"):
+    """One cell's metrics; its seconds count everything but JIT compilation, or with `counted` "render" only
+    the render and the estimator's preparation (not the scene load and BVH every method shares)."""
     s = render.stats
     err = metrics.relmse(render.image, reference)
     repeats = s["seconds"].get("repeats") or [s["seconds"]["total"] - s["seconds"]["compile"]]
+    if counted == "render":
+        repeats = [r - s["seconds"]["load"] - s["seconds"]["bvh"] for r in repeats]
     seconds = min(repeats)  # the fastest repeat: what the render costs when the machine lets it
     cpu = s["seconds"].get("cpu_total", 0.0) - s["seconds"].get("cpu_compile", 0.0)
     tests = s["intersection_tests"]["shadow"]["triangle"]
@@ -150,7 +154,8 @@ def _bias_ratios(exp, run):
 
 def measure(exp, run):
     """Metrics of every cell of a finished run (a `runner.RunSummary`) against its scene's reference."""
-    cells = [cell_row(t, run.renders[t.key], run.reference_images[t.scene], exp.baseline) for t in run.tasks]
+    cells = [cell_row(t, run.renders[t.key], run.reference_images[t.scene], exp.baseline, exp.seconds)
+             for t in run.tasks]
     _changes(cells, ("scene", "shadow_rays", "seed"))
     summary = _summarise(cells, _bias_ratios(exp, run))
     _changes(summary, ("scene", "shadow_rays"))

@@ -193,6 +193,9 @@ class VisibilityEstimator(abc.ABC):
     # True if `evaluate` returns exactly 1 - (any hit against the scene's BVH, traversed in packets of a shading
     # point's segments): the integrator may then run its fused kernel (`fused_exact`), same numbers, less traffic
     fused_any_hit: ClassVar[bool] = False
+    # True if the estimator renders whole pixels itself through `shade` (its own fused kernel) instead of
+    # answering `evaluate` per batch of segments
+    fused_shade: ClassVar[bool] = False
 
     def __init__(self, **options):
         self.params = SimpleNamespace(**self.parse_options(options))
@@ -240,6 +243,11 @@ class VisibilityEstimator(abc.ABC):
     @abc.abstractmethod
     def evaluate(self, query: ShadowQuery) -> VisibilityResult:
         """Visibility estimates for a batch of segments."""
+
+    def shade(self, geom, emitters, interactions, cases, keys, cam_node, cam_tri, spp, n_shadow, n_pix):
+        """With `fused_shade`: the film of a batch of whole pixels, as `fused_exact.shade_exact` returns it
+        (means, second moments, per-pixel counts, segments per pixel)."""
+        raise NotImplementedError
 
     def memory_estimate(self, scene, settings, batch_samples):
         """Bytes by part of the estimator's own structures (photons, look-ups, ...) for a render of `scene` with

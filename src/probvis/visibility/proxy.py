@@ -3,14 +3,17 @@ against the scene as well, as the control variate V = V_P + B (V - V_P) / q with
 Lagae and Dutré, EGSR 2014). Unbiased for any q > 0; it pays where the proxy test is much cheaper than the
 exact one (heavy meshes whose BVH leaves the cache) and the two rarely disagree.
 
-Efficiency-aware q (`q=auto`): with ρ the proxy test's cost relative to an exact one and δ the mismatch energy
-E[(V - V_P)² w²] relative to the variance of exactly-tested contributions w V (w the segment's unoccluded
-contribution), the estimator's variance × cost is σ² (1 - δ + δ/q)(ρ + q) in units of an exact test's, least
-at q = √(δ ρ / (1 - δ)), where the gain over exact visibility is G = 1 / (√(ρ (1 - δ)) + √δ)². ρ (measured
-seconds per segment of both traversals) and δ (per emitter, from the segments traced both ways) are running
-estimates over earlier batches, so a batch's q never depends on its own draws; the first batch uses
-`PILOT_Q`. An emitter whose predicted G falls below 1 gets exact visibility only: proxies that do not pay are
-not used.
+Efficiency-aware q (`q=auto`): with δ the mismatch energy E[(V - V_P)² w²] relative to the variance of
+exactly-tested contributions w V (w the segment's unoccluded contribution), ρ the cost per segment of this
+estimator's path without the exact test (sampling, compaction and the proxy test) and e that of the extra
+exact test, both relative to exact visibility's fused kernel, the variance × cost is σ² (1 - δ + δ/q)(ρ + q e),
+least at q = √(δ ρ / ((1 - δ) e)), where the gain over exact visibility is G = 1 / (√(ρ (1 - δ)) + √(δ e))²
+(with e = 1, the 2014 paper's control-variate gain). ρ and e are measured by a pilot in `prepare` - the
+camera's view at PILOT_RESOLUTION², one sample per pixel, rendered by the fused kernel and by this path, every
+segment traced both ways - which also starts δ; δ is then a running estimate over earlier batches, so a
+batch's q never depends on its own draws. An emitter whose predicted G falls below 1 gets exact visibility
+only: proxies that do not pay are not used, and when that is every emitter the render takes exact
+visibility's fused kernel.
 
 A proxy strays from its mesh by about its edge length, so a segment leaving a heavy mesh's own surface would
 often hit the proxy at once: the proxy test ignores the first `ProxyGeometry.clearance` of every segment (any
@@ -24,12 +27,14 @@ from ..accel import build_bvh, occluded_segments
 from ..errors import ProbvisError
 from ..proxies import MIN_TRIANGLES, build_proxies
 from ..rng import uniforms
-from .base import Aov, Option, Phase, VisibilityEstimator, VisibilityResult
+from .base import Option, Phase, VisibilityEstimator, VisibilityResult
+from .proxy_kernel import CORRECTION_DIM, shade_proxy
 
-PILOT_Q = 0.5  # q of the first batch, before anything is measured
+PILOT_Q = 0.5  # q of a batch before anything is measured (a pilot that found no segment)
+PILOT_RESOLUTION = 32  # the pilot's image size: 1024 camera samples
+PILOT_SALT = 0x50524F5859  # its seed offset, apart from the render's samples
 Q_MIN = 0.02  # auto: never test fewer segments exactly than this
 MIN_MEASURED = 256  # segments of an emitter tested both ways before its measured δ is trusted
-CORRECTION_DIM = 1 << 21  # rng dimension of a segment's Bernoulli draw, apart from other estimators' draws
 
 
 def _parse_q(value):
@@ -42,14 +47,16 @@ def _parse_q(value):
     return None if 0.0 < q <= 1.0 else f"must be auto or a probability in (0, 1], got {value!r}"
 
 
-def predicted_gain(rho, delta):
-    """Efficiency of the control variate at its best q relative to exact visibility."""
-    return 1.0 / (np.sqrt(rho * (1.0 - delta)) + np.sqrt(delta)) ** 2
+def predicted_gain(rho, delta, exact=1.0):
+    """Efficiency of the control variate at its best q relative to exact visibility, with `rho` the cost of a
+    segment's proxy test and `exact` that of its extra exact test, both relative to exact visibility's cost per
+    segment: 1 / (√(ρ (1 - δ)) + √(δ e))²."""
+    return 1.0 / (np.sqrt(rho * (1.0 - delta)) + np.sqrt(delta * exact)) ** 2
 
 
-def best_q(rho, delta):
-    """The q minimising variance x cost, within [Q_MIN, 1]."""
-    return float(np.clip(np.sqrt(delta * rho / max(1.0 - delta, 1e-12)), Q_MIN, 1.0))
+def best_q(rho, delta, exact=1.0):
+    """The q minimising variance x cost, √(δ ρ / ((1 - δ) e)), within [Q_MIN, 1]."""
+    return float(np.clip(np.sqrt(delta * rho / (max(1.0 - delta, 1e-12) * exact)), Q_MIN, 1.0))
 
 
 class ProxyVisibility(VisibilityEstimator):
@@ -68,10 +75,12 @@ class ProxyVisibility(VisibilityEstimator):
     phases = (
         Phase("proxies", "prepare", "decimating heavy meshes (or reading them from the cache)"),
         Phase("proxy_bvh", "prepare", "building the proxy geometry's BVH"),
-        Phase("proxy_trace", "batch", "testing segments against the proxies"),
-        Phase("exact_trace", "batch", "testing the chosen segments against the scene"),
+        Phase("pilot", "prepare", "measuring proxy and scene tests on a small view of the scene (q=auto)"),
+        Phase("render_kernel", "batch", "sampling, proxy and scene tests and the film, fused"),
+        Phase("proxy_trace", "batch", "testing segments against the proxies (staged interface)"),
+        Phase("exact_trace", "batch", "testing the chosen segments against the scene (staged interface)"),
     )
-    aovs = (Aov("exact_tested", "shadow segments also tested against the scene, per camera sample"),)
+    fused_shade = True  # renders through `proxy_kernel.shade_proxy`; `evaluate` serves the staged interface
 
     def prepare(self, scene, bvh, emitters, settings):
         super().prepare(scene, bvh, emitters, settings)
@@ -92,15 +101,89 @@ class ProxyVisibility(VisibilityEstimator):
         self.sums = np.zeros((e, 4))
         self.cost = np.zeros(4)  # proxy seconds, proxy segments, exact seconds, exact segments
         self.tests = {"proxy": np.zeros(2, np.int64), "scene": np.zeros(2, np.int64)}
-        self.decided = 0
+        self.pilot_segments = 0
+        self.costs = None  # (ρ, e) from the pilot: costs relative to exact visibility's fused kernel
         if self.proxies.n_decimated == 0:
             self.exact_only[:] = True  # nothing to gain: every segment is tested exactly
+        elif self.fixed_q is None:
+            with self.timed("pilot"):
+                self._pilot(scene, bvh, emitters, settings)
+            self._update_q()
+
+    @property
+    def fused_any_hit(self):
+        """Exact visibility's fused kernel serves a render in which every emitter went exact-only."""
+        only = getattr(self, "exact_only", None)
+        return only is not None and bool(only.all())
+
+    def _pilot(self, scene, bvh, emitters, settings):
+        """Measure costs and δ on a small rendering of the camera's view: exact visibility's fused kernel, this
+        estimator's kernel with no exact test (q = 0) and with every segment tested both ways (q = 1)."""
+        from ..accel import nearest_hits
+        from ..camera import camera_params, camera_rays
+        from ..fused_exact import shade_exact
+        from ..interaction import scene_arrays, surface_interactions
+        from .base import CASE_UNKNOWN
+
+        small = scene.with_resolution(PILOT_RESOLUTION, PILOT_RESOLUTION)
+        n_pix, n_shadow = PILOT_RESOLUTION ** 2, settings.shadow_rays
+        org, dirs, tmin, tmax, keys = camera_rays(camera_params(small.camera), 1, settings.seed + PILOT_SALT, 0,
+                                                  n_pix)
+        prim, _, b1, b2, cam_node, cam_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
+        geom, textures = scene_arrays(scene)
+        its = surface_interactions(geom, textures, prim, b1, b2, dirs)
+        cases = np.full((n_pix, scene.n_emitters), CASE_UNKNOWN, np.int8)
+        args = (geom, emitters.arrays)
+        pixel = (prim, its.position, its.normal, its.material, its.albedo, cases, keys, its.emitted, cam_node,
+                 cam_tri, 1, n_shadow, n_pix)
+        zeros, ones, none = np.zeros(scene.n_emitters), np.ones(scene.n_emitters), np.zeros(scene.n_emitters, bool)
+        best = {}
+        for name, run in (("exact", lambda: shade_exact(*args, bvh.arrays, *pixel)),
+                          ("proxy", lambda: self._kernel(geom, emitters.arrays, pixel, zeros, none)),
+                          ("both", lambda: self._kernel(geom, emitters.arrays, pixel, ones, none))):
+            t0 = time.perf_counter()
+            out = run()
+            best[name] = time.perf_counter() - t0
+        sums = out[4]
+        if sums[:, 0].sum() == 0:
+            return
+        self.costs = (best["proxy"] / best["exact"], max(best["both"] - best["proxy"], 0.0) / best["exact"])
+        self.sums += sums
+        self.pilot_segments = int(sums[:, 0].sum())
+
+    def _kernel(self, geom, es, pixel, q, exact_only):
+        (prim, pos, nrm, mat, albedo, cases, keys, emitted, cam_node, cam_tri, spp, n_shadow, n_pix) = pixel
+        return shade_proxy(geom, es, self.bvh.arrays, self.proxy_bvh.arrays, prim, pos, nrm, mat, albedo, cases, keys,
+                           emitted, cam_node, cam_tri, spp, n_shadow, n_pix, q, exact_only, self.proxies.clearance)
+
+    def shade(self, geom, emitters, interactions, cases, keys, cam_node, cam_tri, spp, n_shadow, n_pix):
+        self._update_q()
+        its = interactions
+        with self.timed("render_kernel"):
+            img, m2, counts, n_seg, sums, tests = self._kernel(
+                geom, emitters, (its.triangle, its.position, its.normal, its.material, its.albedo, cases, keys,
+                                 its.emitted, cam_node, cam_tri, spp, n_shadow, n_pix),
+                np.where(self.exact_only, 1.0, self.q), self.exact_only)
+        self.sums += sums
+        self.tests["proxy"] += tests[:2]
+        self.tests["scene"] += tests[2:]
+        return img, m2, counts, n_seg
+
+    def _accumulate(self, emitter, w, v, v_p):
+        """Add segments tested both ways to the per-emitter sums behind δ."""
+        np.add.at(self.sums, (emitter, 0), 1.0)
+        np.add.at(self.sums, (emitter, 1), ((v - v_p) * w) ** 2)
+        np.add.at(self.sums, (emitter, 2), w * v)
+        np.add.at(self.sums, (emitter, 3), (w * v) ** 2)
 
     def _update_q(self):
-        """q (and exact-only) per emitter from the measurements of earlier batches."""
-        if self.fixed_q is not None or self.cost[1] == 0 or self.cost[3] == 0:
+        """q (and exact-only) per emitter from the pilot's costs and the mismatches measured so far."""
+        if self.fixed_q is None and self.costs is not None:
+            rho, exact = self.costs
+        elif self.fixed_q is None and self.cost[1] and self.cost[3]:  # no pilot: proxy against scene tests
+            rho, exact = (self.cost[0] / self.cost[1]) / (self.cost[2] / self.cost[3]), 1.0
+        else:
             return
-        rho = (self.cost[0] / self.cost[1]) / (self.cost[2] / self.cost[3])
         self.rho = rho
         for e in range(len(self.q)):
             n, mismatch, s1, s2 = self.sums[e]
@@ -108,11 +191,10 @@ class ProxyVisibility(VisibilityEstimator):
                 continue
             variance = s2 / n - (s1 / n) ** 2
             delta = 1.0 if variance <= 0 else min(mismatch / n / variance, 1.0)
-            if predicted_gain(rho, delta) < 1.0:
+            if predicted_gain(rho, delta, exact) < 1.0:
                 self.exact_only[e] = True
             else:
-                self.q[e] = best_q(rho, delta)
-        self.decided += 1
+                self.q[e] = best_q(rho, delta, exact)
 
     def evaluate(self, query):
         self._update_q()
@@ -149,12 +231,8 @@ class ProxyVisibility(VisibilityEstimator):
         if len(both):
             self.cost += (t1 - t0, len(on_proxy), t2 - t1, len(on_scene))
             w = query.weight[both] if query.weight is not None else np.ones(len(both))
-            vb = v[~exact_only[on_scene]]
-            np.add.at(self.sums, (query.emitter[both], 0), 1.0)
-            np.add.at(self.sums, (query.emitter[both], 1), ((vb - v_p[both]) * w) ** 2)
-            np.add.at(self.sums, (query.emitter[both], 2), w * vb)
-            np.add.at(self.sums, (query.emitter[both], 3), (w * vb) ** 2)
-        return VisibilityResult(value, node, tri, aovs={"exact_tested": traced.astype(float)})
+            self._accumulate(query.emitter[both], w, v[~exact_only[on_scene]], v_p[both])
+        return VisibilityResult(value, node, tri)
 
     def memory_estimate(self, scene, settings, batch_samples):
         p = self.params
@@ -172,11 +250,13 @@ class ProxyVisibility(VisibilityEstimator):
         out.update({
             "proxies": self.proxies.shapes, "proxy_triangles": len(self.proxies.triangles),
             "tests": {k: {"node": int(v[0]), "triangle": int(v[1])} for k, v in self.tests.items()},
-            "cost_ratio": rho,
+            "cost_ratio": rho, "exact_cost_ratio": None if self.costs is None else self.costs[1],
+            "pilot_segments": self.pilot_segments,
             "emitters": [{"q": None if x else float(qq), "exact_only": bool(x), "segments_measured": int(c),
                           "mismatch_energy": None if not np.isfinite(d) else float(d),
                           "predicted_gain": (None if rho is None or not np.isfinite(d) else
-                                             float(predicted_gain(rho, min(d, 1.0))))}
+                                             float(predicted_gain(rho, min(d, 1.0),
+                                                                  1.0 if self.costs is None else self.costs[1])))}
                          for qq, x, c, d in zip(self.q, self.exact_only, n, delta)],
         })
         return out
