@@ -41,7 +41,7 @@ def scene_list(names, res):
                 continue
             floors = json.loads((SHARED / "reference" / "floors.json").read_text())
             ref = read_exr(SHARED / "reference" / f"{stem}-128.exr").astype(np.float64)
-            noise = floors[stem]["relmse_16spp_16sr"] * 16 / 2048
+            noise = float(np.mean(floors[stem]["relmse_16spp_16sr"])) * 16 / 2048
             out.append((stem, probvis.load_scene(SHARED / "scenes" / f"{stem}.xml", res=128), ref, noise))
         else:
             out.append((name, probvis.load_scene(name, res=res), None, 0.0))
