@@ -86,8 +86,10 @@ def render_pass(scene, settings, estimator, progress=False):
     n_pix_total = width * height
     spp, n_shadow = settings.spp, settings.shadow_rays
     per_batch = batch_pixels(scene, settings)
-    fused, own = estimator.fused_any_hit, estimator.fused_shade and not estimator.fused_any_hit
-    buffers = None if fused or own else SegmentBuffers(per_batch * spp * n_shadow)
+    # fused_any_hit may change between batches for an estimator with its own kernel (proxy visibility going
+    # exact-only): checked per batch, after `classify`
+    staged = not (estimator.fused_any_hit or estimator.fused_shade)
+    buffers = SegmentBuffers(per_batch * spp * n_shadow) if staged else None
     film = Film(width, height, spp, scene.n_emitters, [a.name for a in estimator.aovs if a.kind == "segment"])
     n_segments, camera_hits, case_totals = 0, 0, [0] * N_CASES
     bar = None
@@ -114,12 +116,12 @@ def render_pass(scene, settings, estimator, progress=False):
                     shaded = cases[its.material >= 0] & CASE_MASK
                     for c in range(N_CASES):
                         case_totals[c] += int((shaded == c).sum())
-                if fused:
+                if estimator.fused_any_hit:
                     img, m2, cnt, n_seg = shade_exact(geom, es, bvh.arrays, prim, its.position, its.normal,
                                                       its.material, its.albedo, cases, keys, its.emitted, cam_node,
                                                       cam_tri, spp, n_shadow, p1 - p0)
                     n_q = int(n_seg.sum())
-                elif own:
+                elif estimator.fused_shade:
                     img, m2, cnt, n_seg = estimator.shade(geom, es, its, cases, keys, cam_node, cam_tri, spp,
                                                           n_shadow, p1 - p0)
                     n_q = int(n_seg.sum())

@@ -121,11 +121,13 @@ def test_silly_resolution(tmp_path, w, h):
         probvis.load_scene(write_scene(tmp_path / "s.xml", sensor(w=w, h=h) + LIGHT))
 
 
-def test_builtin_scenes_are_generated_and_valid():
+def test_builtin_scenes_are_generated_valid_and_render():
     for name in probvis.BUILTINS:
         s = probvis.load_scene(name, res=8, spp=1)
         assert s.n_triangles > 0 and s.n_emitters >= 1 and s.camera.width == 8
         assert np.all(np.isfinite(s.triangles))
+        image = probvis.render(s, shadow_rays=1).image
+        assert np.all(np.isfinite(image)) and image.mean() > 0
     with pytest.raises(ProbvisError, match="no parameter 'fov'"):
         probvis.load_scene("cornell-box", fov=3)
 

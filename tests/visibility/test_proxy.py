@@ -146,3 +146,4 @@ def test_efficiency_model():
     assert 2.0 < predicted_gain(0.2, 0.05) < 2.5
     assert predicted_gain(1.0, 0.1) < 1.0
     assert best_q(0.2, 0.0) == 0.02 and best_q(0.2, 0.05) == pytest.approx(np.sqrt(0.05 * 0.2 / 0.95))
+    assert best_q(0.2, 0.05, 0.0) == 1.0 and best_q(0.2, 1.0) == 1.0

@@ -56,7 +56,7 @@ def predicted_gain(rho, delta, exact=1.0):
 
 def best_q(rho, delta, exact=1.0):
     """The q minimising variance x cost, √(δ ρ / ((1 - δ) e)), within [Q_MIN, 1]."""
-    return float(np.clip(np.sqrt(delta * rho / (max(1.0 - delta, 1e-12) * exact)), Q_MIN, 1.0))
+    return float(np.clip(np.sqrt(delta * rho / (max(1.0 - delta, 1e-12) * max(exact, 1e-12))), Q_MIN, 1.0))
 
 
 class ProxyVisibility(VisibilityEstimator):
@@ -147,7 +147,9 @@ class ProxyVisibility(VisibilityEstimator):
         sums = out[4]
         if sums[:, 0].sum() == 0:
             return
-        self.costs = (best["proxy"] / best["exact"], max(best["both"] - best["proxy"], 0.0) / best["exact"])
+        # the extra exact tests' cost is a difference of two timings: floored, so timing noise cannot zero it
+        self.costs = (best["proxy"] / best["exact"], max(best["both"] - best["proxy"], 0.01 * best["exact"])
+                      / best["exact"])
         self.sums += sums
         self.pilot_segments = int(sums[:, 0].sum())
 
@@ -156,8 +158,12 @@ class ProxyVisibility(VisibilityEstimator):
         return shade_proxy(geom, es, self.bvh.arrays, self.proxy_bvh.arrays, prim, pos, nrm, mat, albedo, cases, keys,
                            emitted, cam_node, cam_tri, spp, n_shadow, n_pix, q, exact_only, self.proxies.clearance)
 
-    def shade(self, geom, emitters, interactions, cases, keys, cam_node, cam_tri, spp, n_shadow, n_pix):
+    def classify(self, points):
+        """No cases; q and exact-only are settled here, before the integrator picks this batch's kernel."""
         self._update_q()
+        return None
+
+    def shade(self, geom, emitters, interactions, cases, keys, cam_node, cam_tri, spp, n_shadow, n_pix):
         its = interactions
         with self.timed("render_kernel"):
             img, m2, counts, n_seg, sums, tests = self._kernel(
