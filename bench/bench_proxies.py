@@ -73,7 +73,9 @@ def main():
     ap.add_argument("--ref-dir", default=str(Path.home() / ".cache" / "probvis" / "bench-references"))
     ap.add_argument("--scenes", nargs="+", default=["heavy-scan", "heavy-canopy", "shared:cornell-bunny",
                                                      "shared:city", "shared:leaves"])
+    ap.add_argument("--methods", nargs="+", default=[m[0] for m in METHODS], help="labels of METHODS to run")
     args = ap.parse_args()
+    methods = [m for m in METHODS if m[0] in args.methods]
     warnings.simplefilter("ignore")
     print(f"probvis {probvis.__version__}; {args.spp} spp x {args.shadow_rays} shadow rays; seconds = render + "
           f"estimator preparation; median of {args.runs} seeds")
@@ -81,12 +83,12 @@ def main():
         print(f"\n{name}: {scene.n_triangles:,} triangles, {scene.camera.width}x{scene.camera.height}", flush=True)
         if ref is None:
             ref = reference(name, scene, args.ref_spp, args.ref_dir)
-        for _, vis, opts in METHODS:  # compile, build and cache proxies outside the timed runs
+        for _, vis, opts in methods:  # compile, build and cache proxies outside the timed runs
             probvis.render(scene, spp=1, shadow_rays=1, visibility=vis, visibility_options=opts, resolution=(8, 8))
-        rows = {m[0]: [] for m in METHODS}
-        images = {m[0]: [] for m in METHODS}
+        rows = {m[0]: [] for m in methods}
+        images = {m[0]: [] for m in methods}
         for seed in range(args.runs):
-            for label, vis, opts in METHODS:
+            for label, vis, opts in methods:
                 r = probvis.render(scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=seed, visibility=vis,
                                    visibility_options=opts)
                 e = r.stats.get("estimator") or {}
@@ -95,7 +97,7 @@ def main():
         if ref_noise == 0.0:  # a rendered reference: its noise is the exact renders' scaled by their spp ratio
             ref_noise = statistics.median(x[0] for x in rows["exact"]) * args.spp / args.ref_spp
         base = None
-        for label, _, _ in METHODS:
+        for label, _, _ in methods:
             err = statistics.median(x[0] for x in rows[label])
             sec = statistics.median(x[1] for x in rows[label])
             eff = 1.0 / (err * sec)

@@ -84,7 +84,9 @@ def test_images_are_unbiased(q):
     assert abs(diff.mean()) < 4 * np.std(diff, ddof=1) / np.sqrt(len(diff)) + 1e-12
     stats = probvis.render(scene, spp=2, shadow_rays=4, visibility="proxy", visibility_options=options).stats
     e = stats["estimator"]
-    assert e["proxies"][0]["proxy_triangles"] < 1000 and e["tests"]["proxy"]["node"] > 0
+    used = not e["emitters"][0]["exact_only"]  # auto may find that proxies do not pay on this small scene
+    assert e["proxies"][0]["proxy_triangles"] < 1000 and (e["tests"]["proxy"]["node"] > 0) == used
+    assert used or q == "auto"
 
 
 def test_proxies_are_cached_by_content(cache):

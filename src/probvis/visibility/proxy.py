@@ -11,7 +11,8 @@ least at q = √(δ ρ / ((1 - δ) e)), where the gain over exact visibility is 
 (with e = 1, the 2014 paper's control-variate gain). ρ and e are measured by a pilot in `prepare` - the
 camera's view at PILOT_RESOLUTION², one sample per pixel, rendered by the fused kernel and by this path, every
 segment traced both ways - which also starts δ; δ is then a running estimate over earlier batches, so a
-batch's q never depends on its own draws. An emitter whose predicted G falls below 1 gets exact visibility
+batch's q never depends on its own draws. An emitter whose predicted G falls below GAIN_MARGIN (the pilot
+leaves out camera rays and the film, which every method pays, so it over-predicts) gets exact visibility
 only: proxies that do not pay are not used, and when that is every emitter the render takes exact
 visibility's fused kernel.
 
@@ -35,6 +36,7 @@ PILOT_RESOLUTION = 32  # the pilot's image size: 1024 camera samples
 PILOT_SALT = 0x50524F5859  # its seed offset, apart from the render's samples
 Q_MIN = 0.02  # auto: never test fewer segments exactly than this
 MIN_MEASURED = 256  # segments of an emitter tested both ways before its measured δ is trusted
+GAIN_MARGIN = 1.25  # proxies are used where the predicted gain exceeds this: the pilot leaves out shared costs
 
 
 def _parse_q(value):
@@ -197,7 +199,7 @@ class ProxyVisibility(VisibilityEstimator):
                 continue
             variance = s2 / n - (s1 / n) ** 2
             delta = 1.0 if variance <= 0 else min(mismatch / n / variance, 1.0)
-            if predicted_gain(rho, delta, exact) < 1.0:
+            if predicted_gain(rho, delta, exact) < GAIN_MARGIN:
                 self.exact_only[e] = True
             else:
                 self.q[e] = best_q(rho, delta, exact)
