@@ -89,6 +89,12 @@ def test_images_are_unbiased(q):
     assert used or q == "auto"
 
 
+def test_the_largest_seed_works():
+    r = probvis.render(blob_scene(8), spp=1, shadow_rays=2, seed=2 ** 63 - 1, visibility="proxy",
+                       visibility_options=OPTIONS)
+    assert r.stats["estimator"]["pilot_segments"] > 0
+
+
 def test_proxies_are_cached_by_content(cache):
     scene = blob_scene()
     first = build_proxies(scene, **OPTIONS)

@@ -28,12 +28,13 @@ from ..accel import build_bvh, occluded_segments
 from ..errors import ProbvisError
 from ..proxies import MIN_TRIANGLES, build_proxies
 from ..rng import uniforms
+from ..settings import MAX_SEED
 from .base import Option, Phase, VisibilityEstimator, VisibilityResult
 from .proxy_kernel import CORRECTION_DIM, shade_proxy
 
 PILOT_Q = 0.5  # q of a batch before anything is measured (a pilot that found no segment)
 PILOT_RESOLUTION = 32  # the pilot's image size: 1024 camera samples
-PILOT_SALT = 0x50524F5859  # its seed offset, apart from the render's samples
+PILOT_SALT = 0x50524F5859  # mixed into its seed, apart from the render's samples
 Q_MIN = 0.02  # auto: never test fewer segments exactly than this
 MIN_MEASURED = 256  # segments of an emitter tested both ways before its measured δ is trusted
 GAIN_MARGIN = 1.25  # proxies are used where the predicted gain exceeds this: the pilot leaves out shared costs
@@ -129,8 +130,8 @@ class ProxyVisibility(VisibilityEstimator):
 
         small = scene.with_resolution(PILOT_RESOLUTION, PILOT_RESOLUTION)
         n_pix, n_shadow = PILOT_RESOLUTION ** 2, settings.shadow_rays
-        org, dirs, tmin, tmax, keys = camera_rays(camera_params(small.camera), 1, settings.seed + PILOT_SALT, 0,
-                                                  n_pix)
+        seed = (settings.seed ^ PILOT_SALT) & MAX_SEED  # apart from the render's samples, a valid seed still
+        org, dirs, tmin, tmax, keys = camera_rays(camera_params(small.camera), 1, seed, 0, n_pix)
         prim, _, b1, b2, cam_node, cam_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
         geom, textures = scene_arrays(scene)
         its = surface_interactions(geom, textures, prim, b1, b2, dirs)
