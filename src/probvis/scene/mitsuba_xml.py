@@ -248,7 +248,7 @@ class _Reader:
             for ch in objs:
                 if self.attr(ch, "name", "reflectance", required=False) != "reflectance":
                     self.fail(ch, "a diffuse bsdf takes only a 'reflectance' texture")
-                texture = self.resolve(ch, "texture") if ch.tag == "ref" else self.texture(ch)
+                texture = self.texture(ch)
                 refl = texture.mean() if texture is not None else np.full(3, 0.5)
             if texture is None and (np.any(refl < 0) or np.any(refl > 1)):
                 self.fail(node, "reflectance must be within [0, 1]")

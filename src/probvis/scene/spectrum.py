@@ -4,6 +4,8 @@ variants reduce them: the piecewise-linear spectrum (zero outside its wavelength
 a flat spectrum of 1 is white) and directly for emission (normalised by the integral of y-bar), then
 XYZ -> sRGB; reflectances are clamped to [0, 1]. The CIE tables come from colour-science.
 """
+from functools import lru_cache
+
 import numpy as np
 
 CIE_MIN, CIE_MAX, STEPS = 360.0, 830.0, 1000
@@ -12,6 +14,7 @@ XYZ_TO_SRGB = np.array([[3.240479, -1.537150, -0.498535],
                         [0.055648, -0.204043, 1.057311]])
 
 
+@lru_cache(maxsize=1)
 def _tables():
     """The sample wavelengths, the CIE 1931 2-degree colour-matching functions and D65 there."""
     import colour

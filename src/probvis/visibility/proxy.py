@@ -5,12 +5,12 @@ exact one (heavy meshes whose BVH leaves the cache) and the two rarely disagree.
 
 Efficiency-aware q (`q=auto`): with δ the mismatch energy E[(V - V_P)² w²] relative to the variance of
 exactly-tested contributions w V (w the segment's unoccluded contribution), ρ the cost per segment of this
-estimator's path without the exact test (sampling, compaction and the proxy test) and e that of the extra
-exact test, both relative to exact visibility's fused kernel, the variance × cost is σ² (1 - δ + δ/q)(ρ + q e),
+estimator's kernel without the exact test (sampling, the proxy test, the film) and e that of the extra exact
+test, both relative to exact visibility's fused kernel, the variance × cost is σ² (1 - δ + δ/q)(ρ + q e),
 least at q = √(δ ρ / ((1 - δ) e)), where the gain over exact visibility is G = 1 / (√(ρ (1 - δ)) + √(δ e))²
 (with e = 1, the 2014 paper's control-variate gain). ρ and e are measured by a pilot in `prepare` - the
-camera's view at PILOT_RESOLUTION², one sample per pixel, rendered by the fused kernel and by this path, every
-segment traced both ways - which also starts δ; δ is then a running estimate over earlier batches, so a
+camera's view at PILOT_RESOLUTION², one sample per pixel, rendered by the fused exact kernel and by this
+estimator's, every segment traced both ways - which also starts δ; δ is then a running estimate over earlier batches, so a
 batch's q never depends on its own draws. An emitter whose predicted G falls below GAIN_MARGIN (the pilot
 leaves out camera rays and the film, which every method pays, so it over-predicts) gets exact visibility
 only: proxies that do not pay are not used, and when that is every emitter the render takes exact
@@ -102,7 +102,6 @@ class ProxyVisibility(VisibilityEstimator):
         self.exact_only = np.zeros(e, bool)
         # running sums over segments tested both ways, per emitter: count, Σ (V - V_P)² w², Σ w V, Σ (w V)²
         self.sums = np.zeros((e, 4))
-        self.cost = np.zeros(4)  # proxy seconds, proxy segments, exact seconds, exact segments
         self.tests = {"proxy": np.zeros(2, np.int64), "scene": np.zeros(2, np.int64)}
         self.pilot_segments = 0
         self.costs = None  # (ρ, e) from the pilot: costs relative to exact visibility's fused kernel
@@ -186,14 +185,11 @@ class ProxyVisibility(VisibilityEstimator):
         np.add.at(self.sums, (emitter, 3), (w * v) ** 2)
 
     def _update_q(self):
-        """q (and exact-only) per emitter from the pilot's costs and the mismatches measured so far."""
-        if self.fixed_q is None and self.costs is not None:
-            rho, exact = self.costs
-        elif self.fixed_q is None and self.cost[1] and self.cost[3]:  # no pilot: proxy against scene tests
-            rho, exact = (self.cost[0] / self.cost[1]) / (self.cost[2] / self.cost[3]), 1.0
-        else:
+        """q (and exact-only) per emitter from the pilot's costs and the mismatches measured so far (fixed q, or
+        a pilot that found no segment: q stays as it is)."""
+        if self.fixed_q is not None or self.costs is None:
             return
-        self.rho = rho
+        rho, exact = self.costs
         for e in range(len(self.q)):
             n, mismatch, s1, s2 = self.sums[e]
             if self.exact_only[e] or n < MIN_MEASURED:
@@ -215,20 +211,17 @@ class ProxyVisibility(VisibilityEstimator):
         on_scene = np.flatnonzero(traced)
         v_p = np.ones(n)
         node, tri = np.zeros(n, np.int64), np.zeros(n, np.int64)
-        t0 = time.perf_counter()
         with self.timed("proxy_trace"):
             d = query.direction[on_proxy]
             tmin = self.proxies.clearance / np.sqrt(np.einsum("ij,ij->i", d, d))
             occ, pn, pt = occluded_segments(self.proxy_bvh, query.origin[on_proxy], d, query.tmax[on_proxy],
                                             query.point[on_proxy], tmin)
-        t1 = time.perf_counter()
         v_p[on_proxy] = 1.0 - occ
         node[on_proxy] += pn
         tri[on_proxy] += pt
         with self.timed("exact_trace"):
             occ, sn, st = occluded_segments(self.bvh, query.origin[on_scene], query.direction[on_scene],
                                             query.tmax[on_scene], query.point[on_scene])
-        t2 = time.perf_counter()
         v = 1.0 - occ
         node[on_scene] += sn
         tri[on_scene] += st
@@ -238,16 +231,16 @@ class ProxyVisibility(VisibilityEstimator):
         value[on_scene] += np.where(exact_only[on_scene], v, (v - v_p[on_scene]) / q[on_scene])
         both = on_scene[~exact_only[on_scene]]
         if len(both):
-            self.cost += (t1 - t0, len(on_proxy), t2 - t1, len(on_scene))
             w = query.weight[both] if query.weight is not None else np.ones(len(both))
             self._accumulate(query.emitter[both], w, v[~exact_only[on_scene]], v_p[both])
         return VisibilityResult(value, node, tri)
 
     def memory_estimate(self, scene, settings, batch_samples):
         p = self.params
-        heavy = sum(s.n_triangles for s in scene.shapes if s.n_triangles >= p.min_triangles)
-        kept = scene.n_triangles - heavy + (p.ratio * heavy if p.triangles is None else p.triangles * 8)
-        return {"proxy geometry and its BVH (ratio, triangles)": int(kept * 200)}
+        heavy = [s.n_triangles for s in scene.shapes if s.n_triangles >= p.min_triangles and s.emitter < 0]
+        proxy = p.ratio * sum(heavy) if p.triangles is None else p.triangles * len(heavy)
+        # triangles (72 bytes) and their BVH (about twice that again)
+        return {"proxy geometry and its BVH (ratio, triangles)": int((scene.n_triangles - sum(heavy) + proxy) * 200)}
 
     def stats(self):
         out = super().stats()
@@ -255,17 +248,16 @@ class ProxyVisibility(VisibilityEstimator):
         with np.errstate(divide="ignore", invalid="ignore"):
             variance = s2 / n - (s1 / n) ** 2
             delta = np.where(variance > 0, mismatch / n / variance, np.nan)
-        rho = getattr(self, "rho", None)
+        rho, exact = self.costs if self.costs is not None else (None, None)
         out.update({
             "proxies": self.proxies.shapes, "proxy_triangles": len(self.proxies.triangles),
             "tests": {k: {"node": int(v[0]), "triangle": int(v[1])} for k, v in self.tests.items()},
-            "cost_ratio": rho, "exact_cost_ratio": None if self.costs is None else self.costs[1],
+            "cost_ratio": rho, "exact_cost_ratio": exact,
             "pilot_segments": self.pilot_segments,
             "emitters": [{"q": None if x else float(qq), "exact_only": bool(x), "segments_measured": int(c),
                           "mismatch_energy": None if not np.isfinite(d) else float(d),
                           "predicted_gain": (None if rho is None or not np.isfinite(d) else
-                                             float(predicted_gain(rho, min(d, 1.0),
-                                                                  1.0 if self.costs is None else self.costs[1])))}
+                                             float(predicted_gain(rho, min(d, 1.0), exact)))}
                          for qq, x, c, d in zip(self.q, self.exact_only, n, delta)],
         })
         return out
