@@ -5,7 +5,7 @@ and the packets are those of the staged path, so image and counts are identical 
 import numpy as np
 from numba import njit, prange
 
-from .accel import MAX_PACKET, occluded_packet, packet_work, root_record
+from .accel import SHADOW_PACKET, occluded_packet, packet_work, root_record
 from .emitters import point_samples
 from .film import CAM_NODE, CAM_TRI, N_COUNTS, SH_NODE, SH_TRI, add_sample, pixel_mean
 from .parallel import spread
@@ -43,8 +43,8 @@ def shade_exact(geom, es, bvh, prim, pos, nrm, mat, albedo, cases, keys, emitted
                 counts[q, CAM_NODE] += cam_node[i]
                 a0, a1, a2, m = point_samples(i, geom, es, prim, pos, nrm, mat, albedo, cases, keys, n_shadow, 0,
                                               org, dirs, contrib, s_emit, active, True)
-                for lo in range(0, m, MAX_PACKET):
-                    occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, min(MAX_PACKET, m - lo), work, occ,
+                for lo in range(0, m, SHADOW_PACKET):
+                    occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, min(SHADOW_PACKET, m - lo), work, occ,
                                     sh_node, sh_tri)
                 l0, l1, l2 = emitted[i, 0] + a0, emitted[i, 1] + a1, emitted[i, 2] + a2
                 for k in range(m):

@@ -86,8 +86,7 @@ def render_pass(scene, settings, estimator, progress=False):
     n_pix_total = width * height
     spp, n_shadow = settings.spp, settings.shadow_rays
     per_batch = batch_pixels(scene, settings)
-    # fused_any_hit may change between batches for an estimator with its own kernel (proxy visibility going
-    # exact-only): checked per batch, after `classify`
+    # fused_any_hit is checked per batch, after `classify`: an estimator with its own kernel may settle it late
     staged = not (estimator.fused_any_hit or estimator.fused_shade)
     buffers = SegmentBuffers(per_batch * spp * n_shadow) if staged else None
     film = Film(width, height, spp, scene.n_emitters, [a.name for a in estimator.aovs if a.kind == "segment"])
@@ -123,7 +122,7 @@ def render_pass(scene, settings, estimator, progress=False):
                     n_q = int(n_seg.sum())
                 elif estimator.fused_shade:
                     img, m2, cnt, n_seg = estimator.shade(geom, es, its, cases, keys, cam_node, cam_tri, spp,
-                                                          n_shadow, p1 - p0)
+                                                          n_shadow, p1 - p0, p0)
                     n_q = int(n_seg.sum())
                 else:
                     s_org, s_dir, contrib, s_emit, active = buffers.slots(len(prim) * n_shadow)

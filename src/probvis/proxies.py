@@ -7,20 +7,19 @@ Each shape of at least `min_triangles` triangles is welded into an indexed mesh 
 by the PyVista project) to `ratio` of its triangles or to `triangles`; smaller shapes enter the proxy
 geometry unchanged. A shape the decimator cannot handle keeps its own triangles, with a warning: a proxy is
 only ever an approximation that the estimator corrects, so a missing one costs speed, never correctness.
-Proxies are cached on disk (`PROBVIS_CACHE_DIR`, default `~/.cache/probvis`), keyed by the SHA-256 of the
-shape's triangles and the decimation target.
+Proxies are cached on disk (`disk_cache`), keyed by the SHA-256 of the shape's triangles and the decimation
+target.
 """
-import hashlib
-import os
 import time
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-MIN_TRIANGLES = 4096  # shapes below this are cheap already: they enter the proxy geometry unchanged
-CACHE_VERSION = 1
+from .disk_cache import content_key, load_or_build
+
+MIN_TRIANGLES = 100_000  # shapes below this are cheap already (their BVH stays in cache): kept unchanged
+CACHE_VERSION = 2
 
 
 @dataclass
@@ -39,11 +38,6 @@ class ProxyGeometry:
     @property
     def n_decimated(self):
         return sum(1 for s in self.shapes if s["proxy_triangles"] is not None)
-
-
-def cache_dir():
-    """Where proxies are cached."""
-    return Path(os.environ.get("PROBVIS_CACHE_DIR") or Path.home() / ".cache" / "probvis") / "proxies"
 
 
 def target_count(n, ratio=None, triangles=None):
@@ -79,32 +73,18 @@ def decimate(tris, target):
     return np.ascontiguousarray(pv[pf]), None
 
 
-def _cache_key(tris, target):
-    h = hashlib.sha256()
-    h.update(f"proxy v{CACHE_VERSION} target {target} {tris.dtype.str}{tris.shape}".encode())
-    h.update(np.ascontiguousarray(tris).tobytes())
-    return h.hexdigest()
-
-
 def _cached_decimate(tris, target, use_cache):
     """`decimate` through the on-disk cache: (triangles or None, why not, whether it came from the cache)."""
-    path = cache_dir() / f"{_cache_key(tris, target)}.npy" if use_cache else None
-    if path is not None and path.is_file():
-        try:
-            return np.load(path), None, True
-        except (OSError, ValueError):
-            pass  # a damaged cache entry is rebuilt
-    out, why = decimate(tris, target)
-    if out is not None and path is not None:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            with open(tmp, "wb") as f:
-                np.save(f, out)
-            os.replace(tmp, path)
-        except OSError as exc:
-            warnings.warn(f"proxies: cannot cache in {path.parent} ({exc.strerror or exc})", stacklevel=3)
-    return out, why, False
+    why = []
+
+    def build():
+        out, reason = decimate(tris, target)
+        why.append(reason)
+        return None if out is None else {"triangles": out}
+
+    key = content_key(f"proxy v{CACHE_VERSION} target {target}", tris)
+    out, cached = load_or_build("proxies", key, build, use_cache)
+    return (None if out is None else out["triangles"]), (why[0] if why else None), cached
 
 
 def build_proxies(scene, ratio=0.01, triangles=None, min_triangles=MIN_TRIANGLES, use_cache=True):

@@ -15,7 +15,7 @@ from probvis.scene import transform as tf
 from probvis.scene.scene import Camera
 from probvis.settings import RenderSettings
 from probvis.visibility import ShadowQuery
-from probvis.visibility.proxy import ProxyVisibility, best_q, predicted_gain
+from probvis.visibility.proxy import Q_MIN, ProxyVisibility, allocate, film_regions
 
 
 @pytest.fixture(autouse=True)
@@ -71,15 +71,16 @@ def test_each_segments_expectation_is_its_exact_visibility():
     np.testing.assert_array_equal(mean[~disagree], exact[~disagree])
 
 
-@pytest.mark.parametrize("q", ["auto", "0.1", "1"])
-def test_images_are_unbiased(q):
-    """Paired by seed with exact visibility, the image-mean difference averages to zero within 4 SE."""
+@pytest.mark.parametrize("q, shells", [("auto", False), ("0.1", False), ("1", False), ("0.2", True)])
+def test_images_are_unbiased(q, shells):
+    """Paired by seed with exact visibility, the image-mean difference averages to zero within 4 SE (with shells
+    deciding some segments exactly, too)."""
     scene = blob_scene()
 
     def mean(seed, **vis):
         return probvis.render(scene, spp=2, shadow_rays=4, seed=seed, **vis).image.mean()
 
-    options = dict(OPTIONS, q=q)
+    options = dict(OPTIONS, q=q, shells=shells)
     diff = np.array([mean(s, visibility="proxy", visibility_options=options) - mean(s) for s in range(12)])
     assert abs(diff.mean()) < 4 * np.std(diff, ddof=1) / np.sqrt(len(diff)) + 1e-12
     stats = probvis.render(scene, spp=2, shadow_rays=4, visibility="proxy", visibility_options=options).stats
@@ -87,6 +88,7 @@ def test_images_are_unbiased(q):
     used = not e["emitters"][0]["exact_only"]  # auto may find that proxies do not pay on this small scene
     assert e["proxies"][0]["proxy_triangles"] < 1000 and (e["tests"]["proxy"]["node"] > 0) == used
     assert used or q == "auto"
+    assert (e["tests"]["shells"]["node"] > 0) == shells
 
 
 def test_the_largest_seed_works():
@@ -101,7 +103,7 @@ def test_proxies_are_cached_by_content(cache):
     again = build_proxies(scene, **OPTIONS)
     assert not first.shapes[0]["cached"] and again.shapes[0]["cached"]
     np.testing.assert_array_equal(first.triangles, again.triangles)
-    assert len(list(cache.glob("proxies/*.npy"))) == 1
+    assert len(list(cache.glob("proxies/*.npz"))) == 1
     assert not build_proxies(scene, ratio=0.03, min_triangles=1000).shapes[0]["cached"]
 
 
@@ -147,11 +149,30 @@ def test_cli_names_the_flag(capsys):
 
 
 def test_efficiency_model():
-    """The closed forms: at δ = 0 the gain is 1/ρ and q the floor; at ρ = 0.2, δ = 0.05 about 2.3; where the
-    proxy is as dear as the scene and wrong, below 1."""
-    assert predicted_gain(0.25, 0.0) == pytest.approx(4.0)
-    assert predicted_gain(0.2, 0.05) == pytest.approx(1 / (np.sqrt(0.19) + np.sqrt(0.05)) ** 2)
-    assert 2.0 < predicted_gain(0.2, 0.05) < 2.5
-    assert predicted_gain(1.0, 0.1) < 1.0
-    assert best_q(0.2, 0.0) == 0.02 and best_q(0.2, 0.05) == pytest.approx(np.sqrt(0.05 * 0.2 / 0.95))
-    assert best_q(0.2, 0.05, 0.0) == 1.0 and best_q(0.2, 1.0) == 1.0
+    """`allocate` against the closed forms: one region gets q = √(δ ρ / ((1 - δ) e)) and the gain
+    1 / (√(ρ (1 - δ)) + √(δ e))² (about 2.3 at ρ = 0.2, δ = 0.05); a proxy as dear as the scene is not used;
+    of two regions, the one where the proxy is always right takes the floor q and the one where it is always
+    wrong takes exact visibility."""
+    for rho, delta, e in ((0.2, 0.05, 1.0), (0.3, 0.01, 0.7)):
+        use, q, gain = allocate([1000], [1000.0], [1000.0 * delta], rho, e)
+        assert use[0] and q[0] == pytest.approx(np.sqrt(delta * rho / ((1 - delta) * e)), rel=1e-6)
+        assert gain == pytest.approx(1 / (np.sqrt(rho * (1 - delta)) + np.sqrt(delta * e)) ** 2, rel=1e-6)
+    assert 2.0 < allocate([1000], [1000.0], [50.0], 0.2)[2] < 2.5
+    use, q, gain = allocate([1000], [1000.0], [100.0], 1.0)
+    assert not use[0] and gain == pytest.approx(1.0)
+    use, q, gain = allocate([600, 400], [500.0, 300.0], [0.0, 300.0], 0.2)
+    assert list(use) == [True, False] and q[0] == Q_MIN
+    assert gain == pytest.approx(1000 / (600 * (0.2 + Q_MIN) + 400))
+    # camera rays costing half an exact test per segment, on both sides: the gain shrinks from 1/0.22 to 1.5/0.72
+    assert allocate([1000], [1000.0], [0.0], 0.2 + 0.5, 1.0, 1.5)[2] == pytest.approx(1.5 / (0.7 + Q_MIN))
+
+
+def test_film_regions_follow_the_crop_window():
+    """Regions tile the whole film, so a crop window's pixels fall in the regions of the film they show."""
+    from probvis.scene.scene import Camera
+
+    full = Camera(np.eye(4), 40.0, 64, 32)
+    r = film_regions(full, 0, 64 * 32)
+    assert r.min() == 0 and r.max() == 63 and np.bincount(r).tolist() == [32] * 64
+    crop = Camera(np.eye(4), 40.0, 16, 8, film_width=64, film_height=32, crop_x=48, crop_y=24)
+    assert set(film_regions(crop, 0, 16 * 8).tolist()) == {54, 55, 62, 63}

@@ -17,12 +17,15 @@ from ..parallel import spread
 from .traversal import _BOX_SLACK, hit_triangle, ray_setup
 
 MAX_PACKET = 64  # rays per packet: one bit each in a uint64 mask
+# shadow segments of one shading point per packet: they fan out to the emitter, so beyond this a packet visits
+# more nodes than its rays need (heavy-scan at 64 shadow rays: 3.9 s at 64, 3.0 s at 32, see docs/decisions.md)
+SHADOW_PACKET = 32
 PACKETS_PER_TASK = 8
 _BIG = 1e300  # reciprocal of a zero direction component: finite, so an axis-parallel ray gives no NaN
 
 
 @njit(cache=True, error_model="numpy")
-def packet_starts(point, max_size=MAX_PACKET):
+def packet_starts(point, max_size=SHADOW_PACKET):
     """Packet boundaries for segments sorted by shading point: a packet is a run of equal `point` values,
     cut every `max_size` segments. Returns (packets + 1,) int64 offsets."""
     n = point.shape[0]

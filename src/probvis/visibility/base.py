@@ -244,9 +244,11 @@ class VisibilityEstimator(abc.ABC):
     def evaluate(self, query: ShadowQuery) -> VisibilityResult:
         """Visibility estimates for a batch of segments."""
 
-    def shade(self, geom, emitters, interactions, cases, keys, cam_node, cam_tri, spp, n_shadow, n_pix):
-        """With `fused_shade`: the film of a batch of whole pixels, as `fused_exact.shade_exact` returns it
-        (means, second moments, per-pixel counts, segments per pixel)."""
+    def shade(self, geom, emitters, interactions, cases, keys, cam_node, cam_tri, spp, n_shadow, n_pix,
+              first_pixel):
+        """With `fused_shade`: the film of the batch of whole pixels first_pixel..first_pixel+n_pix-1 (row-major
+        in the image), as `fused_exact.shade_exact` returns it (means, second moments, per-pixel counts,
+        segments per pixel)."""
         raise NotImplementedError
 
     def memory_estimate(self, scene, settings, batch_samples):

@@ -3,18 +3,24 @@ against the scene as well, as the control variate V = V_P + B (V - V_P) / q with
 Lagae and Dutré, EGSR 2014). Unbiased for any q > 0; it pays where the proxy test is much cheaper than the
 exact one (heavy meshes whose BVH leaves the cache) and the two rarely disagree.
 
-Efficiency-aware q (`q=auto`): with δ the mismatch energy E[(V - V_P)² w²] relative to the variance of
-exactly-tested contributions w V (w the segment's unoccluded contribution), ρ the cost per segment of this
-estimator's kernel without the exact test (sampling, the proxy test, the film) and e that of the extra exact
-test, both relative to exact visibility's fused kernel, the variance × cost is σ² (1 - δ + δ/q)(ρ + q e),
-least at q = √(δ ρ / ((1 - δ) e)), where the gain over exact visibility is G = 1 / (√(ρ (1 - δ)) + √(δ e))²
-(with e = 1, the 2014 paper's control-variate gain). ρ and e are measured by a pilot in `prepare` - the
-camera's view at PILOT_RESOLUTION², one sample per pixel, rendered by the fused exact kernel and by this
-estimator's, every segment traced both ways - which also starts δ; δ is then a running estimate over earlier batches, so a
-batch's q never depends on its own draws. An emitter whose predicted G falls below GAIN_MARGIN (the pilot
-leaves out camera rays and the film, which every method pays, so it over-predicts) gets exact visibility
-only: proxies that do not pay are not used, and when that is every emitter the render takes exact
-visibility's fused kernel.
+Efficiency-aware q (`q=auto`), per emitter and image region (the 2014 paper's choice among the original
+geometry, the proxy and the correction, made per region): with ρ the cost per segment of this estimator's
+kernel without the exact test (sampling, the proxy test, the film) and e that of the extra exact test, both
+relative to exact visibility's fused kernel, a region r of n_r segments, exact variance V_r and mismatch energy
+M_r = Σ (V - V_P)² w² (w the segment's unoccluded contribution) adds variance V_r - M_r + M_r / q_r at cost
+n_r (ρ + e q_r), or V_r at cost n_r with exact visibility alone. The product of total variance and total cost
+is least where every region takes the cheaper of the two at the exchange rate λ = variance / cost, with
+q_r = √(M_r / (λ e n_r)) (for one region, q = √(δ ρ / ((1 - δ) e)) and the gain over exact visibility
+G = 1 / (√(ρ (1 - δ)) + √(δ e))², δ = M / V: with e = 1 the 2014 paper's control-variate gain); a few rounds of
+updating λ settle it. ρ, e, V_r and M_r come from a pilot in `prepare`: the camera's view at
+PILOT_RESOLUTION along its longer side, one sample per pixel, rendered by the exact fused kernel and by this
+estimator's, every segment traced both ways; each region's mismatch is shrunk toward its emitter's mean by
+SHRINK segments' worth. The camera rays, which every method pays, are timed too (κ, relative to the exact kernel) and added
+to both paths' costs, so the gain shrinks where shadow rays are few per camera sample. An emitter whose
+predicted G falls below GAIN_MARGIN (timings of a small view flatter the proxy's cache-resident BVH) gets
+exact visibility everywhere: proxies that do
+not pay are not used, and when that is every emitter the render takes exact visibility's fused kernel. The
+pilot uses its own samples, so q never depends on the render's draws.
 
 A proxy strays from its mesh by about its edge length, so a segment leaving a heavy mesh's own surface would
 often hit the proxy at once: the proxy test ignores the first `ProxyGeometry.clearance` of every segment (any
@@ -27,17 +33,21 @@ import numpy as np
 from ..accel import build_bvh, occluded_segments
 from ..errors import ProbvisError
 from ..proxies import MIN_TRIANGLES, build_proxies
+from ..shells import ShellTests, shell_tests
 from ..rng import uniforms
 from ..settings import MAX_SEED
 from .base import Option, Phase, VisibilityEstimator, VisibilityResult
+from .exact import shell_stats
 from .proxy_kernel import CORRECTION_DIM, shade_proxy
 
-PILOT_Q = 0.5  # q of a batch before anything is measured (a pilot that found no segment)
-PILOT_RESOLUTION = 32  # the pilot's image size: 1024 camera samples
+PILOT_Q = 0.5  # q where the pilot measured nothing (it found no segment)
+PILOT_RESOLUTION = 64  # the pilot's image size along its longer side: up to 4,096 camera samples
+PILOT_REPEATS = 2  # each pilot kernel is timed this often, the fastest kept (the first may load or compile)
+REGIONS = 8  # q=auto chooses q per emitter in REGIONS x REGIONS tiles of the film
+SHRINK = 256  # a region's mismatch energy is shrunk toward its emitter's by this many segments' worth
 PILOT_SALT = 0x50524F5859  # mixed into its seed, apart from the render's samples
 Q_MIN = 0.02  # auto: never test fewer segments exactly than this
-MIN_MEASURED = 256  # segments of an emitter tested both ways before its measured δ is trusted
-GAIN_MARGIN = 1.25  # proxies are used where the predicted gain exceeds this: the pilot leaves out shared costs
+GAIN_MARGIN = 1.25  # proxies are used where the predicted gain exceeds this: a small view flatters them
 
 
 def _parse_q(value):
@@ -50,16 +60,37 @@ def _parse_q(value):
     return None if 0.0 < q <= 1.0 else f"must be auto or a probability in (0, 1], got {value!r}"
 
 
-def predicted_gain(rho, delta, exact=1.0):
-    """Efficiency of the control variate at its best q relative to exact visibility, with `rho` the cost of a
-    segment's proxy test and `exact` that of its extra exact test, both relative to exact visibility's cost per
-    segment: 1 / (√(ρ (1 - δ)) + √(δ e))²."""
-    return 1.0 / (np.sqrt(rho * (1.0 - delta)) + np.sqrt(delta * exact)) ** 2
+def allocate(n, variance, mismatch, rho, exact=1.0, base=1.0, rounds=20):
+    """Per region (arrays over regions of one emitter: segments, exact variance, mismatch energy) whether to
+    use the proxy and its q, minimising total variance x total cost, with costs per segment `base` for exact
+    visibility and `rho` + `exact` q for the proxy; and the predicted gain over exact visibility,
+    (Σ V) base n / (variance x cost)."""
+    n, variance, mismatch = (np.asarray(x, float) for x in (n, variance, mismatch))
+    mismatch = np.minimum(mismatch, variance)
+    total_v, total_n = variance.sum(), n.sum()
+    if total_v <= 0 or total_n <= 0:
+        return np.zeros(len(n), bool), np.ones(len(n)), 1.0
+    lam = total_v / (base * total_n)
+    for _ in range(rounds):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.clip(np.sqrt(np.where(n > 0, mismatch / (lam * exact * n), 1.0)), Q_MIN, 1.0)
+        proxy_v = variance - mismatch + mismatch / q
+        proxy_c = n * (rho + exact * q)
+        use = proxy_v + lam * proxy_c < variance + lam * base * n
+        v = np.where(use, proxy_v, variance).sum()
+        c = np.where(use, proxy_c, base * n).sum()
+        lam = v / c
+    return use, q, float(total_v * base * total_n / (v * c))
 
 
-def best_q(rho, delta, exact=1.0):
-    """The q minimising variance x cost, √(δ ρ / ((1 - δ) e)), within [Q_MIN, 1]."""
-    return float(np.clip(np.sqrt(delta * rho / (max(1.0 - delta, 1e-12) * max(exact, 1e-12))), Q_MIN, 1.0))
+def film_regions(camera, p0, p1):
+    """The REGIONS x REGIONS tile of the film that each image pixel p0..p1-1 lies in."""
+    fw, fh = camera.film_size
+    pix = np.arange(p0, p1)
+    x = (camera.crop_x + pix % camera.width + 0.5) / fw
+    y = (camera.crop_y + pix // camera.width + 0.5) / fh
+    return (np.minimum(x * REGIONS, REGIONS - 1).astype(np.int64)
+            + REGIONS * np.minimum(y * REGIONS, REGIONS - 1).astype(np.int64))
 
 
 class ProxyVisibility(VisibilityEstimator):
@@ -73,11 +104,13 @@ class ProxyVisibility(VisibilityEstimator):
                minimum=4),
         Option("q", str, "auto", "probability of also testing a segment exactly: auto (efficiency-aware, per "
                "emitter) or a number in (0, 1]", check=_parse_q, metavar="auto|Q"),
-        Option("cache", bool, True, "cache proxies on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
+        Option("shells", bool, False, "decide segments exactly by conservative shells of the heavy meshes first"),
+        Option("cache", bool, True, "cache proxies and shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
     )
     phases = (
         Phase("proxies", "prepare", "decimating heavy meshes (or reading them from the cache)"),
         Phase("proxy_bvh", "prepare", "building the proxy geometry's BVH"),
+        Phase("shells", "prepare", "building shells around heavy meshes and their BVHs (or reading the cache)"),
         Phase("pilot", "prepare", "measuring proxy and scene tests on a small view of the scene (q=auto)"),
         Phase("render_kernel", "batch", "sampling, proxy and scene tests and the film, fused"),
         Phase("proxy_trace", "batch", "testing segments against the proxies (staged interface)"),
@@ -96,116 +129,129 @@ class ProxyVisibility(VisibilityEstimator):
             self.proxies = build_proxies(scene, p.ratio, p.triangles, p.min_triangles, p.cache)
         with self.timed("proxy_bvh"):
             self.proxy_bvh = build_bvh(self.proxies.triangles)
-        e = scene.n_emitters
+        with self.timed("shells"):
+            self.shells = shell_tests(scene, bvh, p.min_triangles, p.cache) if p.shells else ShellTests.none(bvh)
+        e, r = scene.n_emitters, REGIONS * REGIONS
         self.fixed_q = None if p.q == "auto" else float(p.q)
-        self.q = np.full(e, self.fixed_q or PILOT_Q)
-        self.exact_only = np.zeros(e, bool)
-        # running sums over segments tested both ways, per emitter: count, Σ (V - V_P)² w², Σ w V, Σ (w V)²
-        self.sums = np.zeros((e, 4))
-        self.tests = {"proxy": np.zeros(2, np.int64), "scene": np.zeros(2, np.int64)}
+        self.q = np.full((r, e), self.fixed_q or PILOT_Q)  # per region and emitter
+        self.exact = np.zeros((r, e), bool)  # regions and emitters that take exact visibility alone
+        self.gain = np.full(e, np.nan)  # predicted, per emitter
+        # sums per emitter (see `shade_proxy`): segments tested both ways, Σ (V - V_P)² w² / q, Σ w V / p,
+        # Σ (w V)² / p, Σ 1 / p over those and the segments the shells decide (p = 1)
+        self.sums = np.zeros((e, 5))
+        self.tests = np.zeros(6, np.int64)  # node and triangle tests: proxy, scene, shells
         self.pilot_segments = 0
         self.costs = None  # (ρ, e) from the pilot: costs relative to exact visibility's fused kernel
+        self.camera_cost = None  # κ: the camera rays' cost, relative to the same
         if self.proxies.n_decimated == 0:
-            self.exact_only[:] = True  # nothing to gain: every segment is tested exactly
+            self.exact[:] = True  # nothing to gain: every segment is tested exactly
         elif self.fixed_q is None:
             with self.timed("pilot"):
                 self._pilot(scene, bvh, emitters, settings)
-            self._update_q()
 
     @property
     def fused_any_hit(self):
-        """Exact visibility's fused kernel serves a render in which every emitter went exact-only."""
-        only = getattr(self, "exact_only", None)
-        return only is not None and bool(only.all())
+        """Exact visibility's fused kernel serves a render in which every region of every emitter went exact
+        (and no shells decide segments first)."""
+        exact = getattr(self, "exact", None)
+        return exact is not None and bool(exact.all()) and not self.shells.flags
 
     def _pilot(self, scene, bvh, emitters, settings):
-        """Measure costs and δ on a small rendering of the camera's view: exact visibility's fused kernel, this
-        estimator's kernel with no exact test (q = 0) and with every segment tested both ways (q = 1)."""
+        """Measure costs, variance and mismatch per region on a small rendering of the camera's view: exact
+        visibility's fused kernel (with the shells, if any), this estimator's kernel with no exact test (q = 0)
+        and with every segment tested both ways (q = 1); then choose exact or q per region and emitter."""
         from ..accel import nearest_hits
         from ..camera import camera_params, camera_rays
         from ..fused_exact import shade_exact
         from ..interaction import scene_arrays, surface_interactions
         from .base import CASE_UNKNOWN
 
-        small = scene.with_resolution(PILOT_RESOLUTION, PILOT_RESOLUTION)
-        n_pix, n_shadow = PILOT_RESOLUTION ** 2, settings.shadow_rays
+        w, h = scene.camera.film_size
+        pw, ph = ((PILOT_RESOLUTION, max(1, round(PILOT_RESOLUTION * h / w))) if w >= h else
+                  (max(1, round(PILOT_RESOLUTION * w / h)), PILOT_RESOLUTION))
+        small = scene.with_resolution(pw, ph)
+        n_pix, n_shadow, e = pw * ph, settings.shadow_rays, scene.n_emitters
         seed = (settings.seed ^ PILOT_SALT) & MAX_SEED  # apart from the render's samples, a valid seed still
-        org, dirs, tmin, tmax, keys = camera_rays(camera_params(small.camera), 1, seed, 0, n_pix)
-        prim, _, b1, b2, cam_node, cam_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
         geom, textures = scene_arrays(scene)
-        its = surface_interactions(geom, textures, prim, b1, b2, dirs)
-        cases = np.full((n_pix, scene.n_emitters), CASE_UNKNOWN, np.int8)
-        args = (geom, emitters.arrays)
+        params = camera_params(small.camera)
+        best = {}
+        for _ in range(PILOT_REPEATS):  # camera rays, which every method pays: they dilute the gain
+            t0 = time.perf_counter()
+            org, dirs, tmin, tmax, keys = camera_rays(params, 1, seed, 0, n_pix)
+            prim, _, b1, b2, cam_node, cam_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
+            its = surface_interactions(geom, textures, prim, b1, b2, dirs)
+            best["camera"] = min(best.get("camera", np.inf), time.perf_counter() - t0)
+        cases = np.full((n_pix, e), CASE_UNKNOWN, np.int8)
         pixel = (prim, its.position, its.normal, its.material, its.albedo, cases, keys, its.emitted, cam_node,
                  cam_tri, 1, n_shadow, n_pix)
-        zeros, ones, none = np.zeros(scene.n_emitters), np.ones(scene.n_emitters), np.zeros(scene.n_emitters, bool)
-        best = {}
-        for name, run in (("exact", lambda: shade_exact(*args, bvh.arrays, *pixel)),
+        zeros, ones, none = np.zeros((n_pix, e)), np.ones((n_pix, e)), np.zeros((n_pix, e), bool)
+        exact = ((lambda: self._kernel(geom, emitters.arrays, pixel, ones, ~none)) if self.shells.flags else
+                 (lambda: shade_exact(geom, emitters.arrays, bvh.arrays, *pixel)))
+        for name, run in (("exact", exact),
                           ("proxy", lambda: self._kernel(geom, emitters.arrays, pixel, zeros, none)),
                           ("both", lambda: self._kernel(geom, emitters.arrays, pixel, ones, none))):
-            t0 = time.perf_counter()
-            out = run()
-            best[name] = time.perf_counter() - t0
-        sums = out[4]
-        if sums[:, 0].sum() == 0:
+            for _ in range(PILOT_REPEATS):
+                t0 = time.perf_counter()
+                out = run()
+                best[name] = min(best.get(name, np.inf), time.perf_counter() - t0)
+        sums = np.zeros((REGIONS * REGIONS, e, 5))
+        np.add.at(sums, film_regions(small.camera, 0, n_pix), out[4])
+        if sums[..., 4].sum() == 0:
             return
         # the extra exact tests' cost is a difference of two timings: floored, so timing noise cannot zero it
-        self.costs = (best["proxy"] / best["exact"], max(best["both"] - best["proxy"], 0.01 * best["exact"])
-                      / best["exact"])
-        self.sums += sums
-        self.pilot_segments = int(sums[:, 0].sum())
+        self.costs = rho, cost_e = (best["proxy"] / best["exact"],
+                                    max(best["both"] - best["proxy"], 0.01 * best["exact"]) / best["exact"])
+        self.camera_cost = kappa = best["camera"] / best["exact"]
+        self.sums += sums.sum(axis=0)
+        self.pilot_segments = int(sums[..., 4].sum())
+        for k in range(e):
+            n, mismatch, s1, s2 = sums[:, k, 4], sums[:, k, 1], sums[:, k, 2], sums[:, k, 3]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                variance = np.where(n > 0, s2 - s1 * s1 / n, 0.0)
+            if n.sum() == 0:
+                continue
+            mu = mismatch.sum() / n.sum()
+            mismatch = (mismatch + SHRINK * mu) * n / (n + SHRINK)
+            use, q, self.gain[k] = allocate(n, variance, mismatch, rho + kappa, cost_e, 1.0 + kappa)
+            if self.gain[k] < GAIN_MARGIN or not use.any():
+                self.exact[:, k] = True
+            else:
+                self.exact[:, k] = ~use
+                self.q[:, k] = q
 
-    def _kernel(self, geom, es, pixel, q, exact_only):
+    def _kernel(self, geom, es, pixel, q, exact):
         (prim, pos, nrm, mat, albedo, cases, keys, emitted, cam_node, cam_tri, spp, n_shadow, n_pix) = pixel
         return shade_proxy(geom, es, self.bvh.arrays, self.proxy_bvh.arrays, prim, pos, nrm, mat, albedo, cases, keys,
-                           emitted, cam_node, cam_tri, spp, n_shadow, n_pix, q, exact_only, self.proxies.clearance)
+                           emitted, cam_node, cam_tri, spp, n_shadow, n_pix, q, exact, self.proxies.clearance,
+                           *self.shells.kernel_args)
 
-    def classify(self, points):
-        """No cases; q and exact-only are settled here, before the integrator picks this batch's kernel."""
-        self._update_q()
-        return None
-
-    def shade(self, geom, emitters, interactions, cases, keys, cam_node, cam_tri, spp, n_shadow, n_pix):
+    def shade(self, geom, emitters, interactions, cases, keys, cam_node, cam_tri, spp, n_shadow, n_pix,
+              first_pixel):
         its = interactions
+        region = film_regions(self.scene.camera, first_pixel, first_pixel + n_pix)
+        exact = self.exact[region]
         with self.timed("render_kernel"):
             img, m2, counts, n_seg, sums, tests = self._kernel(
                 geom, emitters, (its.triangle, its.position, its.normal, its.material, its.albedo, cases, keys,
                                  its.emitted, cam_node, cam_tri, spp, n_shadow, n_pix),
-                np.where(self.exact_only, 1.0, self.q), self.exact_only)
-        self.sums += sums
-        self.tests["proxy"] += tests[:2]
-        self.tests["scene"] += tests[2:]
+                np.where(exact, 1.0, self.q[region]), exact)
+        self.sums += sums.sum(axis=0)
+        self.tests += tests
         return img, m2, counts, n_seg
 
-    def _accumulate(self, emitter, w, v, v_p):
-        """Add segments tested both ways to the per-emitter sums behind δ."""
-        np.add.at(self.sums, (emitter, 0), 1.0)
-        np.add.at(self.sums, (emitter, 1), ((v - v_p) * w) ** 2)
-        np.add.at(self.sums, (emitter, 2), w * v)
-        np.add.at(self.sums, (emitter, 3), (w * v) ** 2)
-
-    def _update_q(self):
-        """q (and exact-only) per emitter from the pilot's costs and the mismatches measured so far (fixed q, or
-        a pilot that found no segment: q stays as it is)."""
-        if self.fixed_q is not None or self.costs is None:
-            return
-        rho, exact = self.costs
-        for e in range(len(self.q)):
-            n, mismatch, s1, s2 = self.sums[e]
-            if self.exact_only[e] or n < MIN_MEASURED:
-                continue
-            variance = s2 / n - (s1 / n) ** 2
-            delta = 1.0 if variance <= 0 else min(mismatch / n / variance, 1.0)
-            if predicted_gain(rho, delta, exact) < GAIN_MARGIN:
-                self.exact_only[e] = True
-            else:
-                self.q[e] = best_q(rho, delta, exact)
+    def _accumulate(self, emitter, w, v, v_p, q):
+        """Add segments tested both ways (with probability q) to the per-emitter sums behind δ."""
+        for col, x in enumerate((np.ones_like(w), ((v - v_p) * w) ** 2 / q, w * v / q, (w * v) ** 2 / q, 1.0 / q)):
+            np.add.at(self.sums, (emitter, col), x)
 
     def evaluate(self, query):
-        self._update_q()
+        """The staged interface (segments without their pixels): per emitter, exact visibility if every region
+        takes it, else the proxy with the mean q of the regions that use it."""
         n = len(query.tmax)
-        exact_only = self.exact_only[query.emitter]
-        q = np.where(exact_only, 1.0, self.q[query.emitter])
+        exact_e = self.exact.all(axis=0)
+        q_e = np.where(exact_e, 1.0, np.where(self.exact, 0.0, self.q).sum(0) / np.maximum((~self.exact).sum(0), 1))
+        exact_only = exact_e[query.emitter]
+        q = np.where(exact_only, 1.0, q_e[query.emitter])
         on_proxy = np.flatnonzero(~exact_only)
         traced = exact_only | (uniforms(query.key, CORRECTION_DIM) < q)
         on_scene = np.flatnonzero(traced)
@@ -225,39 +271,41 @@ class ProxyVisibility(VisibilityEstimator):
         v = 1.0 - occ
         node[on_scene] += sn
         tri[on_scene] += st
-        self.tests["proxy"] += (int(pn.sum()), int(pt.sum()))
-        self.tests["scene"] += (int(sn.sum()), int(st.sum()))
+        self.tests[:4] += (int(pn.sum()), int(pt.sum()), int(sn.sum()), int(st.sum()))
         value = np.where(exact_only, 0.0, v_p)
         value[on_scene] += np.where(exact_only[on_scene], v, (v - v_p[on_scene]) / q[on_scene])
         both = on_scene[~exact_only[on_scene]]
         if len(both):
             w = query.weight[both] if query.weight is not None else np.ones(len(both))
-            self._accumulate(query.emitter[both], w, v[~exact_only[on_scene]], v_p[both])
+            self._accumulate(query.emitter[both], w, v[~exact_only[on_scene]], v_p[both], q[both])
         return VisibilityResult(value, node, tri)
 
     def memory_estimate(self, scene, settings, batch_samples):
         p = self.params
         heavy = [s.n_triangles for s in scene.shapes if s.n_triangles >= p.min_triangles and s.emitter < 0]
         proxy = p.ratio * sum(heavy) if p.triangles is None else p.triangles * len(heavy)
-        # triangles (72 bytes) and their BVH (about twice that again)
-        return {"proxy geometry and its BVH (ratio, triangles)": int((scene.n_triangles - sum(heavy) + proxy) * 200)}
+        # triangles (72 bytes) and their BVH (about twice that again); per pixel of a batch q, exact and the sums
+        return {"proxy geometry and its BVH (ratio, triangles)": int((scene.n_triangles - sum(heavy) + proxy) * 200),
+                "per-pixel q and sums (batch size)": batch_samples // max(1, settings.spp) * scene.n_emitters * 49}
 
     def stats(self):
         out = super().stats()
-        n, mismatch, s1, s2 = self.sums.T
+        n, mismatch, s1, s2, total = self.sums.T
         with np.errstate(divide="ignore", invalid="ignore"):
-            variance = s2 / n - (s1 / n) ** 2
-            delta = np.where(variance > 0, mismatch / n / variance, np.nan)
+            variance = s2 / total - (s1 / total) ** 2
+            delta = np.where(variance > 0, mismatch / total / variance, np.nan)
         rho, exact = self.costs if self.costs is not None else (None, None)
+        used = ~self.exact
         out.update({
             "proxies": self.proxies.shapes, "proxy_triangles": len(self.proxies.triangles),
-            "tests": {k: {"node": int(v[0]), "triangle": int(v[1])} for k, v in self.tests.items()},
-            "cost_ratio": rho, "exact_cost_ratio": exact,
+            "cost_ratio": rho, "exact_cost_ratio": exact, "camera_cost_ratio": self.camera_cost,
             "pilot_segments": self.pilot_segments,
-            "emitters": [{"q": None if x else float(qq), "exact_only": bool(x), "segments_measured": int(c),
-                          "mismatch_energy": None if not np.isfinite(d) else float(d),
-                          "predicted_gain": (None if rho is None or not np.isfinite(d) else
-                                             float(predicted_gain(rho, min(d, 1.0), exact)))}
-                         for qq, x, c, d in zip(self.q, self.exact_only, n, delta)],
+            "emitters": [{"q": float(self.q[used[:, k], k].mean()) if used[:, k].any() else None,
+                          "exact_only": not used[:, k].any(), "regions_with_proxy": int(used[:, k].sum()),
+                          "segments_measured": int(n[k]),
+                          "mismatch_energy": None if not np.isfinite(delta[k]) else float(delta[k]),
+                          "predicted_gain": None if not np.isfinite(self.gain[k]) else float(self.gain[k])}
+                         for k in range(len(n))],
         })
+        out.update(shell_stats(self.shells, self.tests))
         return out

@@ -1,13 +1,14 @@
-"""Proxy visibility's fused kernel: per shading point, emitter sampling, the proxy test of its segments, the
-exact test of the chosen ones and the film, while the segments are in cache (the shape of `fused_exact`, with
-a second BVH and the control variate). It also returns what `ProxyVisibility` measures: per emitter the sums
-behind δ, and the tests split between proxy and scene geometry."""
+"""Proxy visibility's fused kernel: per shading point, emitter sampling, the shell tests that decide segments
+exactly, the proxy test of the others, the exact test of the chosen ones and the film, while the segments are
+in cache (the shape of `fused_exact`, with more BVHs and the control variate). Exact visibility with shells
+renders through it too, every emitter exact-only. It also returns what `ProxyVisibility` measures: per
+emitter the sums behind δ, and the tests split between proxy, scene and shell geometry."""
 import math
 
 import numpy as np
 from numba import njit, prange
 
-from ..accel import MAX_PACKET, occluded_packet, packet_work, root_record
+from ..accel import SHADOW_PACKET, occluded_packet, packet_work, root_record
 from ..emitters import point_samples
 from ..film import CAM_NODE, CAM_TRI, N_COUNTS, NEGATIVE, SH_NODE, SH_TRI, add_sample, pixel_mean
 from ..parallel import spread
@@ -18,23 +19,60 @@ PIXELS_PER_BLOCK = 4
 CORRECTION_DIM = 1 << 21  # rng dimension of a segment's Bernoulli draw, apart from other estimators' draws
 
 
+@njit(cache=True, error_model="numpy")
+def _gather(org, dirs, idx, c, org2, dirs2):
+    """Copy segments idx[:c] to the front of org2 and dirs2 (the packets of a subset)."""
+    for j in range(c):
+        for d in range(3):
+            org2[j, d] = org[idx[j], d]
+            dirs2[j, d] = dirs[idx[j], d]
+
+
+@njit(cache=True, error_model="numpy")
+def _trace(bvh, root, org, dirs, tmin, tmax, c, work, occ, n_node, n_tri):
+    """Any-hit tests of segments 0..c-1 in packets: the shell tests (not inlined: five inlined traversals take
+    Numba minutes to compile)."""
+    for lo in range(0, c, SHADOW_PACKET):
+        occluded_packet(bvh, root, org, dirs, tmin, tmax, lo, min(SHADOW_PACKET, c - lo), work, occ, n_node, n_tri)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _in_grid(grid, lo, pitch, x, y, z):
+    """Whether point (x, y, z) lies in a set voxel of `grid` (corner `lo`, voxel size `pitch`)."""
+    i = np.int64(np.floor((x - lo[0]) / pitch))
+    j = np.int64(np.floor((y - lo[1]) / pitch))
+    k = np.int64(np.floor((z - lo[2]) / pitch))
+    if i < 0 or j < 0 or k < 0 or i >= grid.shape[0] or j >= grid.shape[1] or k >= grid.shape[2]:
+        return False
+    return grid[i, j, k] != 0
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, emitted, cam_node, cam_tri, spp,
-                n_shadow, n_pix, q, exact_only, clearance):
+                n_shadow, n_pix, q, exact_only, clearance, shells, inner, outer, rest, grid, grid_lo, pitch):
     """The film of a batch of whole pixels (as `fused_exact.shade_exact`) with V_P + B (V - V_P) / q per segment,
-    B ~ Bernoulli(q[emitter]) (V alone for `exact_only` emitters); the proxy test ignores the first `clearance`
-    of each segment. Also returns per emitter the sums (count, Σ ((V - V_P) w)², Σ w V, Σ (w V)²) over segments
-    tested both ways (w: luminance of the unoccluded contribution) and the node and triangle tests against the
-    proxies and the scene."""
+    B ~ Bernoulli(q[pixel, emitter]) (V alone where `exact_only[pixel, emitter]`); the proxy test ignores the
+    first `clearance` of each segment.
+
+    With `shells` (bit 1: an inner shell, bit 2: an outer shell; see `probvis.shells`), a segment crossing the
+    `inner` shell is blocked, and one that starts outside `grid` and misses the `outer` shell is tested against
+    `rest` (the scene without its heavy meshes) alone: both exactly, with no proxy test and no variance.
+
+    Also returns per pixel and emitter the sums behind δ, (segments tested both ways, Σ ((V - V_P) w)² / q, Σ w V / p,
+    Σ (w V)² / p, Σ 1 / p) over segments decided by the shells (p = 1) and segments tested both ways (p = q), w
+    the luminance of the unoccluded contribution; and the node and triangle tests against the proxies, the
+    scene (with `rest`) and the shells."""
     root_s, root_p = root_record(bvh.root), root_record(proxy.root)
-    n_emit = q.shape[0]
+    root_i, root_o, root_r = root_record(inner.root), root_record(outer.root), root_record(rest.root)
+    depth = max(bvh.stack_depth, proxy.stack_depth, inner.stack_depth, outer.stack_depth, rest.stack_depth)
+    n_emit = q.shape[1]
     img = np.zeros((n_pix, 3))
     m2 = np.zeros((n_pix, 3))
     counts = np.zeros((n_pix, N_COUNTS), np.int64)
     n_seg = np.zeros(n_pix, np.int64)
     n_blocks = (n_pix + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
-    sums = np.zeros((n_blocks, n_emit, 4))
-    tests = np.zeros((n_blocks, 4), np.int64)  # proxy node, proxy triangle, scene node, scene triangle
+    sums = np.zeros((n_pix, n_emit, 5))
+    tests = np.zeros((n_blocks, 6), np.int64)  # node and triangle tests: proxy, scene, shells
     for it in prange(n_blocks):
         blk = spread(it, n_blocks)
         org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
@@ -44,12 +82,13 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
         tmin = np.empty(n_shadow)
         zero = np.zeros(n_shadow)
         tmax = np.full(n_shadow, 1.0 - SHADOW_EPSILON)
-        occ, occ2 = np.empty(n_shadow, np.bool_), np.empty(n_shadow, np.bool_)
-        p_node, p_tri = np.empty(n_shadow, np.int32), np.empty(n_shadow, np.int32)
-        s_node, s_tri = np.empty(n_shadow, np.int32), np.empty(n_shadow, np.int32)
-        chosen = np.empty(n_shadow, np.int64)
+        occ = np.empty(n_shadow, np.bool_)
+        n_node, n_tri = np.empty(n_shadow, np.int32), np.empty(n_shadow, np.int32)
+        idx = np.empty(n_shadow, np.int64)
+        decided = np.empty(n_shadow, np.bool_)
+        near = np.empty(n_shadow, np.bool_)
         value = np.empty(n_shadow)
-        work = packet_work(max(bvh.stack_depth, proxy.stack_depth))
+        work = packet_work(depth)
         for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
             for s in range(spp):
                 i = px * spp + s
@@ -58,51 +97,110 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
                 a0, a1, a2, m = point_samples(i, geom, es, prim, pos, nrm, mat, albedo, cases, keys, n_shadow, 0,
                                               org, dirs, contrib, s_emit, active, True)
                 for k in range(m):
-                    tmin[k] = clearance / math.sqrt(dirs[k, 0] ** 2 + dirs[k, 1] ** 2 + dirs[k, 2] ** 2)
-                for lo in range(0, m, MAX_PACKET):
-                    occluded_packet(proxy, root_p, org, dirs, tmin, tmax, lo, min(MAX_PACKET, m - lo), work, occ,
-                                    p_node, p_tri)
+                    decided[k] = False
+                    value[k] = 0.0
+                if shells & 1:
+                    _trace(inner, root_i, org, dirs, zero, tmax, m, work, occ, n_node, n_tri)
+                    for k in range(m):
+                        decided[k] = occ[k]
+                        tests[blk, 4] += n_node[k]
+                        tests[blk, 5] += n_tri[k]
+                        counts[px, SH_NODE] += n_node[k]
+                        counts[px, SH_TRI] += n_tri[k]
+                if shells & 2:
+                    c = 0
+                    for k in range(m):
+                        near[k] = not decided[k] and _in_grid(grid, grid_lo, pitch, org[k, 0], org[k, 1], org[k, 2])
+                        if not decided[k] and not near[k]:
+                            idx[c] = k
+                            c += 1
+                    _gather(org, dirs, idx, c, org2, dirs2)
+                    _trace(outer, root_o, org2, dirs2, zero, tmax, c, work, occ, n_node, n_tri)
+                    f = 0
+                    for j in range(c):
+                        tests[blk, 4] += n_node[j]
+                        tests[blk, 5] += n_tri[j]
+                        counts[px, SH_NODE] += n_node[j]
+                        counts[px, SH_TRI] += n_tri[j]
+                        if occ[j]:
+                            near[idx[j]] = True
+                        else:
+                            idx[f] = idx[j]
+                            f += 1
+                    _gather(org, dirs, idx, f, org2, dirs2)
+                    _trace(rest, root_r, org2, dirs2, zero, tmax, f, work, occ, n_node, n_tri)
+                    for j in range(f):
+                        k = idx[j]
+                        decided[k] = True
+                        value[k] = 1.0 - np.float64(occ[j])
+                        tests[blk, 2] += n_node[j]
+                        tests[blk, 3] += n_tri[j]
+                        counts[px, SH_NODE] += n_node[j]
+                        counts[px, SH_TRI] += n_tri[j]
+                if shells:
+                    for k in range(m):
+                        e = s_emit[k]
+                        if decided[k] and not exact_only[px, e]:
+                            wv = value[k] * (0.212671 * contrib[k, 0] + 0.715160 * contrib[k, 1]
+                                             + 0.072169 * contrib[k, 2])
+                            sums[px, e, 2] += wv
+                            sums[px, e, 3] += wv * wv
+                            sums[px, e, 4] += 1.0
+                # the proxy test of the undecided segments of emitters that use proxies
+                c = 0
+                for k in range(m):
+                    if not decided[k] and not exact_only[px, s_emit[k]]:
+                        idx[c] = k
+                        tmin[c] = clearance / math.sqrt(dirs[k, 0] ** 2 + dirs[k, 1] ** 2 + dirs[k, 2] ** 2)
+                        c += 1
+                if c < m:
+                    _gather(org, dirs, idx, c, org2, dirs2)
+                for lo in range(0, c, SHADOW_PACKET):  # inlined, as is the exact test below: the hot traversals
+                    occluded_packet(proxy, root_p, org if c == m else org2, dirs if c == m else dirs2, tmin, tmax,
+                                    lo, min(SHADOW_PACKET, c - lo), work, occ, n_node, n_tri)
+                for j in range(c):
+                    value[idx[j]] = 1.0 - np.float64(occ[j])
+                    tests[blk, 0] += n_node[j]
+                    tests[blk, 1] += n_tri[j]
+                    counts[px, SH_NODE] += n_node[j]
+                    counts[px, SH_TRI] += n_tri[j]
+                # the exact test of the undecided segments of exact-only emitters and a random fraction q of the rest
                 c = 0
                 for k in range(m):
                     e = s_emit[k]
-                    value[k] = 0.0 if exact_only[e] else 1.0 - np.float64(occ[k])
-                    if exact_only[e] or uniform(mix64(keys[i] + np.uint64(k + 1)), CORRECTION_DIM) < q[e]:
-                        chosen[c] = k
-                        for d in range(3):
-                            org2[c, d] = org[k, d]
-                            dirs2[c, d] = dirs[k, d]
+                    if not decided[k] and (exact_only[px, e] or
+                                           uniform(mix64(keys[i] + np.uint64(k + 1)), CORRECTION_DIM) < q[px, e]):
+                        idx[c] = k
                         c += 1
-                for lo in range(0, c, MAX_PACKET):
-                    occluded_packet(bvh, root_s, org2, dirs2, zero, tmax, lo, min(MAX_PACKET, c - lo), work, occ2,
-                                    s_node, s_tri)
+                _gather(org, dirs, idx, c, org2, dirs2)
+                for lo in range(0, c, SHADOW_PACKET):
+                    occluded_packet(bvh, root_s, org2, dirs2, zero, tmax, lo, min(SHADOW_PACKET, c - lo), work, occ,
+                                    n_node, n_tri)
                 for j in range(c):
-                    k = chosen[j]
+                    k = idx[j]
                     e = s_emit[k]
-                    v = 1.0 - np.float64(occ2[j])
-                    counts[px, SH_NODE] += s_node[j]
-                    counts[px, SH_TRI] += s_tri[j]
-                    tests[blk, 2] += s_node[j]
-                    tests[blk, 3] += s_tri[j]
-                    if exact_only[e]:
+                    v = 1.0 - np.float64(occ[j])
+                    counts[px, SH_NODE] += n_node[j]
+                    counts[px, SH_TRI] += n_tri[j]
+                    tests[blk, 2] += n_node[j]
+                    tests[blk, 3] += n_tri[j]
+                    if exact_only[px, e]:
                         value[k] = v
                         continue
                     w = 0.212671 * contrib[k, 0] + 0.715160 * contrib[k, 1] + 0.072169 * contrib[k, 2]
-                    sums[blk, e, 0] += 1.0
-                    sums[blk, e, 1] += ((v - value[k]) * w) ** 2
-                    sums[blk, e, 2] += w * v
-                    sums[blk, e, 3] += (w * v) ** 2
-                    value[k] += (v - value[k]) / q[e]
+                    sums[px, e, 0] += 1.0
+                    sums[px, e, 1] += ((v - value[k]) * w) ** 2 / q[px, e]
+                    sums[px, e, 2] += w * v / q[px, e]
+                    sums[px, e, 3] += (w * v) ** 2 / q[px, e]
+                    sums[px, e, 4] += 1.0 / q[px, e]
+                    value[k] += (v - value[k]) / q[px, e]
                 l0, l1, l2 = emitted[i, 0] + a0, emitted[i, 1] + a1, emitted[i, 2] + a2
                 for k in range(m):
                     l0 += contrib[k, 0] * value[k]
                     l1 += contrib[k, 1] * value[k]
                     l2 += contrib[k, 2] * value[k]
-                    counts[px, SH_NODE] += p_node[k]
-                    counts[px, SH_TRI] += p_tri[k]
                     counts[px, NEGATIVE] += value[k] < 0.0
-                    tests[blk, 0] += p_node[k]
-                    tests[blk, 1] += p_tri[k]
                 n_seg[px] += m
                 add_sample(img, m2, px, l0, l1, l2)
             pixel_mean(img, m2, px, spp)
-    return img, m2, counts, n_seg, sums.sum(axis=0), tests.sum(axis=0)
+    return img, m2, counts, n_seg, sums, tests.sum(axis=0)

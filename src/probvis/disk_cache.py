@@ -1,0 +1,47 @@
+"""The on-disk cache of derived geometry (proxies, shells): arrays keyed by the SHA-256 of what they were
+derived from, under `$PROBVIS_CACHE_DIR` (default `~/.cache/probvis`). Entries are written atomically; a
+damaged entry is rebuilt and a cache that cannot be written is a warning, never an error."""
+import hashlib
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+
+def cache_dir(kind):
+    """Where entries of `kind` ("proxies", "shells") are cached."""
+    return Path(os.environ.get("PROBVIS_CACHE_DIR") or Path.home() / ".cache" / "probvis") / kind
+
+
+def content_key(label, *arrays):
+    """SHA-256 of a label (what is derived, and how) and the arrays it is derived from."""
+    h = hashlib.sha256(label.encode())
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def load_or_build(kind, key, build, use_cache=True):
+    """(arrays, cached): the dict of arrays stored under `key`, or `build()`'s (a dict of arrays, or None when
+    there is nothing to store), stored for next time."""
+    path = cache_dir(kind) / f"{key}.npz" if use_cache else None
+    if path is not None and path.is_file():
+        try:
+            with np.load(path) as f:
+                return {k: f[k] for k in f.files}, True
+        except (OSError, ValueError, KeyError):
+            pass  # a damaged entry is rebuilt
+    out = build()
+    if out is not None and path is not None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            with open(tmp, "wb") as f:
+                np.savez(f, **out)
+            os.replace(tmp, path)
+        except OSError as exc:
+            warnings.warn(f"{kind}: cannot cache in {path.parent} ({exc.strerror or exc})", stacklevel=3)
+    return out, False
