@@ -117,9 +117,8 @@ def boundary_triangles(occ, lo, pitch):
     for axis in range(3):
         rect = _face_rectangles(np.ascontiguousarray(np.moveaxis(padded, axis, 0)))
         others = [a for a in range(3) if a != axis]
-        # padded index i is the face at grid coordinate i (between padded voxels i-1... and i), so a face between
-        # padded slices s and s+1 lies at grid coordinate s; rectangle cells r0..r1 span padded voxels r0..r1,
-        # i.e. grid coordinates r0-1 .. r1
+        # padded voxel i is grid voxel i-1: a face between padded slices s and s+1 lies at grid coordinate s, and
+        # rectangle cells r0..r1 (padded) span grid coordinates r0-1 .. r1
         corners = np.zeros((len(rect), 4, 3))
         corners[:, :, axis] = rect[:, 0, None]
         r0, c0, r1, c1 = rect[:, 1] - 1, rect[:, 2] - 1, rect[:, 3], rect[:, 4]
@@ -140,10 +139,10 @@ def is_closed(tris):
     return bool(len(faces)) and bool(np.all(counts == 2))
 
 
-def _inside_regions(marked, labels, n_labels, lo, pitch, bvh, first, count):
-    """Labels of the empty regions of `marked` inside the mesh of scene triangles first..first+count: not
-    touching the grid's border, and every parity ray from three of their voxels crosses it an odd number of
-    times."""
+def _inside_regions(labels, n_labels, lo, pitch, bvh, first, count):
+    """Labels of the empty regions (`labels` of the unmarked voxels) inside the mesh of scene triangles
+    first..first+count: not touching the grid's border, and every parity ray from three of their voxels crosses
+    it an odd number of times."""
     from .accel import all_hits
 
     border = np.unique(np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(),
@@ -200,7 +199,7 @@ def build_shells(scene, bvh, min_triangles, resolution=RESOLUTION, use_cache=Tru
             ok = is_closed(tris) and not _emitter_within(emitter_boxes, tris)
             if ok:
                 labels, n_labels = ndimage.label(~marked)
-                inside = np.isin(labels, _inside_regions(marked, labels, n_labels, lo, pitch, bvh,
+                inside = np.isin(labels, _inside_regions(labels, n_labels, lo, pitch, bvh,
                                                          shape.first_triangle, shape.n_triangles))
                 inner |= inside
                 outer |= inside

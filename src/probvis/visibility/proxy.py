@@ -12,15 +12,15 @@ n_r (ρ + e q_r), or V_r at cost n_r with exact visibility alone. The product of
 is least where every region takes the cheaper of the two at the exchange rate λ = variance / cost, with
 q_r = √(M_r / (λ e n_r)) (for one region, q = √(δ ρ / ((1 - δ) e)) and the gain over exact visibility
 G = 1 / (√(ρ (1 - δ)) + √(δ e))², δ = M / V: with e = 1 the 2014 paper's control-variate gain); a few rounds of
-updating λ settle it. ρ, e, V_r and M_r come from a pilot in `prepare`: the camera's view at
-PILOT_RESOLUTION along its longer side, one sample per pixel, rendered by the exact fused kernel and by this
-estimator's, every segment traced both ways; each region's mismatch is shrunk toward its emitter's mean by
-SHRINK segments' worth. The camera rays, which every method pays, are timed too (κ, relative to the exact kernel) and added
-to both paths' costs, so the gain shrinks where shadow rays are few per camera sample. An emitter whose
-predicted G falls below GAIN_MARGIN (timings of a small view flatter the proxy's cache-resident BVH) gets
-exact visibility everywhere: proxies that do
-not pay are not used, and when that is every emitter the render takes exact visibility's fused kernel. The
-pilot uses its own samples, so q never depends on the render's draws.
+updating λ settle it. ρ, e, V_r and M_r come from a pilot in `prepare`: the camera's view at up to
+PILOT_RESOLUTION along its longer side (and at most PILOT_SHARE of the render's samples), one sample per pixel,
+rendered by the exact fused kernel and by this estimator's, every segment traced both ways; each region's
+mismatch is shrunk toward its emitter's mean by SHRINK segments' worth. The camera rays, which every method
+pays, are timed too (κ, relative to the exact kernel) and added to both paths' costs, so the gain shrinks
+where shadow rays are few per camera sample. An emitter whose predicted G falls below GAIN_MARGIN (timings of
+a small view flatter the proxy's cache-resident BVH) gets exact visibility everywhere: proxies that do not pay
+are not used, and when that is every emitter the render takes exact visibility's fused kernel. The pilot
+uses its own samples, so q never depends on the render's draws.
 
 A proxy strays from its mesh by about its edge length, so a segment leaving a heavy mesh's own surface would
 often hit the proxy at once: the proxy test ignores the first `ProxyGeometry.clearance` of every segment (any
@@ -41,7 +41,8 @@ from .exact import shell_stats
 from .proxy_kernel import CORRECTION_DIM, shade_proxy
 
 PILOT_Q = 0.5  # q where the pilot measured nothing (it found no segment)
-PILOT_RESOLUTION = 64  # the pilot's image size along its longer side: up to 4,096 camera samples
+PILOT_RESOLUTION = 64  # the pilot's image size along its longer side: up to 4,096 camera samples,
+PILOT_SHARE = 1 / 300  # and at most this share of the render's (six kernel runs: about 2% of its time)
 PILOT_REPEATS = 2  # each pilot kernel is timed this often, the fastest kept (the first may load or compile)
 REGIONS = 8  # q=auto chooses q per emitter in REGIONS x REGIONS tiles of the film
 SHRINK = 256  # a region's mismatch energy is shrunk toward its emitter's by this many segments' worth
@@ -127,8 +128,8 @@ class ProxyVisibility(VisibilityEstimator):
                                    f"'{shape.name}' (or raise min_triangles above it)")
         with self.timed("proxies"):
             self.proxies = build_proxies(scene, p.ratio, p.triangles, p.min_triangles, p.cache)
-        with self.timed("proxy_bvh"):
-            self.proxy_bvh = build_bvh(self.proxies.triangles)
+        with self.timed("proxy_bvh"):  # no mesh decimated: nothing to test but the scene, whose BVH stands in
+            self.proxy_bvh = build_bvh(self.proxies.triangles) if self.proxies.n_decimated else bvh
         with self.timed("shells"):
             self.shells = shell_tests(scene, bvh, p.min_triangles, p.cache) if p.shells else ShellTests.none(bvh)
         e, r = scene.n_emitters, REGIONS * REGIONS
@@ -167,8 +168,10 @@ class ProxyVisibility(VisibilityEstimator):
         from .base import CASE_UNKNOWN
 
         w, h = scene.camera.film_size
-        pw, ph = ((PILOT_RESOLUTION, max(1, round(PILOT_RESOLUTION * h / w))) if w >= h else
-                  (max(1, round(PILOT_RESOLUTION * w / h)), PILOT_RESOLUTION))
+        cam = scene.camera
+        side = int(min(PILOT_RESOLUTION, max(16, np.sqrt(cam.width * cam.height * settings.spp * PILOT_SHARE
+                                                         * max(w, h) / min(w, h)))))
+        pw, ph = (side, max(1, round(side * h / w))) if w >= h else (max(1, round(side * w / h)), side)
         small = scene.with_resolution(pw, ph)
         n_pix, n_shadow, e = pw * ph, settings.shadow_rays, scene.n_emitters
         seed = (settings.seed ^ PILOT_SALT) & MAX_SEED  # apart from the render's samples, a valid seed still
