@@ -245,6 +245,16 @@ class ShellTests:
         return cls(0, bvh, bvh, bvh, np.zeros((1, 1, 1), np.uint8), np.zeros(3), 1.0)
 
 
+def shell_memory(scene, min_triangles):
+    """Bytes of the shells' structures, by part: the BVH of the scene without its heavy meshes (triangles and
+    nodes, about 200 bytes a triangle), the grid and the shells' own BVHs (at most a few of the grid's faces)."""
+    heavy = sum(s.n_triangles for s in scene.shapes if s.n_triangles >= min_triangles and s.emitter < 0)
+    if not heavy:
+        return {}
+    return {"shells: BVH of the scene without heavy meshes": (scene.n_triangles - heavy) * 200,
+            "shells: voxel grid and shell BVHs (RESOLUTION)": RESOLUTION ** 3 * 16 + 12 * RESOLUTION ** 2 * 2 * 200}
+
+
 def shell_tests(scene, bvh, min_triangles, use_cache=True):
     """`ShellTests` for the scene's heavy meshes (`build_shells`), or `ShellTests.none` when it has none."""
     from .accel import build_bvh

@@ -91,6 +91,36 @@ def test_images_are_unbiased(q, shells):
     assert (e["tests"]["shells"]["node"] > 0) == shells
 
 
+class Checkerboard(ProxyVisibility):
+    """Proxy visibility with exact visibility in every other film region and q 0.1 or 0.5 in the others."""
+
+    def prepare(self, scene, bvh, emitters, settings):
+        super().prepare(scene, bvh, emitters, settings)
+        r = np.arange(len(self.q))
+        self.exact[:] = (r % 2 == 0)[:, None]
+        self.q[:] = np.where(r % 3 == 0, 0.1, 0.5)[:, None]
+
+
+def test_per_region_choices_stay_unbiased():
+    """With exact visibility in half the film regions and two values of q in the others (what q=auto may
+    choose), the image-mean difference with exact visibility, paired by seed, averages to zero within 4 SE."""
+    scene = blob_scene(32)
+
+    def mean(seed, **vis):
+        r = probvis.render(scene, spp=2, shadow_rays=4, seed=seed, **vis)
+        return r.image.mean(), r.stats
+
+    diff = []
+    for seed in range(12):
+        m, stats = mean(seed, visibility=Checkerboard, visibility_options=dict(OPTIONS, q="0.3"))
+        diff.append(m - mean(seed)[0])
+    diff = np.array(diff)
+    assert abs(diff.mean()) < 4 * np.std(diff, ddof=1) / np.sqrt(len(diff)) + 1e-12
+    e = stats["estimator"]
+    assert e["emitters"][0]["regions_with_proxy"] == 32 and e["tests"]["proxy"]["node"] > 0
+    assert np.any(diff != 0)
+
+
 def test_the_largest_seed_works():
     r = probvis.render(blob_scene(8), spp=1, shadow_rays=2, seed=2 ** 63 - 1, visibility="proxy",
                        visibility_options=OPTIONS)

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..accel import occluded_segments
 from ..proxies import MIN_TRIANGLES
-from ..shells import shell_tests
+from ..shells import shell_memory, shell_tests
 from .base import Option, Phase, VisibilityEstimator, VisibilityResult
 
 
@@ -53,6 +53,9 @@ class ExactVisibility(VisibilityEstimator):
                 np.ones((n_pix, e)), np.ones((n_pix, e), bool), 0.0, *self.shells.kernel_args)
         self.tests += tests
         return img, m2, counts, n_seg
+
+    def memory_estimate(self, scene, settings, batch_samples):
+        return shell_memory(scene, self.params.min_triangles) if self.params.shells else {}
 
     def stats(self):
         out = super().stats()

@@ -33,9 +33,9 @@ import numpy as np
 from ..accel import build_bvh, occluded_segments
 from ..errors import ProbvisError
 from ..proxies import MIN_TRIANGLES, build_proxies
-from ..shells import ShellTests, shell_tests
 from ..rng import uniforms
 from ..settings import MAX_SEED
+from ..shells import ShellTests, shell_memory, shell_tests
 from .base import Option, Phase, VisibilityEstimator, VisibilityResult
 from .exact import shell_stats
 from .proxy_kernel import CORRECTION_DIM, shade_proxy
@@ -288,8 +288,11 @@ class ProxyVisibility(VisibilityEstimator):
         heavy = [s.n_triangles for s in scene.shapes if s.n_triangles >= p.min_triangles and s.emitter < 0]
         proxy = p.ratio * sum(heavy) if p.triangles is None else p.triangles * len(heavy)
         # triangles (72 bytes) and their BVH (about twice that again); per pixel of a batch q, exact and the sums
-        return {"proxy geometry and its BVH (ratio, triangles)": int((scene.n_triangles - sum(heavy) + proxy) * 200),
-                "per-pixel q and sums (batch size)": batch_samples // max(1, settings.spp) * scene.n_emitters * 49}
+        out = {"proxy geometry and its BVH (ratio, triangles)": int((scene.n_triangles - sum(heavy) + proxy) * 200),
+               "per-pixel q and sums (batch size)": batch_samples // max(1, settings.spp) * scene.n_emitters * 49}
+        if p.shells:
+            out.update(shell_memory(scene, p.min_triangles))
+        return out
 
     def stats(self):
         out = super().stats()
