@@ -24,9 +24,8 @@ from probvis.io import read_exr, write_exr
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 METHODS = [("exact", "exact", {}), ("exact shells", "exact", {"shells": True}), ("proxy auto", "proxy", {}),
-           ("proxy shells", "proxy", {"shells": True}), ("proxy q=0.1", "proxy", {"q": "0.1"}),
-           ("shells q=0.1", "proxy", {"shells": True, "q": "0.1"}),
-           ("proxy q=0.5", "proxy", {"q": "0.5"})]
+           ("auto no shells", "proxy", {"shells": False}), ("proxy q=0.1", "proxy", {"q": "0.1"}),
+           ("q=0.1 no shells", "proxy", {"shells": False, "q": "0.1"}), ("proxy q=0.5", "proxy", {"q": "0.5"})]
 
 
 def relmse(x, ref):
@@ -117,10 +116,10 @@ def main():
                          f"{e['tests']['scene']['node']:,}, proxies {e['seconds']['proxies']:.2f} s")
             if "shells" in e:
                 sh = e["shells"]
-                extra += (f"  shells inner/outer triangles {sh['inner_triangles']:,}/{sh['outer_triangles']:,}, "
-                          f"tests shells/scene nodes {e['tests']['shells']['node']:,}/{e['tests']['scene']['node']:,}"
-                          f", {e['seconds']['shells']:.2f} s")
-            print(f"  {label:12s} relMSE {err:.5f}  seconds {sec:6.2f}  efficiency {eff:9.1f}  vs exact "
+                extra += (f"  shells solid/surface voxels {sh['solid_voxels']:,}/{sh['surface_voxels']:,}, "
+                          f"voxels walked {e['tests']['shells']['voxel']:,}, scene nodes "
+                          f"{e['tests']['scene']['node']:,}, {e['seconds']['shells']:.2f} s")
+            print(f"  {label:15s} relMSE {err:.5f}  seconds {sec:6.2f}  efficiency {eff:9.1f}  vs exact "
                   f"{eff / base:5.2f}  bias {bias and round(bias, 2)}{extra}", flush=True)
     return 0
 

@@ -3,26 +3,26 @@ segments they apply to (the bounding and inner envelopes of Cohen et al.'s simpl
 a voxel grid rather than by offsetting, because a grid is conservative by construction).
 
 On a grid of `resolution` voxels along the longest side of the heavy meshes' bounds, every voxel that a heavy
-triangle's bounding box touches (padded) is marked. The unmarked voxels split into 6-connected regions; each
-contains no surface, so it lies wholly inside or wholly outside every mesh. A region not touching the grid's
-border is inside a watertight mesh when rays from its voxels cross that mesh an odd number of times (three
-rays from three voxels, all odd). Then:
+triangle's bounding box touches (padded) is marked SURFACE. The unmarked voxels split into 6-connected regions;
+each contains no surface, so it lies wholly inside or wholly outside every mesh. A region not touching the
+grid's border is inside a watertight mesh when rays from its voxels cross that mesh an odd number of times
+(three rays from three voxels, all odd); its voxels are SOLID. Then, walking the voxels a segment passes
+through (`segment_class`, a 3D-DDA after Amanatides and Woo):
 
-- the **inner shell** (the boundary of the inside regions, as triangles) lies strictly inside closed meshes: a
-  segment that crosses it passes through a mesh's solid interior, so it crosses the mesh and is blocked
-  (its ends are outside the mesh: a closed mesh with an emitter in its bounds gets no inner shell);
-- the **outer shell** (the boundary of the marked and inside voxels) contains every heavy mesh: a segment that
-  neither crosses it nor starts inside it (an O(1) lookup in the grid) cannot meet a heavy mesh, so only the
-  rest of the scene can block it.
+- the **inner shell** is the boundary of the SOLID voxels, strictly inside closed meshes: a segment entering a
+  SOLID voxel passes through a mesh's solid interior, so it crosses the mesh and is blocked (its ends are
+  outside the mesh: a closed mesh with an emitter in its bounds gets no SOLID voxels);
+- the **outer shell** is the boundary of the SURFACE and SOLID voxels and contains every heavy mesh: a segment
+  that visits no such voxel cannot meet a heavy mesh, so only the rest of the scene can block it.
 
-Both shells are few triangles: each boundary is merged greedily into rectangles, slice by slice. They are
-cached on disk (`disk_cache`) keyed by the heavy meshes, the emitters and the resolution.
+The walk visits at most a few hundred bytes of a grid that stays in cache, where the BVH of a heavy mesh does
+not. Grids are cached on disk (`disk_cache`) keyed by the heavy meshes, the emitters and the resolution.
 """
 import time
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from scipy import ndimage
 
 from .disk_cache import content_key, load_or_build
@@ -33,22 +33,28 @@ RESOLUTION = 64  # voxels along the longest side of the heavy meshes' bounds
 PAD = 1e-3  # triangle bounds are padded by this fraction of a voxel: a segment leaving a heavy mesh starts inside
 PARITY_CAP = 4096  # hits counted per parity ray; a ray that reaches it decides nothing
 PARITY_DIRECTIONS = np.array([[0.5773, 0.5774, 0.5773], [-0.6402, 0.3197, 0.6985], [0.2113, -0.8660, 0.4531]])
-CACHE_VERSION = 1
+CACHE_VERSION = 2
+FREE, SURFACE, SOLID = 0, 1, 2  # voxel states; also `segment_class`'s answers: clear, undecided, blocked
 
 
 @dataclass
 class Shells:
-    """The inner and outer shell triangles, the outer shell's voxel grid (for "starts inside") and which shapes
-    they cover."""
+    """The voxel grid of the shells (FREE, SURFACE, SOLID per voxel) and which shapes they cover."""
 
-    inner: np.ndarray  # (i, 3, 3): crossing it means blocked
-    outer: np.ndarray  # (o, 3, 3): missing it (and starting outside `grid`) means no heavy mesh in the way
-    grid: np.ndarray  # (X, Y, Z) uint8: 1 for voxels inside the outer shell
+    grid: np.ndarray  # (X, Y, Z) uint8
     lo: np.ndarray  # (3,) the grid's corner
     pitch: float  # its voxel size
-    shapes: list  # dicts: name, triangles, closed (has an inner shell)
+    shapes: list  # dicts: name, triangles, closed (has SOLID voxels)
     seconds: float = 0.0
     cached: bool = False
+
+    @property
+    def solid_voxels(self):
+        return int((self.grid == SOLID).sum())
+
+    @property
+    def surface_voxels(self):
+        return int((self.grid == SURFACE).sum())
 
 
 @njit(cache=True)
@@ -68,66 +74,89 @@ def _mark(tris, lo, pitch, pad, dims, grid):
                     grid[x, y, z] = True
 
 
-@njit(cache=True)
-def _face_rectangles(occ):
-    """Rectangles covering the faces between occupied and empty voxels across the first axis of `occ` (padded
-    with empty voxels all round), merged greedily per slice: rows of (slice, r0, c0, r1, c1)."""
-    n0, n1, n2 = occ.shape
-    out = np.empty((16, 5), np.int64)
-    n = 0
-    used = np.zeros((n1, n2), np.bool_)
-    mask = np.zeros((n1, n2), np.bool_)
-    for s in range(n0 - 1):
-        for sign in range(2):
-            for r in range(n1):
-                for c in range(n2):
-                    a, b = occ[s, r, c], occ[s + 1, r, c]
-                    mask[r, c] = a and not b if sign == 0 else b and not a
-                    used[r, c] = False
-            for r in range(n1):
-                for c in range(n2):
-                    if not mask[r, c] or used[r, c]:
-                        continue
-                    c1 = c
-                    while c1 + 1 < n2 and mask[r, c1 + 1] and not used[r, c1 + 1]:
-                        c1 += 1
-                    r1 = r
-                    grow = True
-                    while grow and r1 + 1 < n1:
-                        for cc in range(c, c1 + 1):
-                            if not mask[r1 + 1, cc] or used[r1 + 1, cc]:
-                                grow = False
-                                break
-                        if grow:
-                            r1 += 1
-                    used[r:r1 + 1, c:c1 + 1] = True
-                    if n == out.shape[0]:
-                        bigger = np.empty((2 * n, 5), np.int64)
-                        bigger[:n] = out
-                        out = bigger
-                    out[n, 0], out[n, 1], out[n, 2], out[n, 3], out[n, 4] = s, r, c, r1, c1
-                    n += 1
-    return out[:n]
+@njit(cache=True, error_model="numpy", inline="always")
+def _slab(o, d, lo, hi, t0, t1):
+    """The interval [t0, t1] narrowed to where o + t d lies in [lo, hi] (empty: t0 > t1)."""
+    if d != 0.0:
+        ta, tb = (lo - o) / d, (hi - o) / d
+        return max(t0, min(ta, tb)), min(t1, max(ta, tb))
+    if o < lo or o > hi:
+        return 1.0, 0.0
+    return t0, t1
 
 
-def boundary_triangles(occ, lo, pitch):
-    """The boundary of a voxel set as triangles (two per merged rectangle), in world coordinates."""
-    padded = np.pad(occ, 1)
-    quads = []
-    for axis in range(3):
-        rect = _face_rectangles(np.ascontiguousarray(np.moveaxis(padded, axis, 0)))
-        others = [a for a in range(3) if a != axis]
-        # padded voxel i is grid voxel i-1: a face between padded slices s and s+1 lies at grid coordinate s, and
-        # rectangle cells r0..r1 (padded) span grid coordinates r0-1 .. r1
-        corners = np.zeros((len(rect), 4, 3))
-        corners[:, :, axis] = rect[:, 0, None]
-        r0, c0, r1, c1 = rect[:, 1] - 1, rect[:, 2] - 1, rect[:, 3], rect[:, 4]
-        for k, (r, c) in enumerate(((r0, c0), (r1, c0), (r1, c1), (r0, c1))):
-            corners[:, k, others[0]] = r
-            corners[:, k, others[1]] = c
-        quads.append(corners)
-    q = lo + pitch * np.concatenate(quads)
-    return np.ascontiguousarray(np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]))
+@njit(cache=True, error_model="numpy", inline="always")
+def _axis_start(o, d, lo, pitch, p, n):
+    """Along one axis: the voxel holding coordinate p (clamped into the grid), the step, the t of the next
+    voxel boundary and the t between boundaries, for the segment o + t d."""
+    i = min(n - 1, max(0, np.int64(np.floor((p - lo) / pitch))))
+    if d > 0.0:
+        return i, 1, (lo + (i + 1) * pitch - o) / d, pitch / d
+    if d < 0.0:
+        return i, -1, (lo + i * pitch - o) / d, -pitch / d
+    return i, 0, np.inf, np.inf
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def segment_class(grid, lo, pitch, ox, oy, oz, dx, dy, dz, tmax):
+    """Walk the voxels the segment o + t d, t in [0, tmax], passes through: SOLID (it crosses an inner shell:
+    blocked), SURFACE (it meets the outer shells: undecided) or FREE (clear of every heavy mesh); the voxels
+    visited; and for SURFACE the t range from entering its first SURFACE voxel to leaving its last, widened by
+    half the padding (a heavy mesh can block it only there)."""
+    nx, ny, nz = grid.shape
+    t0, t1 = _slab(ox, dx, lo[0], lo[0] + nx * pitch, 0.0, tmax)
+    t0, t1 = _slab(oy, dy, lo[1], lo[1] + ny * pitch, t0, t1)
+    t0, t1 = _slab(oz, dz, lo[2], lo[2] + nz * pitch, t0, t1)
+    if t0 > t1:
+        return FREE, 0, 0.0, 0.0
+    i, si, tx, dtx = _axis_start(ox, dx, lo[0], pitch, ox + t0 * dx, nx)
+    j, sj, ty, dty = _axis_start(oy, dy, lo[1], pitch, oy + t0 * dy, ny)
+    k, sk, tz, dtz = _axis_start(oz, dz, lo[2], pitch, oz + t0 * dz, nz)
+    state, steps = FREE, 0
+    t_in, first, last = t0, tmax, 0.0
+    while True:
+        g = grid[i, j, k]
+        steps += 1
+        if g == SOLID:
+            return SOLID, steps, 0.0, 0.0
+        t_out = min(tx, ty, tz)
+        if g == SURFACE:
+            state = SURFACE
+            first = min(first, t_in)
+            last = max(last, min(t_out, t1))
+        if t_out > t1:
+            break
+        t_in = t_out
+        if tx <= ty and tx <= tz:
+            i += si
+            tx += dtx
+            if i < 0 or i >= nx:
+                break
+        elif ty <= tz:
+            j += sj
+            ty += dty
+            if j < 0 or j >= ny:
+                break
+        else:
+            k += sk
+            tz += dtz
+            if k < 0 or k >= nz:
+                break
+    if state == FREE:
+        return FREE, steps, 0.0, 0.0
+    margin = 0.5 * PAD * pitch / (abs(dx) + abs(dy) + abs(dz))
+    return SURFACE, steps, max(0.0, first - margin), min(tmax, last + margin)
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def classify_segments(grid, lo, pitch, org, dirs, tmax):
+    """`segment_class` of each segment: its class, voxels visited and the t range of its SURFACE voxels."""
+    n = len(org)
+    out, steps, t_range = np.empty(n, np.uint8), np.empty(n, np.int32), np.empty((n, 2))
+    for s in prange(n):
+        out[s], steps[s], t_range[s, 0], t_range[s, 1] = segment_class(
+            grid, lo, pitch, org[s, 0], org[s, 1], org[s, 2], dirs[s, 0], dirs[s, 1], dirs[s, 2], tmax[s])
+    return out, steps, t_range
 
 
 def is_closed(tris):
@@ -189,30 +218,27 @@ def build_shells(scene, bvh, min_triangles, resolution=RESOLUTION, use_cache=Tru
         pitch = float((hi - lo).max()) / (resolution - 2)
         lo = lo - pitch  # a free voxel layer all round: the border region is outside
         dims = np.maximum(np.ceil((hi - lo) / pitch).astype(np.int64) + 2, 3)
-        outer = np.zeros(dims, bool)
-        inner = np.zeros(dims, bool)
+        grid = np.zeros(dims, np.uint8)
         closed = []
         for shape, tris in zip(heavy, spans):
             marked = np.zeros(dims, bool)
             _mark(tris, lo, pitch, PAD * pitch, dims, marked)
-            outer |= marked
             ok = is_closed(tris) and not _emitter_within(emitter_boxes, tris)
+            inside = np.zeros(dims, bool)
             if ok:
                 labels, n_labels = ndimage.label(~marked)
                 inside = np.isin(labels, _inside_regions(labels, n_labels, lo, pitch, bvh,
                                                          shape.first_triangle, shape.n_triangles))
-                inner |= inside
-                outer |= inside
                 ok = bool(inside.any())
+            # one mesh's solid interior may hold another's surface (a nested mesh): surface wins
+            grid[inside & (grid == FREE)] = SOLID
+            grid[marked] = SURFACE
             closed.append(ok)
-        return {"inner": boundary_triangles(inner, lo, pitch).reshape(-1, 3, 3),
-                "outer": boundary_triangles(outer, lo, pitch).reshape(-1, 3, 3),
-                "grid": outer.astype(np.uint8), "lo": lo, "pitch": np.array(pitch), "closed": np.array(closed)}
+        return {"grid": grid, "lo": lo, "pitch": np.array(pitch), "closed": np.array(closed)}
 
     out, cached = load_or_build("shells", key, build, use_cache)
     report = [{"name": s.name, "triangles": s.n_triangles, "closed": bool(c)} for s, c in zip(heavy, out["closed"])]
-    return Shells(out["inner"], out["outer"], out["grid"], out["lo"], float(out["pitch"]), report,
-                  time.perf_counter() - t0, cached)
+    return Shells(out["grid"], out["lo"], float(out["pitch"]), report, time.perf_counter() - t0, cached)
 
 
 def _emitter_within(boxes, tris):
@@ -223,13 +249,12 @@ def _emitter_within(boxes, tris):
 
 @dataclass
 class ShellTests:
-    """What the fused kernel needs to test segments against shells: which shells apply (bit 1 inner, bit 2
-    outer), their BVHs, the BVH of the rest of the scene and the outer shell's grid."""
+    """What the fused kernel needs to decide segments by shells: whether there are any, the grid and the BVH
+    of the rest of the scene (without its heavy meshes), which the segments the grid finds clear are tested
+    against."""
 
-    flags: int
-    inner: object  # BVH
-    outer: object
-    rest: object
+    active: bool
+    rest: object  # BVH
     grid: np.ndarray
     lo: np.ndarray
     pitch: float
@@ -237,22 +262,27 @@ class ShellTests:
 
     @property
     def kernel_args(self):
-        return (self.flags, self.inner.arrays, self.outer.arrays, self.rest.arrays, self.grid, self.lo, self.pitch)
+        return (self.active, self.rest.arrays, self.grid, self.lo, self.pitch)
+
+    @property
+    def nbytes(self):
+        """Bytes the shells add: the grid and the rest-of-scene BVH (none without shells)."""
+        return self.grid.nbytes + self.rest.nbytes if self.active else 0
 
     @classmethod
     def none(cls, bvh):
-        """No shells: the kernel's shell arguments as placeholders (never traced)."""
-        return cls(0, bvh, bvh, bvh, np.zeros((1, 1, 1), np.uint8), np.zeros(3), 1.0)
+        """No shells: the kernel's shell arguments as placeholders (never walked)."""
+        return cls(False, bvh, np.zeros((1, 1, 1), np.uint8), np.zeros(3), 1.0)
 
 
 def shell_memory(scene, min_triangles):
     """Bytes of the shells' structures, by part: the BVH of the scene without its heavy meshes (triangles and
-    nodes, about 200 bytes a triangle), the grid and the shells' own BVHs (at most a few of the grid's faces)."""
+    nodes, about 200 bytes a triangle) and the grid (a byte a voxel)."""
     heavy = sum(s.n_triangles for s in scene.shapes if s.n_triangles >= min_triangles and s.emitter < 0)
     if not heavy:
         return {}
     return {"shells: BVH of the scene without heavy meshes": (scene.n_triangles - heavy) * 200,
-            "shells: voxel grid and shell BVHs (RESOLUTION)": RESOLUTION ** 3 * 16 + 12 * RESOLUTION ** 2 * 2 * 200}
+            "shells: voxel grid (RESOLUTION)": RESOLUTION ** 3}
 
 
 def shell_tests(scene, bvh, min_triangles, use_cache=True):
@@ -268,7 +298,4 @@ def shell_tests(scene, bvh, min_triangles, use_cache=True):
             keep[s.first_triangle:s.first_triangle + s.n_triangles] = False
     # a BVH needs a triangle: a scene of heavy meshes alone gets a degenerate one, which nothing hits
     rest = scene.triangles[keep] if keep.any() else np.repeat(shells.lo[None, None], 3, axis=1)
-    outer = build_bvh(shells.outer)
-    inner = build_bvh(shells.inner) if len(shells.inner) else outer
-    flags = (1 if len(shells.inner) else 0) | 2
-    return ShellTests(flags, inner, outer, build_bvh(rest), shells.grid, shells.lo, shells.pitch, shells)
+    return ShellTests(True, build_bvh(rest), shells.grid, shells.lo, shells.pitch, shells)

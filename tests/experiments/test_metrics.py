@@ -64,8 +64,23 @@ def test_render_seconds_leave_out_loading_and_the_bvh():
                          "repeats": [9.0, 8.5]},
              "intersection_tests": {"shadow": {"triangle": 10, "node": 20}, "triangle": 11, "node": 22},
              "camera_rays": 1, "shadow_rays": 1, "negative_pixels": {"negative_pixel_share": 0.0},
-             "negative_estimate_share": 0.0}
+             "negative_estimate_share": 0.0, "bvh": {"bytes": 1000}}
     render = SimpleNamespace(stats=stats, image=np.ones((2, 2, 3)))
     task = SimpleNamespace(scene="s", method=MethodSpec("e", "exact"), shadow_rays=1, spp=1, seed=0)
     assert cell_row(task, render, np.ones((2, 2, 3)), "e")["seconds"] == 8.5
     assert cell_row(task, render, np.ones((2, 2, 3)), "e", "render")["seconds"] == 3.5
+
+
+def test_tests_split_by_geometry_add_up_to_the_shadow_totals():
+    """Proxy tests come from the estimator's split, the scene's are the rest of the totals, shell voxels apart;
+    an estimator without a split tested the scene only."""
+    from probvis.experiments.results import tests_by_geometry
+
+    stats = {"intersection_tests": {"shadow": {"triangle": 100, "node": 400}},
+             "estimator": {"tests": {"proxy": {"node": 150, "triangle": 30}, "scene": {"node": 0, "triangle": 0},
+                                     "shells": {"voxel": 70}}}}
+    assert tests_by_geometry(stats) == {"scene": {"node": 250, "triangle": 70}, "proxy": {"node": 150, "triangle": 30},
+                                        "shell_voxels": 70}
+    stats["estimator"] = {"seconds": {}}
+    assert tests_by_geometry(stats) == {"scene": {"node": 400, "triangle": 100}, "proxy": {"node": 0, "triangle": 0},
+                                        "shell_voxels": 0}

@@ -88,7 +88,10 @@ def test_images_are_unbiased(q, shells):
     used = not e["emitters"][0]["exact_only"]  # auto may find that proxies do not pay on this small scene
     assert e["proxies"][0]["proxy_triangles"] < 1000 and (e["tests"]["proxy"]["node"] > 0) == used
     assert used or q == "auto"
-    assert (e["tests"]["shells"]["node"] > 0) == shells
+    assert (e["tests"]["shells"]["voxel"] > 0) == shells
+    # proxies' memory: their triangles twice (as given and in BVH order, 72 bytes each) and the BVH's nodes
+    assert e["memory_bytes"]["proxies"] > 2 * 72 * e["proxy_triangles"]
+    assert (e["memory_bytes"]["shells"] > 0) == shells
 
 
 class Checkerboard(ProxyVisibility):

@@ -5,13 +5,13 @@ import pytest
 import trimesh
 
 import probvis
-from probvis.accel import build_bvh, occluded_segments
+from probvis.accel import build_bvh
 from probvis.scene import SceneBuilder
 from probvis.scene import shapes as shp
 from probvis.scene import transform as tf
 from probvis.scene.scene import Camera
 from probvis.settings import RenderSettings
-from probvis.shells import boundary_triangles, build_shells, is_closed, shell_tests
+from probvis.shells import FREE, PAD, SOLID, SURFACE, build_shells, classify_segments, is_closed, shell_tests
 
 
 @pytest.fixture(autouse=True)
@@ -41,16 +41,9 @@ def sphere_scene(res=24, leaves=0, light_z=3.0):
 
 
 def shell_decisions(sh, org, d):
-    """Per segment: crosses the inner shell; starts outside the outer grid and misses the outer shell."""
-    n = len(org)
-    ones, ids = np.ones(n), np.arange(n)
-    inner = occluded_segments(build_bvh(sh.inner), org, d, ones, ids)[0]
-    outer = occluded_segments(build_bvh(sh.outer), org, d, ones, ids)[0]
-    idx = np.floor((org - sh.lo) / sh.pitch).astype(int)
-    ok = np.all((idx >= 0) & (idx < sh.grid.shape), axis=1)
-    start_in = np.zeros(n, bool)
-    start_in[ok] = sh.grid[tuple(idx[ok].T)] > 0
-    return inner, ~outer & ~start_in
+    """Per segment: enters a SOLID voxel (blocked); visits only FREE voxels (clear of the sphere)."""
+    state, _, _ = classify_segments(sh.grid, sh.lo, sh.pitch, org, d, np.ones(len(org)))
+    return state == SOLID, state == FREE
 
 
 def test_shell_decisions_agree_with_the_sphere():
@@ -83,8 +76,11 @@ def test_shells_never_change_an_exact_image():
     np.testing.assert_array_equal(plain.image, shelled.image)
     e = shelled.stats["estimator"]
     assert [m["closed"] for m in e["shells"]["meshes"]] == [True, False]
-    assert e["tests"]["shells"]["node"] > 0
+    assert e["tests"]["shells"]["voxel"] > 0
     assert e["tests"]["scene"]["node"] < plain.stats["intersection_tests"]["shadow"]["node"]
+    # their memory: a byte a voxel, and the BVH of the rest of the scene (the floor, the light); none without
+    assert e["memory_bytes"]["shells"] == e["shells"]["bytes"] > np.prod(e["shells"]["grid"])
+    assert plain.stats["estimator"]["memory_bytes"] == {}
 
 
 def test_open_and_broken_meshes_get_no_inner_shell():
@@ -95,20 +91,41 @@ def test_open_and_broken_meshes_get_no_inner_shell():
     assert not is_closed(np.concatenate([tris, tris[:1]]))  # a face three times over one edge: non-manifold
     scene = sphere_scene(light_z=0.5)  # the light inside the sphere's bounds: its inner shell could lie
     sh = build_shells(scene, build_bvh(scene.triangles), 1000)
-    assert sh.shapes[0]["closed"] is False and len(sh.inner) == 0 and len(sh.outer) > 0
+    assert sh.shapes[0]["closed"] is False and sh.solid_voxels == 0 and sh.surface_voxels > 0
 
 
-def test_a_voxel_boundary_is_its_cube():
-    occ = np.zeros((3, 3, 3), bool)
-    occ[1, 2, 0] = True
-    tris = boundary_triangles(occ, np.array([10.0, 20.0, 30.0]), 0.5)
-    assert tris.shape == (12, 3, 3)
-    np.testing.assert_allclose(tris.min((0, 1)), [10.5, 21.0, 30.0])
-    np.testing.assert_allclose(tris.max((0, 1)), [11.0, 21.5, 30.5])
-    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1).sum()
-    assert area == pytest.approx(6 * 0.25)
-    full = np.ones((4, 5, 6), bool)  # a box of voxels merges into one rectangle per side
-    assert boundary_triangles(full, np.zeros(3), 1.0).shape == (12, 3, 3)
+def test_the_walk_visits_the_voxels_a_segment_crosses():
+    """Against brute force on a 5x4x3 grid of random states: a segment's voxels are those whose box its
+    parameter interval overlaps (slab tests); its class is SOLID if any is, else the highest state; without
+    SOLID the walk visits each voxel once; with SURFACE its t range spans the SURFACE voxels'."""
+    rng = np.random.default_rng(7)
+    grid = rng.choice(np.array([FREE, FREE, FREE, SURFACE, SOLID], np.uint8), size=(5, 4, 3))
+    lo, pitch = np.array([-1.0, 2.0, 0.5]), 0.7
+    n = 3000
+    org = lo + rng.uniform(-1, 4.5, (n, 3)) * pitch
+    d = rng.normal(size=(n, 3)) * rng.uniform(0.1, 4, (n, 1))
+    d[:50, 1:] = 0.0  # along the first axis only
+    tmax = rng.uniform(0.2, 1.0, n)
+    state, steps, t_range = classify_segments(grid, lo, pitch, org, d, tmax)
+    cells = np.argwhere(np.ones(grid.shape, bool))
+    box_lo, box_hi = lo + cells * pitch, lo + (cells + 1) * pitch
+    for s in range(n):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ta, tb = (box_lo - org[s]) / d[s], (box_hi - org[s]) / d[s]
+        inside = (org[s] >= box_lo) & (org[s] <= box_hi)
+        t0 = np.where(d[s] == 0, np.where(inside, -np.inf, np.inf), np.minimum(ta, tb)).max(axis=1)
+        t1 = np.where(d[s] == 0, np.where(inside, np.inf, -np.inf), np.maximum(ta, tb)).min(axis=1)
+        hit = np.maximum(t0, 0) < np.minimum(t1, tmax[s])
+        states = grid[tuple(cells[hit].T)]
+        expect = SOLID if (states == SOLID).any() else (states.max() if len(states) else FREE)
+        assert state[s] == expect, s
+        if expect != SOLID:
+            assert steps[s] == hit.sum(), s
+        if expect == SURFACE:  # the t range of its SURFACE voxels, widened by at most half the padding
+            surface = hit & (grid[tuple(cells.T)] == SURFACE)
+            first, last = np.maximum(t0[surface], 0).min(), np.minimum(t1[surface], tmax[s]).max()
+            margin = 0.5 * PAD * pitch / np.abs(d[s]).sum() + 1e-12
+            assert first - margin <= t_range[s, 0] <= first and last <= t_range[s, 1] <= last + margin, s
 
 
 def test_shells_are_cached(cache):
@@ -116,6 +133,6 @@ def test_shells_are_cached(cache):
     bvh = build_bvh(scene.triangles)
     first, again = build_shells(scene, bvh, 1000), build_shells(scene, bvh, 1000)
     assert not first.cached and again.cached
-    np.testing.assert_array_equal(first.inner, again.inner)
+    np.testing.assert_array_equal(first.grid, again.grid)
     assert len(list(cache.glob("shells/*.npz"))) == 1
-    assert shell_tests(scene, bvh, 10 ** 6).flags == 0  # no mesh that heavy: no shells
+    assert not shell_tests(scene, bvh, 10 ** 6).active  # no mesh that heavy: no shells

@@ -208,6 +208,12 @@ class BVH:
         self.packed = _pack(self.bounds, self.node_index, self.node_count)
 
     @property
+    def nbytes(self):
+        """Bytes held: node arrays, their packed traversal records and the triangles in BVH order."""
+        return sum(a.nbytes for a in (self.bounds, self.node_index, self.node_count, self.tri_v, self.prim_ids,
+                                      self.packed))
+
+    @property
     def arrays(self):
         """The `BVHArrays` handed to the traversal kernels."""
         return BVHArrays(self.packed, self.packed.view(np.int64), self.bounds[:1].copy(), self.tri_v, self.prim_ids,
@@ -229,6 +235,7 @@ class BVH:
             "max_leaf_size": int(self.node_count.max()),
             "sah_cost": float(sah),
             "build_seconds": self.build_seconds,
+            "bytes": self.nbytes,
         }
 
 

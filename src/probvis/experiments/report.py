@@ -83,6 +83,27 @@ def _summary_cells(r, baseline):
             f"{_fmt(r['efficiency_time'])} (×{_fmt(r['efficiency_vs_baseline'], 2)})")
 
 
+def _mib(n):
+    return "–" if not n else f"{n / 2 ** 20:.1f} MiB"
+
+
+def _geometry_cells(r):
+    """A summary row's shadow-ray tests split by geometry (scene / proxy nodes and triangles, shell voxels
+    walked) and the memory of the estimator's own structures beside the scene BVH's."""
+    split = r["tests_by_geometry"]
+    return (f"{_fmt(split['scene']['node'])} / {_fmt(split['proxy']['node'])}",
+            f"{_fmt(split['scene']['triangle'])} / {_fmt(split['proxy']['triangle'])}",
+            _fmt(split["shell_voxels"]), _mib(r["estimator_bytes"]), _mib(r["scene_bvh_bytes"]))
+
+
+GEOMETRY_HEAD = ("method", "node tests (scene / proxy)", "triangle tests (scene / proxy)", "shell voxels walked",
+                 "own memory", "scene BVH")
+GEOMETRY_NOTE = ("Shadow-ray tests by the geometry they test (the scene's BVH — with shells, also the BVH of the "
+                 "scene without its heavy meshes —, the proxies', and the voxels the shells' walks visited; means "
+                 "over seeds) and the bytes of the estimator's own structures as built (proxies and their BVH, "
+                 "shells' grid and BVH, photons and kd-trees) beside the scene BVH's that every method shares.")
+
+
 class Report:
     """Writes the report of one measured study into `folder`."""
 
@@ -242,6 +263,12 @@ class Report:
                 r = self.results.summary_row(spec.name, m.name, rays)
                 cells = _summary_cells(r, m.name == exp.baseline)
                 lines.append(f"| {spec.name} | {m.name} | {' | '.join(cells)} |")
+        lines += ["", GEOMETRY_NOTE, "", "| scene | " + " | ".join(GEOMETRY_HEAD) + " |",
+                  "|---|---|---:|---:|---:|---:|---:|"]
+        for spec in exp.scenes:
+            for m in exp.methods:
+                r = self.results.summary_row(spec.name, m.name, rays)
+                lines.append(f"| {spec.name} | {m.name} | {' | '.join(_geometry_cells(r))} |")
         return "\n".join(lines) + "\n"
 
     # --- page --------------------------------------------------------------------------------------------
@@ -301,6 +328,19 @@ class Report:
                 "<th>RMSE</th><th>bias</th><th>neg. px</th><th>1/(relMSE·s)</th><th>× base</th><th>1/(relMSE·tests)</th></tr>")
         return f"<table class=detail><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
 
+    def _geometry_table(self):
+        """Tests split by geometry and the estimators' memory, a row per scene and method at the table's rays."""
+        e, rays = html.escape, self.exp.table_shadow_rays
+        rows = []
+        for spec in self.exp.scenes:
+            for m in self.exp.methods:
+                r = self.results.summary_row(spec.name, m.name, rays)
+                rows.append(f"<tr{' class=base' if r['baseline'] else ''}><td>{e(spec.name)}</td><td>{e(m.name)}</td>"
+                            + "".join(f"<td>{c}</td>" for c in _geometry_cells(r)) + "</tr>")
+        head = "<tr><th>scene</th>" + "".join(f"<th>{e(h)}</th>" for h in GEOMETRY_HEAD) + "</tr>"
+        return (f"<table class=detail id=geometry-table><caption>At {rays} shadow rays: {e(GEOMETRY_NOTE)}"
+                f"</caption><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>")
+
     def _target_table(self, scene):
         t = self.results.targets[scene]
         rows = "".join(f"<tr><td>{html.escape(m)}</td><td>{_fmt(v['seconds'])}</td><td>{_fmt(v['triangle_tests'])}"
@@ -354,6 +394,7 @@ Data: <a href=results.csv>results.csv</a>, <a href=results.json>results.json</a>
 <a href=results.md>results.md</a>.</p>
 <ul>{methods}</ul>
 <h2>Results</h2>{self._paper_table()}
+<h3>Tests by geometry and memory</h3>{self._geometry_table()}
 {''.join(sections)}
 <script src=viewer.js></script></body></html>
 """

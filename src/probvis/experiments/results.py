@@ -49,6 +49,17 @@ def biased_by_choice(stats):
     return bool(verification.get("biased")) or bool(stats["negative_pixels"].get("clamped"))
 
 
+def tests_by_geometry(stats):
+    """Shadow-ray tests by the geometry tested: node and triangle tests of the scene and of proxies (the
+    scene's are the rest of the shadow-ray totals: all of them for estimators that test only the scene) and
+    the voxels the shells' walks visited."""
+    split = (stats.get("estimator") or {}).get("tests") or {}
+    shadow = stats["intersection_tests"]["shadow"]
+    proxy = {k: int((split.get("proxy") or {}).get(k, 0)) for k in ("node", "triangle")}
+    return {"scene": {k: int(shadow[k]) - proxy[k] for k in ("node", "triangle")}, "proxy": proxy,
+            "shell_voxels": int((split.get("shells") or {}).get("voxel", 0))}
+
+
 def cell_row(task, render, reference, baseline_name, counted="total"):
     """One cell's metrics; its seconds count everything but JIT compilation, or with `counted` "render" only
     the render and the estimator's preparation (not the scene load and BVH every method shares)."""
@@ -70,6 +81,9 @@ def cell_row(task, render, reference, baseline_name, counted="total"):
         "shadow_rays_traced": s["shadow_rays"], "triangle_tests": tests,
         "node_tests": s["intersection_tests"]["shadow"]["node"],
         "triangle_tests_total": s["intersection_tests"]["triangle"],
+        "tests_by_geometry": tests_by_geometry(s),
+        "estimator_bytes": sum(((s.get("estimator") or {}).get("memory_bytes") or {}).values()),
+        "scene_bvh_bytes": s["bvh"].get("bytes", 0),
         "node_tests_total": s["intersection_tests"]["node"],
         "relmse": err, "rmse": metrics.rmse(render.image, reference),
         "negative_pixel_share": s["negative_pixels"]["negative_pixel_share"],
@@ -109,8 +123,13 @@ def _summarise(cells, bias):
             r["repeats_disagree"] for r in rows)
         row["seconds_phases"] = {k: statistics.median(r["seconds_phases"].get(k, 0.0) for r in rows)
                                  for k in first["seconds_phases"]}
-        for k in ("triangle_tests", "node_tests", "relmse", "rmse", "negative_pixel_share", "negative_estimate_share"):
+        for k in ("triangle_tests", "node_tests", "relmse", "rmse", "negative_pixel_share", "negative_estimate_share",
+                  "estimator_bytes", "scene_bvh_bytes"):
             row[k] = statistics.fmean(r[k] for r in rows)
+        row["tests_by_geometry"] = {g: {k: statistics.fmean(r["tests_by_geometry"][g][k] for r in rows)
+                                        for k in ("node", "triangle")} for g in ("scene", "proxy")}
+        row["tests_by_geometry"]["shell_voxels"] = statistics.fmean(r["tests_by_geometry"]["shell_voxels"]
+                                                                    for r in rows)
         row["efficiency_time"] = metrics.efficiency(row["relmse"], row["seconds"])
         row["efficiency_tests"] = metrics.efficiency(row["relmse"], row["triangle_tests"])
         out.append(row)

@@ -257,6 +257,12 @@ class VisibilityEstimator(abc.ABC):
         `prepare`. Name parts after what lowers them (see `probvis.memory`)."""
         return {}
 
+    def memory_bytes(self):
+        """Bytes by part of the estimator's own structures as built (proxies, shells, photons): what the
+        render's memory estimate predicted, measured."""
+        return {}
+
     def stats(self):
-        """Measurements accumulated over the render: at least the seconds of each declared phase."""
-        return {"seconds": dict(self.seconds)}
+        """Measurements accumulated over the render: at least the seconds of each declared phase and the
+        bytes of the estimator's own structures."""
+        return {"seconds": dict(self.seconds), "memory_bytes": self.memory_bytes()}

@@ -33,9 +33,9 @@ class ExactVisibility(VisibilityEstimator):
         if self.params.shells:
             with self.timed("shells"):
                 self.shells = shell_tests(scene, bvh, self.params.min_triangles, self.params.cache)
-            if self.shells.flags:
+            if self.shells.active:
                 self.fused_any_hit, self.fused_shade = False, True  # renders through the shell kernel
-        self.tests = np.zeros(6, np.int64)
+        self.tests = np.zeros(5, np.int64)
 
     def evaluate(self, query):
         occluded, n_node, n_tri = occluded_segments(self.bvh, query.origin, query.direction, query.tmax, query.point)
@@ -57,6 +57,9 @@ class ExactVisibility(VisibilityEstimator):
     def memory_estimate(self, scene, settings, batch_samples):
         return shell_memory(scene, self.params.min_triangles) if self.params.shells else {}
 
+    def memory_bytes(self):
+        return {"shells": self.shells.nbytes} if self.shells is not None else {}
+
     def stats(self):
         out = super().stats()
         if self.shells is not None:
@@ -65,11 +68,14 @@ class ExactVisibility(VisibilityEstimator):
 
 
 def shell_stats(shells, tests):
-    """The shells' report and the tests made, split between scene and shell geometry (and proxies)."""
+    """The shells' report and the tests made: node and triangle tests of proxy and scene geometry (the rest of
+    the scene's included), voxels the shells' walks visited."""
     s = shells.shells
-    out = {"tests": {k: {"node": int(tests[2 * i]), "triangle": int(tests[2 * i + 1])}
-                     for i, k in enumerate(("proxy", "scene", "shells"))}}
+    out = {"tests": {"proxy": {"node": int(tests[0]), "triangle": int(tests[1])},
+                     "scene": {"node": int(tests[2]), "triangle": int(tests[3])},
+                     "shells": {"voxel": int(tests[4])}}}
     if s is not None:
-        out["shells"] = {"meshes": s.shapes, "inner_triangles": len(s.inner), "outer_triangles": len(s.outer),
-                         "voxel": s.pitch, "seconds": s.seconds, "cached": s.cached}
+        out["shells"] = {"meshes": s.shapes, "grid": list(s.grid.shape), "voxel": s.pitch,
+                         "solid_voxels": s.solid_voxels, "surface_voxels": s.surface_voxels,
+                         "seconds": s.seconds, "cached": s.cached, "bytes": shells.nbytes}
     return out

@@ -105,7 +105,7 @@ class ProxyVisibility(VisibilityEstimator):
                minimum=4),
         Option("q", str, "auto", "probability of also testing a segment exactly: auto (efficiency-aware, per "
                "emitter) or a number in (0, 1]", check=_parse_q, metavar="auto|Q"),
-        Option("shells", bool, False, "decide segments exactly by conservative shells of the heavy meshes first"),
+        Option("shells", bool, True, "decide segments exactly by conservative shells of the heavy meshes first"),
         Option("cache", bool, True, "cache proxies and shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
     )
     phases = (
@@ -140,7 +140,7 @@ class ProxyVisibility(VisibilityEstimator):
         # sums per emitter (see `shade_proxy`): segments tested both ways, Σ (V - V_P)² w² / q, Σ w V / p,
         # Σ (w V)² / p, Σ 1 / p over those and the segments the shells decide (p = 1)
         self.sums = np.zeros((e, 5))
-        self.tests = np.zeros(6, np.int64)  # node and triangle tests: proxy, scene, shells
+        self.tests = np.zeros(5, np.int64)  # node and triangle tests: proxy, scene; shell voxels
         self.pilot_segments = 0
         self.costs = None  # (ρ, e) from the pilot: costs relative to exact visibility's fused kernel
         self.camera_cost = None  # κ: the camera rays' cost, relative to the same
@@ -155,7 +155,7 @@ class ProxyVisibility(VisibilityEstimator):
         """Exact visibility's fused kernel serves a render in which every region of every emitter went exact
         (and no shells decide segments first)."""
         exact = getattr(self, "exact", None)
-        return exact is not None and bool(exact.all()) and not self.shells.flags
+        return exact is not None and bool(exact.all()) and not self.shells.active
 
     def _pilot(self, scene, bvh, emitters, settings):
         """Measure costs, variance and mismatch per region on a small rendering of the camera's view: exact
@@ -188,7 +188,7 @@ class ProxyVisibility(VisibilityEstimator):
         pixel = (prim, its.position, its.normal, its.material, its.albedo, cases, keys, its.emitted, cam_node,
                  cam_tri, 1, n_shadow, n_pix)
         zeros, ones, none = np.zeros((n_pix, e)), np.ones((n_pix, e)), np.zeros((n_pix, e), bool)
-        exact = ((lambda: self._kernel(geom, emitters.arrays, pixel, ones, ~none)) if self.shells.flags else
+        exact = ((lambda: self._kernel(geom, emitters.arrays, pixel, ones, ~none)) if self.shells.active else
                  (lambda: shade_exact(geom, emitters.arrays, bvh.arrays, *pixel)))
         for name, run in (("exact", exact),
                           ("proxy", lambda: self._kernel(geom, emitters.arrays, pixel, zeros, none)),
@@ -293,6 +293,10 @@ class ProxyVisibility(VisibilityEstimator):
         if p.shells:
             out.update(shell_memory(scene, p.min_triangles))
         return out
+
+    def memory_bytes(self):
+        own = self.proxy_bvh.nbytes if self.proxy_bvh is not self.bvh else 0
+        return {"proxies": self.proxies.triangles.nbytes + own, "shells": self.shells.nbytes}
 
     def stats(self):
         out = super().stats()

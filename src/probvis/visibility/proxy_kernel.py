@@ -14,6 +14,7 @@ from ..film import CAM_NODE, CAM_TRI, N_COUNTS, NEGATIVE, SH_NODE, SH_TRI, add_s
 from ..parallel import spread
 from ..rng import mix64, uniform
 from ..segments import SHADOW_EPSILON
+from ..shells import FREE, SOLID, segment_class
 
 PIXELS_PER_BLOCK = 4
 CORRECTION_DIM = 1 << 21  # rng dimension of a segment's Bernoulli draw, apart from other estimators' draws
@@ -30,41 +31,31 @@ def _gather(org, dirs, idx, c, org2, dirs2):
 
 @njit(cache=True, error_model="numpy")
 def _trace(bvh, root, org, dirs, tmin, tmax, c, work, occ, n_node, n_tri):
-    """Any-hit tests of segments 0..c-1 in packets: the shell tests (not inlined: five inlined traversals take
-    Numba minutes to compile)."""
+    """Any-hit tests of segments 0..c-1 in packets: the rest of the scene's, after the shells (not inlined:
+    three inlined traversals take Numba minutes to compile)."""
     for lo in range(0, c, SHADOW_PACKET):
         occluded_packet(bvh, root, org, dirs, tmin, tmax, lo, min(SHADOW_PACKET, c - lo), work, occ, n_node, n_tri)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _in_grid(grid, lo, pitch, x, y, z):
-    """Whether point (x, y, z) lies in a set voxel of `grid` (corner `lo`, voxel size `pitch`)."""
-    i = np.int64(np.floor((x - lo[0]) / pitch))
-    j = np.int64(np.floor((y - lo[1]) / pitch))
-    k = np.int64(np.floor((z - lo[2]) / pitch))
-    if i < 0 or j < 0 or k < 0 or i >= grid.shape[0] or j >= grid.shape[1] or k >= grid.shape[2]:
-        return False
-    return grid[i, j, k] != 0
-
-
 @njit(cache=True, parallel=True, error_model="numpy")
 def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, emitted, cam_node, cam_tri, spp,
-                n_shadow, n_pix, q, exact_only, clearance, shells, inner, outer, rest, grid, grid_lo, pitch):
+                n_shadow, n_pix, q, exact_only, clearance, shells, rest, grid, grid_lo, pitch):
     """The film of a batch of whole pixels (as `fused_exact.shade_exact`) with V_P + B (V - V_P) / q per segment,
     B ~ Bernoulli(q[pixel, emitter]) (V alone where `exact_only[pixel, emitter]`); the proxy test ignores the
     first `clearance` of each segment.
 
-    With `shells` (bit 1: an inner shell, bit 2: an outer shell; see `probvis.shells`), a segment crossing the
-    `inner` shell is blocked, and one that starts outside `grid` and misses the `outer` shell is tested against
-    `rest` (the scene without its heavy meshes) alone: both exactly, with no proxy test and no variance.
+    With `shells` (see `probvis.shells`), a segment whose walk through `grid` enters a SOLID voxel is blocked,
+    and one that visits only FREE voxels is tested against `rest` (the scene without its heavy meshes) alone:
+    both exactly, with no proxy test and no variance. The exact test of the others covers the scene only over
+    the t range of their SURFACE voxels (where heavy meshes can be) and `rest` over the whole segment.
 
     Also returns per pixel and emitter the sums behind δ, (segments tested both ways, Σ ((V - V_P) w)² / q, Σ w V / p,
     Σ (w V)² / p, Σ 1 / p) over segments decided by the shells (p = 1) and segments tested both ways (p = q), w
-    the luminance of the unoccluded contribution; and the node and triangle tests against the proxies, the
-    scene (with `rest`) and the shells."""
+    the luminance of the unoccluded contribution; and the node and triangle tests against the proxies and the
+    scene (with `rest`), and the shells' voxels visited."""
     root_s, root_p = root_record(bvh.root), root_record(proxy.root)
-    root_i, root_o, root_r = root_record(inner.root), root_record(outer.root), root_record(rest.root)
-    depth = max(bvh.stack_depth, proxy.stack_depth, inner.stack_depth, outer.stack_depth, rest.stack_depth)
+    root_r = root_record(rest.root)
+    depth = max(bvh.stack_depth, proxy.stack_depth, rest.stack_depth)
     n_emit = q.shape[1]
     img = np.zeros((n_pix, 3))
     m2 = np.zeros((n_pix, 3))
@@ -72,7 +63,7 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
     n_seg = np.zeros(n_pix, np.int64)
     n_blocks = (n_pix + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
     sums = np.zeros((n_pix, n_emit, 5))
-    tests = np.zeros((n_blocks, 6), np.int64)  # node and triangle tests: proxy, scene, shells
+    tests = np.zeros((n_blocks, 5), np.int64)  # node and triangle tests: proxy, scene; shell voxels
     for it in prange(n_blocks):
         blk = spread(it, n_blocks)
         org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
@@ -84,9 +75,11 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
         tmax = np.full(n_shadow, 1.0 - SHADOW_EPSILON)
         occ = np.empty(n_shadow, np.bool_)
         n_node, n_tri = np.empty(n_shadow, np.int32), np.empty(n_shadow, np.int32)
-        idx = np.empty(n_shadow, np.int64)
+        idx, idx2 = np.empty(n_shadow, np.int64), np.empty(n_shadow, np.int64)
+        org3, dirs3 = np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
+        t_lo, t_hi, t_end = np.empty(n_shadow), np.empty(n_shadow), np.empty(n_shadow)
+        occ2 = np.empty(n_shadow, np.bool_)
         decided = np.empty(n_shadow, np.bool_)
-        near = np.empty(n_shadow, np.bool_)
         value = np.empty(n_shadow)
         work = packet_work(depth)
         for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
@@ -99,37 +92,23 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
                 for k in range(m):
                     decided[k] = False
                     value[k] = 0.0
-                if shells & 1:
-                    _trace(inner, root_i, org, dirs, zero, tmax, m, work, occ, n_node, n_tri)
-                    for k in range(m):
-                        decided[k] = occ[k]
-                        tests[blk, 4] += n_node[k]
-                        tests[blk, 5] += n_tri[k]
-                        counts[px, SH_NODE] += n_node[k]
-                        counts[px, SH_TRI] += n_tri[k]
-                if shells & 2:
+                    t_lo[k] = 0.0
+                    t_hi[k] = tmax[k]
+                if shells:  # walk the shells' grid; the segments it finds clear meet the rest of the scene only
                     c = 0
                     for k in range(m):
-                        near[k] = not decided[k] and _in_grid(grid, grid_lo, pitch, org[k, 0], org[k, 1], org[k, 2])
-                        if not decided[k] and not near[k]:
+                        state, steps, t_lo[k], t_hi[k] = segment_class(
+                            grid, grid_lo, pitch, org[k, 0], org[k, 1], org[k, 2], dirs[k, 0], dirs[k, 1], dirs[k, 2],
+                            tmax[k])
+                        tests[blk, 4] += steps
+                        if state == SOLID:
+                            decided[k] = True
+                        elif state == FREE:
                             idx[c] = k
                             c += 1
                     _gather(org, dirs, idx, c, org2, dirs2)
-                    _trace(outer, root_o, org2, dirs2, zero, tmax, c, work, occ, n_node, n_tri)
-                    f = 0
+                    _trace(rest, root_r, org2, dirs2, zero, tmax, c, work, occ, n_node, n_tri)
                     for j in range(c):
-                        tests[blk, 4] += n_node[j]
-                        tests[blk, 5] += n_tri[j]
-                        counts[px, SH_NODE] += n_node[j]
-                        counts[px, SH_TRI] += n_tri[j]
-                        if occ[j]:
-                            near[idx[j]] = True
-                        else:
-                            idx[f] = idx[j]
-                            f += 1
-                    _gather(org, dirs, idx, f, org2, dirs2)
-                    _trace(rest, root_r, org2, dirs2, zero, tmax, f, work, occ, n_node, n_tri)
-                    for j in range(f):
                         k = idx[j]
                         decided[k] = True
                         value[k] = 1.0 - np.float64(occ[j])
@@ -171,19 +150,38 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
                     if not decided[k] and (exact_only[px, e] or
                                            uniform(mix64(keys[i] + np.uint64(k + 1)), CORRECTION_DIM) < q[px, e]):
                         idx[c] = k
+                        tmin[c] = t_lo[k]
+                        t_end[c] = t_hi[k]
                         c += 1
-                _gather(org, dirs, idx, c, org2, dirs2)
-                for lo in range(0, c, SHADOW_PACKET):
-                    occluded_packet(bvh, root_s, org2, dirs2, zero, tmax, lo, min(SHADOW_PACKET, c - lo), work, occ,
-                                    n_node, n_tri)
+                if c < m:
+                    _gather(org, dirs, idx, c, org2, dirs2)
+                for lo in range(0, c, SHADOW_PACKET):  # with shells, only where heavy meshes can block
+                    occluded_packet(bvh, root_s, org if c == m else org2, dirs if c == m else dirs2, tmin, t_end, lo,
+                                    min(SHADOW_PACKET, c - lo), work, occ, n_node, n_tri)
                 for j in range(c):
-                    k = idx[j]
-                    e = s_emit[k]
-                    v = 1.0 - np.float64(occ[j])
                     counts[px, SH_NODE] += n_node[j]
                     counts[px, SH_TRI] += n_tri[j]
                     tests[blk, 2] += n_node[j]
                     tests[blk, 3] += n_tri[j]
+                    occ2[j] = occ[j]
+                if shells:  # and the rest of the scene along the whole segment, where that found no blocker
+                    f = 0
+                    for j in range(c):
+                        if not occ[j]:
+                            idx2[f] = j
+                            f += 1
+                    _gather(org if c == m else org2, dirs if c == m else dirs2, idx2, f, org3, dirs3)
+                    _trace(rest, root_r, org3, dirs3, zero, tmax, f, work, occ, n_node, n_tri)
+                    for j in range(f):
+                        occ2[idx2[j]] = occ[j]
+                        counts[px, SH_NODE] += n_node[j]
+                        counts[px, SH_TRI] += n_tri[j]
+                        tests[blk, 2] += n_node[j]
+                        tests[blk, 3] += n_tri[j]
+                for j in range(c):
+                    k = idx[j]
+                    e = s_emit[k]
+                    v = 1.0 - np.float64(occ2[j])
                     if exact_only[px, e]:
                         value[k] = v
                         continue

@@ -253,5 +253,11 @@ class OcclusionMapVisibility(VisibilityEstimator):
         self._stats["culled_candidates"] += int(n_cull.sum())
         return vis, n_tri
 
+    def memory_bytes(self):
+        ph = self.map.photons
+        trees = sum(t.data.nbytes + t.indices.nbytes for t in self.map.trees if t is not None)
+        return {"photons": sum(a.nbytes for a in (ph.position, ph.normal, ph.emitter, ph.n_blockers, ph.start,
+                                                 ph.ray_tris)), "kd-trees": trees}
+
     def stats(self):
         return {**super().stats(), **self._stats, "verification": self.tally.stats(self.params.verify)}
