@@ -99,8 +99,8 @@ def _geometry_cells(r):
 GEOMETRY_HEAD = ("method", "node tests (scene / proxy)", "triangle tests (scene / proxy)", "shell voxels walked",
                  "own memory", "scene BVH")
 GEOMETRY_NOTE = ("Shadow-ray tests by the geometry they test (the scene's BVH — with shells, also the BVH of the "
-                 "scene without its heavy meshes —, the proxies', and the voxels the shells' walks visited; means "
-                 "over seeds) and the bytes of the estimator's own structures as built (proxies and their BVH, "
+                 "scene without its heavy meshes —, the proxies', and the voxels the shells' walks visited, which "
+                 "the tests columns elsewhere do not count; means over seeds) and the bytes of the estimator's own structures as built (proxies and their BVH, "
                  "shells' grid and BVH, photons and kd-trees) beside the scene BVH's that every method shares.")
 
 

@@ -1,8 +1,9 @@
 """Exact visibility: every shadow segment is tested against the whole scene's BVH (any-hit, early exit), the
 segments of one shading point traversed together as a packet.
 
-With `shells`, heavy meshes get conservative shells (`probvis.shells`) that decide some segments first: one
-crossing an inner shell is blocked, one missing the outer shells is tested against the rest of the scene only.
+With `shells`, heavy meshes get conservative shells (`probvis.shells`, a voxel grid each segment walks) that
+decide some segments first: one crossing an inner shell is blocked, one missing the outer shells is tested
+against the rest of the scene only, and the others against the scene only where they cross the outer shells.
 The answer is the same for every segment (tested bit for bit); only the tests made differ."""
 import numpy as np
 
@@ -22,7 +23,7 @@ class ExactVisibility(VisibilityEstimator):
         Option("cache", bool, True, "cache shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
     )
     phases = (
-        Phase("shells", "prepare", "building shells around heavy meshes and their BVHs (or reading the cache)"),
+        Phase("shells", "prepare", "building the shells' voxel grid and the BVH of the rest of the scene (or reading the cache)"),
         Phase("render_kernel", "batch", "with shells: sampling, shell and scene tests and the film, fused"),
     )
     fused_any_hit = True

@@ -111,7 +111,7 @@ class ProxyVisibility(VisibilityEstimator):
     phases = (
         Phase("proxies", "prepare", "decimating heavy meshes (or reading them from the cache)"),
         Phase("proxy_bvh", "prepare", "building the proxy geometry's BVH"),
-        Phase("shells", "prepare", "building shells around heavy meshes and their BVHs (or reading the cache)"),
+        Phase("shells", "prepare", "building the shells' voxel grid and the BVH of the rest of the scene (or reading the cache)"),
         Phase("pilot", "prepare", "measuring proxy and scene tests on a small view of the scene (q=auto)"),
         Phase("render_kernel", "batch", "sampling, proxy and scene tests and the film, fused"),
         Phase("proxy_trace", "batch", "testing segments against the proxies (staged interface)"),

@@ -256,8 +256,9 @@ class OcclusionMapVisibility(VisibilityEstimator):
     def memory_bytes(self):
         ph = self.map.photons
         trees = sum(t.data.nbytes + t.indices.nbytes for t in self.map.trees if t is not None)
+        groups = sum(a.nbytes for a in self.map.groups)  # group per triangle, CSR offsets, triangle ids
         return {"photons": sum(a.nbytes for a in (ph.position, ph.normal, ph.emitter, ph.n_blockers, ph.start,
-                                                 ph.ray_tris)), "kd-trees": trees}
+                                                 ph.ray_tris)), "kd-trees": trees, "blocker groups": groups}
 
     def stats(self):
         return {**super().stats(), **self._stats, "verification": self.tally.stats(self.params.verify)}
