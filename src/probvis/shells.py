@@ -269,6 +269,19 @@ class ShellTests:
         """Bytes the shells add: the grid and the rest-of-scene BVH (none without shells)."""
         return self.grid.nbytes + self.rest.nbytes if self.active else 0
 
+    def stats(self, tests):
+        """The shells' report and the tests made (`shade_proxy`'s five counts): node and triangle tests of proxy
+        and scene geometry (the rest of the scene's included), voxels the shells' walks visited."""
+        out = {"tests": {"proxy": {"node": int(tests[0]), "triangle": int(tests[1])},
+                         "scene": {"node": int(tests[2]), "triangle": int(tests[3])},
+                         "shells": {"voxel": int(tests[4])}}}
+        s = self.shells
+        if s is not None:
+            out["shells"] = {"meshes": s.shapes, "grid": list(s.grid.shape), "voxel": s.pitch,
+                             "solid_voxels": s.solid_voxels, "surface_voxels": s.surface_voxels,
+                             "seconds": s.seconds, "cached": s.cached, "bytes": self.nbytes}
+        return out
+
     @classmethod
     def none(cls, bvh):
         """No shells: the kernel's shell arguments as placeholders (never walked)."""

@@ -64,19 +64,6 @@ class ExactVisibility(VisibilityEstimator):
     def stats(self):
         out = super().stats()
         if self.shells is not None:
-            out.update(shell_stats(self.shells, self.tests))
+            out.update(self.shells.stats(self.tests))
         return out
 
-
-def shell_stats(shells, tests):
-    """The shells' report and the tests made: node and triangle tests of proxy and scene geometry (the rest of
-    the scene's included), voxels the shells' walks visited."""
-    s = shells.shells
-    out = {"tests": {"proxy": {"node": int(tests[0]), "triangle": int(tests[1])},
-                     "scene": {"node": int(tests[2]), "triangle": int(tests[3])},
-                     "shells": {"voxel": int(tests[4])}}}
-    if s is not None:
-        out["shells"] = {"meshes": s.shapes, "grid": list(s.grid.shape), "voxel": s.pitch,
-                         "solid_voxels": s.solid_voxels, "surface_voxels": s.surface_voxels,
-                         "seconds": s.seconds, "cached": s.cached, "bytes": shells.nbytes}
-    return out

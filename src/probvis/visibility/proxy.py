@@ -37,7 +37,6 @@ from ..rng import uniforms
 from ..settings import MAX_SEED
 from ..shells import ShellTests, shell_memory, shell_tests
 from .base import Option, Phase, VisibilityEstimator, VisibilityResult
-from .exact import shell_stats
 from .proxy_kernel import CORRECTION_DIM, shade_proxy
 
 PILOT_Q = 0.5  # q where the pilot measured nothing (it found no segment)
@@ -317,5 +316,5 @@ class ProxyVisibility(VisibilityEstimator):
                           "predicted_gain": None if not np.isfinite(self.gain[k]) else float(self.gain[k])}
                          for k in range(len(n))],
         })
-        out.update(shell_stats(self.shells, self.tests))
+        out.update(self.shells.stats(self.tests))
         return out

@@ -116,8 +116,7 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
                         tests[blk, 3] += n_tri[j]
                         counts[px, SH_NODE] += n_node[j]
                         counts[px, SH_TRI] += n_tri[j]
-                if shells:
-                    for k in range(m):
+                    for k in range(m):  # decided segments count in the variance with p = 1
                         e = s_emit[k]
                         if decided[k] and not exact_only[px, e]:
                             wv = value[k] * (0.212671 * contrib[k, 0] + 0.715160 * contrib[k, 1]
