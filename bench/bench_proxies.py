@@ -2,7 +2,7 @@
 `python3 bench/bench_proxies.py [--runs 2] [--res 256] [--spp 16] [--shadow-rays 16] [--scenes ...]`.
 
 Per scene (the heavy built-ins, and the shared scenes when ../shared is beside the repository) and method
-(exact; proxy with efficiency-aware q; proxy at fixed q), `--runs` seeds alternate between methods in this
+(exact; proxy with efficiency-aware q; proxy at fixed q; proxy with decimated meshes only), `--runs` seeds alternate between methods in this
 process. Seconds are the render phase plus the estimator's own preparation (proxies come from the cache after
 the first run, which is not timed), without JIT compile, scene loading and the scene BVH that every method
 shares. relMSE is against a reference: the shared scenes' Mitsuba 3 renders, or for a built-in an exact render
@@ -25,7 +25,8 @@ from probvis.io import read_exr, write_exr
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 METHODS = [("exact", "exact", {}), ("exact shells", "exact", {"shells": True}), ("proxy auto", "proxy", {}),
            ("auto no shells", "proxy", {"shells": False}), ("proxy q=0.1", "proxy", {"q": "0.1"}),
-           ("q=0.1 no shells", "proxy", {"shells": False, "q": "0.1"}), ("proxy q=0.5", "proxy", {"q": "0.5"})]
+           ("q=0.1 no shells", "proxy", {"shells": False, "q": "0.1"}), ("proxy q=0.5", "proxy", {"q": "0.5"}),
+           ("proxy mesh", "proxy", {"kind": "mesh"}), ("mesh no shells", "proxy", {"kind": "mesh", "shells": False})]
 
 
 def relmse(x, ref):
@@ -109,7 +110,9 @@ def main():
             e = rows[label][-1][2]
             if "emitters" in e:
                 em = e["emitters"][0]
-                extra = (f"  q {em['q'] if em['q'] is None else round(em['q'], 3)}, exact-only {em['exact_only']}, "
+                kinds = "/".join(sorted({p["kind"] for p in e["proxies"]})) or "none"
+                extra = (f"  {kinds}, q {em['q'] if em['q'] is None else round(em['q'], 3)}, exact-only "
+                         f"{em['exact_only']}, predicted gain {em['predicted_gain'] and round(em['predicted_gain'], 2)}, "
                          f"rho {e['cost_ratio'] and round(e['cost_ratio'], 3)}, delta "
                          f"{em['mismatch_energy'] and round(em['mismatch_energy'], 4)}, proxy triangles "
                          f"{e['proxy_triangles']:,}, tests proxy/scene nodes {e['tests']['proxy']['node']:,}/"

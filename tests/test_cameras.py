@@ -58,7 +58,7 @@ def test_camera_rays_are_mitsuba_s(tmp_path, params, film):
     ours = probvis.load_scene(path)
     cam = ours.camera
     theirs = mi.load_file(str(path), spp=1).sensors()[0]
-    org, dirs, _, _, _ = camera_rays(camera_params(cam), 1, 3, 0, cam.width * cam.height)
+    org, dirs, _, _, _ = camera_rays(camera_params(cam), 1, 3, np.arange(cam.width * cam.height))
     for pix in range(0, cam.width * cam.height, 7):
         key = np.uint64(make_key(3, STREAM_CAMERA, pix))  # numba hands the uint64 back as a Python int
         pos = mi.Point2f(((pix % cam.width) + uniform(key, 0)) / cam.width,
@@ -73,7 +73,7 @@ def test_thin_lens_rays_meet_mitsuba_s_in_the_focal_plane(tmp_path):
     path = scene_file(tmp_path, sensor_xml("thinlens", params))
     cam = probvis.load_scene(path).camera
     theirs = mi.load_file(str(path), spp=1).sensors()[0]
-    org, dirs, _, _, _ = camera_rays(camera_params(cam), 1, 5, 0, cam.width * cam.height)
+    org, dirs, _, _, _ = camera_rays(camera_params(cam), 1, 5, np.arange(cam.width * cam.height))
     m = cam.to_world
     eye, forward = m[:3, 3], m[:3, 2]
     radii = []

@@ -93,22 +93,22 @@ def filter_offset(cdf, radius, u, lo, hi):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def camera_rays(cam, spp, seed, pixel0, pixel1):
-    """Rays for pixels [pixel0, pixel1) of the image (row-major), `spp` per pixel, pixel-major order.
+def camera_rays(cam, spp, seed, pixels):
+    """Rays for `pixels` of the image (row-major indices, an int64 array), `spp` per pixel, pixel-major order.
 
     Returns origins, unit directions, tmin, tmax and the rng key of each camera sample.
     """
     m, tan_x, tan_y, width = cam.to_world, cam.tan_x, cam.tan_y, cam.width
     near, far, fw, fh = cam.near_clip, cam.far_clip, cam.film_width, cam.film_height
     boxed = cam.filter_cdf.shape[0] == 0
-    n = (pixel1 - pixel0) * spp
+    n = len(pixels) * spp
     org = np.empty((n, 3))
     dirs = np.empty((n, 3))
     tmin = np.empty(n)
     tmax = np.empty(n)
     keys = np.empty(n, np.uint64)
     for i in prange(n):
-        pix = pixel0 + i // spp
+        pix = pixels[i // spp]
         s = i % spp
         key = make_key(seed, STREAM_CAMERA, pix * spp + s)
         px = cam.crop_x + pix % width

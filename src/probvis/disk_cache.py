@@ -10,7 +10,7 @@ import numpy as np
 
 
 def cache_dir(kind):
-    """Where entries of `kind` ("proxies", "shells") are cached."""
+    """Where entries of `kind` ("proxies", "shells", "parts") are cached."""
     return Path(os.environ.get("PROBVIS_CACHE_DIR") or Path.home() / ".cache" / "probvis") / kind
 
 

@@ -101,7 +101,7 @@ def render_pass(scene, settings, estimator, progress=False):
             for p0 in range(0, n_pix_total, per_batch):
                 check_interrupt()
                 p1 = min(n_pix_total, p0 + per_batch)
-                org, dirs, tmin, tmax, keys = camera_rays(cam, spp, settings.seed, p0, p1)
+                org, dirs, tmin, tmax, keys = camera_rays(cam, spp, settings.seed, np.arange(p0, p1))
                 prim, _, b1, b2, cam_node, cam_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
                 its = surface_interactions(geom, textures, prim, b1, b2, dirs)
                 for scale in env_scale:

@@ -5,7 +5,9 @@ Geometry Proxies", EGSR 2014).
 Each shape of at least `min_triangles` triangles is welded into an indexed mesh and decimated by quadric error
 (the `fast-simplification` package: Garland-Heckbert quadrics, the same fast algorithm as pyfqmr, maintained
 by the PyVista project) to `ratio` of its triangles or to `triangles`; smaller shapes enter the proxy
-geometry unchanged. A shape the decimator cannot handle keeps its own triangles, with a warning: a proxy is
+geometry unchanged. A heavy shape made mostly of separate small parts (foliage: nothing for decimation to
+collapse) is prefiltered into an extinction grid instead (`transmittance`), with `kind="auto"`; `kind`
+"mesh" or "volume" forces one for every heavy shape. A shape the decimator cannot handle keeps its own triangles, with a warning: a proxy is
 only ever an approximation that the estimator corrects, so a missing one costs speed, never correctness.
 Proxies are cached on disk (`disk_cache`), keyed by the SHA-256 of the shape's triangles and the decimation
 target.
@@ -17,18 +19,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .disk_cache import content_key, load_or_build
+from .transmittance import ExtinctionGrid, extinction_grid, mostly_small_parts
 
 MIN_TRIANGLES = 100_000  # shapes below this are cheap already (their BVH stays in cache): kept unchanged
 CACHE_VERSION = 2
+KINDS = ("auto", "mesh", "volume")
 
 
 @dataclass
 class ProxyGeometry:
-    """The proxy triangles (decimated heavy shapes plus the other shapes as they are) and a report per
-    decimated shape."""
+    """The proxy triangles (decimated heavy shapes plus the other shapes as they are), the extinction grid of
+    the heavy shapes prefiltered as volumes, and a report per heavy shape."""
 
     triangles: np.ndarray  # (m, 3, 3)
-    shapes: list = field(default_factory=list)  # dicts: name, triangles, proxy_triangles, seconds, cached
+    shapes: list = field(default_factory=list)  # dicts: name, kind, triangles, proxy_triangles, seconds, cached
+    volume: ExtinctionGrid = field(default_factory=ExtinctionGrid.none)
     seconds: float = 0.0
     # how far a proxy may stray from its mesh (the largest mean edge length of a decimated shape's proxy): a
     # segment starting on a heavy mesh ignores proxy geometry this close to its origin, where the proxy would
@@ -37,7 +42,11 @@ class ProxyGeometry:
 
     @property
     def n_decimated(self):
-        return sum(1 for s in self.shapes if s["proxy_triangles"] is not None)
+        return sum(1 for s in self.shapes if s["kind"] == "mesh" and s["proxy_triangles"] is not None)
+
+    @property
+    def n_volumes(self):
+        return sum(1 for s in self.shapes if s["kind"] == "volume")
 
 
 def target_count(n, ratio=None, triangles=None):
@@ -87,18 +96,32 @@ def _cached_decimate(tris, target, use_cache):
     return (None if out is None else out["triangles"]), (why[0] if why else None), cached
 
 
-def build_proxies(scene, ratio=0.01, triangles=None, min_triangles=MIN_TRIANGLES, use_cache=True):
+def _cached_small_parts(tris, use_cache):
+    """`transmittance.mostly_small_parts` of a triangle soup, welded (seconds for a million triangles) once."""
+    def build():
+        return {"vertices": np.array(len(weld(tris)[0]))}
+
+    out, _ = load_or_build("parts", content_key(f"welded vertices v{CACHE_VERSION}", tris), build, use_cache)
+    return mostly_small_parts(int(out["vertices"]), len(tris))
+
+
+def build_proxies(scene, ratio=0.01, triangles=None, min_triangles=MIN_TRIANGLES, use_cache=True, kind="auto"):
     """`ProxyGeometry` of a scene: shapes of at least `min_triangles` decimated to `ratio` of their triangles
-    (or to `triangles` each), the others kept."""
+    (or to `triangles` each) or, by `kind`, prefiltered into the extinction grid; the others kept."""
     t0 = time.perf_counter()
-    parts, report, clearance = [], [], 0.0
+    parts, volumes, report, clearance = [], [], [], 0.0
     for shape in scene.shapes:
         tris = scene.triangles[shape.first_triangle:shape.first_triangle + shape.n_triangles]
         if shape.n_triangles < min_triangles or shape.emitter >= 0:
             parts.append(tris)
             continue
-        target = target_count(shape.n_triangles, ratio, triangles)
         t = time.perf_counter()
+        if kind == "volume" or (kind == "auto" and _cached_small_parts(tris, use_cache)):
+            volumes.append(tris)
+            report.append({"name": shape.name, "kind": "volume", "triangles": shape.n_triangles,
+                           "proxy_triangles": None, "seconds": time.perf_counter() - t, "cached": None})
+            continue
+        target = target_count(shape.n_triangles, ratio, triangles)
         proxy, why, cached = _cached_decimate(tris, target, use_cache)
         if proxy is None:
             warnings.warn(f"proxies: shape '{shape.name}' keeps its {shape.n_triangles} triangles: {why}",
@@ -107,7 +130,11 @@ def build_proxies(scene, ratio=0.01, triangles=None, min_triangles=MIN_TRIANGLES
         if proxy is not None:
             edges = np.linalg.norm(proxy - np.roll(proxy, 1, axis=1), axis=2)
             clearance = max(clearance, float(edges.mean()))
-        report.append({"name": shape.name, "triangles": shape.n_triangles,
+        report.append({"name": shape.name, "kind": "mesh", "triangles": shape.n_triangles,
                        "proxy_triangles": None if proxy is None else len(proxy),
                        "seconds": time.perf_counter() - t, "cached": cached})
-    return ProxyGeometry(np.ascontiguousarray(np.concatenate(parts)), report, time.perf_counter() - t0, clearance)
+    volume = extinction_grid(volumes) if volumes else ExtinctionGrid.none()
+    if not parts:  # every shape prefiltered: a BVH needs a triangle, a degenerate one that nothing hits
+        parts.append(np.repeat(volumes[0][:1, :1], 3, axis=1))
+    return ProxyGeometry(np.ascontiguousarray(np.concatenate(parts)), report, volume, time.perf_counter() - t0,
+                         clearance)

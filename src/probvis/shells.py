@@ -28,6 +28,7 @@ from scipy import ndimage
 from .disk_cache import content_key, load_or_build
 from .proxies import weld
 from .scene.scene import EMITTER_POINT, EMITTER_SPOT
+from .voxels import axis_start, grid_placement, slab
 
 RESOLUTION = 64  # voxels along the longest side of the heavy meshes' bounds
 PAD = 1e-3  # triangle bounds are padded by this fraction of a voxel: a segment leaving a heavy mesh starts inside
@@ -75,43 +76,20 @@ def _mark(tris, lo, pitch, pad, dims, grid):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _slab(o, d, lo, hi, t0, t1):
-    """The interval [t0, t1] narrowed to where o + t d lies in [lo, hi] (empty: t0 > t1)."""
-    if d != 0.0:
-        ta, tb = (lo - o) / d, (hi - o) / d
-        return max(t0, min(ta, tb)), min(t1, max(ta, tb))
-    if o < lo or o > hi:
-        return 1.0, 0.0
-    return t0, t1
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _axis_start(o, d, lo, pitch, p, n):
-    """Along one axis: the voxel holding coordinate p (clamped into the grid), the step, the t of the next
-    voxel boundary and the t between boundaries, for the segment o + t d."""
-    i = min(n - 1, max(0, np.int64(np.floor((p - lo) / pitch))))
-    if d > 0.0:
-        return i, 1, (lo + (i + 1) * pitch - o) / d, pitch / d
-    if d < 0.0:
-        return i, -1, (lo + i * pitch - o) / d, -pitch / d
-    return i, 0, np.inf, np.inf
-
-
-@njit(cache=True, error_model="numpy", inline="always")
 def segment_class(grid, lo, pitch, ox, oy, oz, dx, dy, dz, tmax):
     """Walk the voxels the segment o + t d, t in [0, tmax], passes through: SOLID (it crosses an inner shell:
     blocked), SURFACE (it meets the outer shells: undecided) or FREE (clear of every heavy mesh); the voxels
     visited; and for SURFACE the t range from entering its first SURFACE voxel to leaving its last, widened by
     half the padding (a heavy mesh can block it only there)."""
     nx, ny, nz = grid.shape
-    t0, t1 = _slab(ox, dx, lo[0], lo[0] + nx * pitch, 0.0, tmax)
-    t0, t1 = _slab(oy, dy, lo[1], lo[1] + ny * pitch, t0, t1)
-    t0, t1 = _slab(oz, dz, lo[2], lo[2] + nz * pitch, t0, t1)
+    t0, t1 = slab(ox, dx, lo[0], lo[0] + nx * pitch, 0.0, tmax)
+    t0, t1 = slab(oy, dy, lo[1], lo[1] + ny * pitch, t0, t1)
+    t0, t1 = slab(oz, dz, lo[2], lo[2] + nz * pitch, t0, t1)
     if t0 > t1:
         return FREE, 0, 0.0, 0.0
-    i, si, tx, dtx = _axis_start(ox, dx, lo[0], pitch, ox + t0 * dx, nx)
-    j, sj, ty, dty = _axis_start(oy, dy, lo[1], pitch, oy + t0 * dy, ny)
-    k, sk, tz, dtz = _axis_start(oz, dz, lo[2], pitch, oz + t0 * dz, nz)
+    i, si, tx, dtx = axis_start(ox, dx, lo[0], pitch, ox + t0 * dx, nx)
+    j, sj, ty, dty = axis_start(oy, dy, lo[1], pitch, oy + t0 * dy, ny)
+    k, sk, tz, dtz = axis_start(oz, dz, lo[2], pitch, oz + t0 * dz, nz)
     state, steps = FREE, 0
     t_in, first, last = t0, tmax, 0.0
     while True:
@@ -215,9 +193,7 @@ def build_shells(scene, bvh, min_triangles, resolution=RESOLUTION, use_cache=Tru
     def build():
         lo = np.min([t.min((0, 1)) for t in spans], axis=0)
         hi = np.max([t.max((0, 1)) for t in spans], axis=0)
-        pitch = float((hi - lo).max()) / (resolution - 2)
-        lo = lo - pitch  # a free voxel layer all round: the border region is outside
-        dims = np.maximum(np.ceil((hi - lo) / pitch).astype(np.int64) + 2, 3)
+        lo, pitch, dims = grid_placement(lo, hi, resolution)  # the border region is outside
         grid = np.zeros(dims, np.uint8)
         closed = []
         for shape, tris in zip(heavy, spans):

@@ -72,15 +72,15 @@ def test_render_seconds_leave_out_loading_and_the_bvh():
 
 
 def test_tests_split_by_geometry_add_up_to_the_shadow_totals():
-    """Proxy tests come from the estimator's split, the scene's are the rest of the totals, shell voxels apart;
+    """Proxy tests come from the estimator's split, the scene's are the rest of the totals, shell and extinction-grid voxels apart;
     an estimator without a split tested the scene only."""
     from probvis.experiments.results import tests_by_geometry
 
     stats = {"intersection_tests": {"shadow": {"triangle": 100, "node": 400}},
-             "estimator": {"tests": {"proxy": {"node": 150, "triangle": 30}, "scene": {"node": 0, "triangle": 0},
-                                     "shells": {"voxel": 70}}}}
+             "estimator": {"tests": {"proxy": {"node": 150, "triangle": 30, "voxel": 90},
+                                     "scene": {"node": 0, "triangle": 0}, "shells": {"voxel": 70}}}}
     assert tests_by_geometry(stats) == {"scene": {"node": 250, "triangle": 70}, "proxy": {"node": 150, "triangle": 30},
-                                        "shell_voxels": 70}
+                                        "shell_voxels": 70, "volume_voxels": 90}
     stats["estimator"] = {"seconds": {}}
     assert tests_by_geometry(stats) == {"scene": {"node": 400, "triangle": 100}, "proxy": {"node": 0, "triangle": 0},
-                                        "shell_voxels": 0}
+                                        "shell_voxels": 0, "volume_voxels": 0}

@@ -88,20 +88,25 @@ def _mib(n):
 
 
 def _geometry_cells(r):
-    """A summary row's shadow-ray tests split by geometry (scene / proxy nodes and triangles, shell voxels
-    walked) and the memory of the estimator's own structures beside the scene BVH's."""
+    """A summary row's shadow-ray tests split by geometry (scene / proxy nodes and triangles, voxels walked in
+    the shells' and the extinction grid) and the memory of the estimator's own structures beside the scene
+    BVH's."""
     split = r["tests_by_geometry"]
     return (f"{_fmt(split['scene']['node'])} / {_fmt(split['proxy']['node'])}",
             f"{_fmt(split['scene']['triangle'])} / {_fmt(split['proxy']['triangle'])}",
-            _fmt(split["shell_voxels"]), _mib(r["estimator_bytes"]), _mib(r["scene_bvh_bytes"]))
+            f"{_fmt(split['shell_voxels'])} / {_fmt(split['volume_voxels'])}", _mib(r["estimator_bytes"]),
+            _mib(r["scene_bvh_bytes"]))
 
 
-GEOMETRY_HEAD = ("method", "node tests (scene / proxy)", "triangle tests (scene / proxy)", "shell voxels walked",
+GEOMETRY_HEAD = ("method", "node tests (scene / proxy)", "triangle tests (scene / proxy)",
+                 "voxels walked (shells / volume)",
                  "own memory", "scene BVH")
 GEOMETRY_NOTE = ("Shadow-ray tests by the geometry they test (the scene's BVH — with shells, also the BVH of the "
-                 "scene without its heavy meshes —, the proxies', and the voxels the shells' walks visited, which "
-                 "the tests columns elsewhere do not count; means over seeds) and the bytes of the estimator's own structures as built (proxies and their BVH, "
-                 "shells' grid and BVH, photons and kd-trees) beside the scene BVH's that every method shares.")
+                 "scene without its heavy meshes —, the proxies', and the voxels the walks of the shells' grid and "
+                 "of volumetric proxies' extinction grid visited, which the tests columns elsewhere do not count; "
+                 "means over seeds) and the bytes of the estimator's own structures as built (proxies and their "
+                 "BVH, extinction grids, shells' grid and BVH, photons and kd-trees) beside the scene BVH's that "
+                 "every method shares.")
 
 
 class Report:

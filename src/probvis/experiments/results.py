@@ -52,12 +52,13 @@ def biased_by_choice(stats):
 def tests_by_geometry(stats):
     """Shadow-ray tests by the geometry tested: node and triangle tests of the scene and of proxies (the
     scene's are the rest of the shadow-ray totals: all of them for estimators that test only the scene) and
-    the voxels the shells' walks visited."""
+    the voxels the walks of the shells' grid and of the volumetric proxies' extinction grid visited."""
     split = (stats.get("estimator") or {}).get("tests") or {}
     shadow = stats["intersection_tests"]["shadow"]
     proxy = {k: int((split.get("proxy") or {}).get(k, 0)) for k in ("node", "triangle")}
     return {"scene": {k: int(shadow[k]) - proxy[k] for k in ("node", "triangle")}, "proxy": proxy,
-            "shell_voxels": int((split.get("shells") or {}).get("voxel", 0))}
+            "shell_voxels": int((split.get("shells") or {}).get("voxel", 0)),
+            "volume_voxels": int((split.get("proxy") or {}).get("voxel", 0))}
 
 
 def cell_row(task, render, reference, baseline_name, counted="total"):
@@ -128,8 +129,8 @@ def _summarise(cells, bias):
             row[k] = statistics.fmean(r[k] for r in rows)
         row["tests_by_geometry"] = {g: {k: statistics.fmean(r["tests_by_geometry"][g][k] for r in rows)
                                         for k in ("node", "triangle")} for g in ("scene", "proxy")}
-        row["tests_by_geometry"]["shell_voxels"] = statistics.fmean(r["tests_by_geometry"]["shell_voxels"]
-                                                                    for r in rows)
+        for g in ("shell_voxels", "volume_voxels"):
+            row["tests_by_geometry"][g] = statistics.fmean(r["tests_by_geometry"][g] for r in rows)
         row["efficiency_time"] = metrics.efficiency(row["relmse"], row["seconds"])
         row["efficiency_tests"] = metrics.efficiency(row["relmse"], row["triangle_tests"])
         out.append(row)

@@ -10,6 +10,7 @@ import numpy as np
 from ..accel import occluded_segments
 from ..proxies import MIN_TRIANGLES
 from ..shells import shell_memory, shell_tests
+from ..transmittance import ExtinctionGrid
 from .base import Option, Phase, VisibilityEstimator, VisibilityResult
 
 
@@ -36,7 +37,7 @@ class ExactVisibility(VisibilityEstimator):
                 self.shells = shell_tests(scene, bvh, self.params.min_triangles, self.params.cache)
             if self.shells.active:
                 self.fused_any_hit, self.fused_shade = False, True  # renders through the shell kernel
-        self.tests = np.zeros(5, np.int64)
+        self.tests = np.zeros(6, np.int64)
 
     def evaluate(self, query):
         occluded, n_node, n_tri = occluded_segments(self.bvh, query.origin, query.direction, query.tmax, query.point)
@@ -51,7 +52,8 @@ class ExactVisibility(VisibilityEstimator):
             img, m2, counts, n_seg, _, tests = shade_proxy(
                 geom, emitters, self.bvh.arrays, self.bvh.arrays, its.triangle, its.position, its.normal,
                 its.material, its.albedo, cases, keys, its.emitted, cam_node, cam_tri, spp, n_shadow, n_pix,
-                np.ones((n_pix, e)), np.ones((n_pix, e), bool), 0.0, *self.shells.kernel_args)
+                np.ones((n_pix, e)), np.ones((n_pix, e), bool), 0.0, *ExtinctionGrid.none().kernel_args,
+                *self.shells.kernel_args)
         self.tests += tests
         return img, m2, counts, n_seg
 

@@ -8,19 +8,29 @@ geometry, the proxy and the correction, made per region): with ρ the cost per s
 kernel without the exact test (sampling, the proxy test, the film) and e that of the extra exact test, both
 relative to exact visibility's fused kernel, a region r of n_r segments, exact variance V_r and mismatch energy
 M_r = Σ (V - V_P)² w² (w the segment's unoccluded contribution) adds variance V_r - M_r + M_r / q_r at cost
-n_r (ρ + e q_r), or V_r at cost n_r with exact visibility alone. The product of total variance and total cost
+n_r (ρ + e q_r), or V_r at cost n_r with exact visibility alone. V_r is the variance of the region's sum of
+w V over its camera samples, measured from two independent sets of them: what a camera sample's point and
+material add counts once per camera sample, not once per segment, so that many shadow rays per camera
+sample, whose visibility variance is then a small share of the pixel's, leave more to gain. The product of total variance and total cost
 is least where every region takes the cheaper of the two at the exchange rate λ = variance / cost, with
 q_r = √(M_r / (λ e n_r)) (for one region, q = √(δ ρ / ((1 - δ) e)) and the gain over exact visibility
 G = 1 / (√(ρ (1 - δ)) + √(δ e))², δ = M / V: with e = 1 the 2014 paper's control-variate gain); a few rounds of
-updating λ settle it. ρ, e, V_r and M_r come from a pilot in `prepare`: the camera's view at up to
+updating λ settle it. ρ, e, V_r and M_r come from a pilot in `prepare`: a grid of the image's pixels, up to
 PILOT_RESOLUTION along its longer side (and at most PILOT_SHARE of the render's samples), one sample per pixel,
-rendered by the exact fused kernel and by this estimator's, every segment traced both ways; each region's
-mismatch is shrunk toward its emitter's mean by SHRINK segments' worth. The camera rays, which every method
+rendered by the exact fused kernel (with the shells, if any, and without: shells that do not make exact
+visibility faster are dropped) and by this estimator's, every segment traced both ways, for each of two
+sets of camera samples; each region's mismatch and variance are shrunk toward its emitter's by SHRINK
+segments' worth. The pilot's pixels are the render's own, not a smaller image's larger ones, so that a camera
+sample varies within one as much as in the render. The camera rays, which every method
 pays, are timed too (κ, relative to the exact kernel) and added to both paths' costs, so the gain shrinks
 where shadow rays are few per camera sample. An emitter whose predicted G falls below GAIN_MARGIN (timings of
 a small view flatter the proxy's cache-resident BVH) gets exact visibility everywhere: proxies that do not pay
 are not used, and when that is every emitter the render takes exact visibility's fused kernel. The pilot
 uses its own samples, so q never depends on the render's draws.
+
+Heavy meshes of many separate small parts (foliage) get a volumetric proxy instead of a decimated one
+(`--kind`, see `probvis.proxies` and `probvis.transmittance`): V_P is then the proxy BVH's visibility times the
+transmittance exp(-∫σ) of the segment through their extinction grid, a real number in [0, 1].
 
 A proxy strays from its mesh by about its edge length, so a segment leaving a heavy mesh's own surface would
 often hit the proxy at once: the proxy test ignores the first `ProxyGeometry.clearance` of every segment (any
@@ -32,17 +42,19 @@ import numpy as np
 
 from ..accel import build_bvh, occluded_segments
 from ..errors import ProbvisError
-from ..proxies import MIN_TRIANGLES, build_proxies
+from ..proxies import KINDS, MIN_TRIANGLES, build_proxies
 from ..rng import uniforms
 from ..settings import MAX_SEED
 from ..shells import ShellTests, shell_memory, shell_tests
+from ..transmittance import RESOLUTION as VOLUME_RESOLUTION, transmittances
 from .base import Option, Phase, VisibilityEstimator, VisibilityResult
 from .proxy_kernel import CORRECTION_DIM, shade_proxy
 
 PILOT_Q = 0.5  # q where the pilot measured nothing (it found no segment)
-PILOT_RESOLUTION = 64  # the pilot's image size along its longer side: up to 4,096 camera samples,
+PILOT_RESOLUTION = 64  # the pilot's pixels along the image's longer side: up to 4,096 camera samples,
 PILOT_SHARE = 1 / 300  # and at most this share of the render's (six kernel runs: about 2% of its time)
-PILOT_REPEATS = 2  # each pilot kernel is timed this often, the fastest kept (the first may load or compile)
+PILOT_SETS = 2  # independent sets of pilot camera samples: their differences give the variance; each kernel
+# runs on both and the faster time is kept (the first call may load or compile)
 REGIONS = 8  # q=auto chooses q per emitter in REGIONS x REGIONS tiles of the film
 SHRINK = 256  # a region's mismatch energy is shrunk toward its emitter's by this many segments' worth
 PILOT_SALT = 0x50524F5859  # mixed into its seed, apart from the render's samples
@@ -61,12 +73,12 @@ def _parse_q(value):
 
 
 def allocate(n, variance, mismatch, rho, exact=1.0, base=1.0, rounds=20):
-    """Per region (arrays over regions of one emitter: segments, exact variance, mismatch energy) whether to
+    """Per region (arrays over regions of one emitter: segments, exact visibility's variance of the region's sum
+    over its camera samples, mismatch energy) whether to
     use the proxy and its q, minimising total variance x total cost, with costs per segment `base` for exact
     visibility and `rho` + `exact` q for the proxy; and the predicted gain over exact visibility,
     (Σ V) base n / (variance x cost)."""
     n, variance, mismatch = (np.asarray(x, float) for x in (n, variance, mismatch))
-    mismatch = np.minimum(mismatch, variance)
     total_v, total_n = variance.sum(), n.sum()
     if total_v <= 0 or total_n <= 0:
         return np.zeros(len(n), bool), np.ones(len(n)), 1.0
@@ -83,10 +95,23 @@ def allocate(n, variance, mismatch, rho, exact=1.0, base=1.0, rounds=20):
     return use, q, float(total_v * base * total_n / (v * c))
 
 
-def film_regions(camera, p0, p1):
-    """The REGIONS x REGIONS tile of the film that each image pixel p0..p1-1 lies in."""
+def region_measures(sample_sets, region):
+    """Per film region and emitter, from the pilot's per-pixel sums (`shade_proxy`'s, every segment tested both
+    ways) of two independent sets of camera samples, one per pixel: the sums' means over the two sets, and the
+    variance of exact visibility's Σ w V over a camera sample's segments summed over the region's samples,
+    estimated from the two sets' differences pixel by pixel. What a camera sample's point adds to that variance
+    counts once per camera sample, not once per segment."""
+    first, second = sample_sets
+    sums = np.zeros((REGIONS * REGIONS,) + first.shape[1:])
+    np.add.at(sums, region, 0.5 * (first + second))
+    variance = np.zeros((REGIONS * REGIONS, first.shape[1]))
+    np.add.at(variance, region, 0.5 * (first[..., 2] - second[..., 2]) ** 2)
+    return sums, variance
+
+
+def film_regions(camera, pix):
+    """The REGIONS x REGIONS tile of the film that each image pixel (row-major indices) lies in."""
     fw, fh = camera.film_size
-    pix = np.arange(p0, p1)
     x = (camera.crop_x + pix % camera.width + 0.5) / fw
     y = (camera.crop_y + pix // camera.width + 0.5) / fh
     return (np.minimum(x * REGIONS, REGIONS - 1).astype(np.int64)
@@ -102,13 +127,16 @@ class ProxyVisibility(VisibilityEstimator):
         Option("triangles", int, None, "triangles of each proxy (instead of ratio)", minimum=4),
         Option("min_triangles", int, MIN_TRIANGLES, "meshes with fewer triangles are used as they are",
                minimum=4),
+        Option("kind", str, "auto", "proxy of a heavy mesh: a decimated mesh, an extinction grid (volume), or auto: "
+               "volume for meshes of mostly separate small parts (foliage), mesh otherwise", choices=KINDS),
         Option("q", str, "auto", "probability of also testing a segment exactly: auto (efficiency-aware, per "
                "emitter) or a number in (0, 1]", check=_parse_q, metavar="auto|Q"),
         Option("shells", bool, True, "decide segments exactly by conservative shells of the heavy meshes first"),
         Option("cache", bool, True, "cache proxies and shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
     )
     phases = (
-        Phase("proxies", "prepare", "decimating heavy meshes (or reading them from the cache)"),
+        Phase("proxies", "prepare", "decimating heavy meshes or prefiltering them into an extinction grid (or "
+              "reading the cache)"),
         Phase("proxy_bvh", "prepare", "building the proxy geometry's BVH"),
         Phase("shells", "prepare", "building the shells' voxel grid and the BVH of the rest of the scene (or reading the cache)"),
         Phase("pilot", "prepare", "measuring proxy and scene tests on a small view of the scene (q=auto)"),
@@ -126,9 +154,10 @@ class ProxyVisibility(VisibilityEstimator):
                 raise ProbvisError(f"triangles {p.triangles} is not below the {shape.n_triangles} of mesh "
                                    f"'{shape.name}' (or raise min_triangles above it)")
         with self.timed("proxies"):
-            self.proxies = build_proxies(scene, p.ratio, p.triangles, p.min_triangles, p.cache)
-        with self.timed("proxy_bvh"):  # no mesh decimated: nothing to test but the scene, whose BVH stands in
-            self.proxy_bvh = build_bvh(self.proxies.triangles) if self.proxies.n_decimated else bvh
+            self.proxies = build_proxies(scene, p.ratio, p.triangles, p.min_triangles, p.cache, p.kind)
+        has_proxy = self.proxies.n_decimated + self.proxies.n_volumes > 0
+        with self.timed("proxy_bvh"):  # no proxy: nothing to test but the scene, whose BVH stands in
+            self.proxy_bvh = build_bvh(self.proxies.triangles) if has_proxy else bvh
         with self.timed("shells"):
             self.shells = shell_tests(scene, bvh, p.min_triangles, p.cache) if p.shells else ShellTests.none(bvh)
         e, r = scene.n_emitters, REGIONS * REGIONS
@@ -139,11 +168,12 @@ class ProxyVisibility(VisibilityEstimator):
         # sums per emitter (see `shade_proxy`): segments tested both ways, Σ (V - V_P)² w² / q, Σ w V / p,
         # Σ (w V)² / p, Σ 1 / p over those and the segments the shells decide (p = 1)
         self.sums = np.zeros((e, 5))
-        self.tests = np.zeros(5, np.int64)  # node and triangle tests: proxy, scene; shell voxels
+        self.tests = np.zeros(6, np.int64)  # node and triangle tests: proxy, scene; shell and proxy voxels
         self.pilot_segments = 0
+        self.shells_dropped = False  # the pilot found exact visibility faster without them
         self.costs = None  # (ρ, e) from the pilot: costs relative to exact visibility's fused kernel
         self.camera_cost = None  # κ: the camera rays' cost, relative to the same
-        if self.proxies.n_decimated == 0:
+        if not has_proxy:
             self.exact[:] = True  # nothing to gain: every segment is tested exactly
         elif self.fixed_q is None:
             with self.timed("pilot"):
@@ -157,47 +187,57 @@ class ProxyVisibility(VisibilityEstimator):
         return exact is not None and bool(exact.all()) and not self.shells.active
 
     def _pilot(self, scene, bvh, emitters, settings):
-        """Measure costs, variance and mismatch per region on a small rendering of the camera's view: exact
-        visibility's fused kernel (with the shells, if any), this estimator's kernel with no exact test (q = 0)
-        and with every segment tested both ways (q = 1); then choose exact or q per region and emitter."""
+        """Measure costs, variance and mismatch per region on a grid of the image's pixels: exact visibility's
+        fused kernel (and with the shells, if any: dropped unless faster), this estimator's kernel with no exact
+        test (q = 0) and with every segment tested both ways (q = 1); then choose exact or q per region and
+        emitter."""
         from ..accel import nearest_hits
         from ..camera import camera_params, camera_rays
         from ..fused_exact import shade_exact
         from ..interaction import scene_arrays, surface_interactions
         from .base import CASE_UNKNOWN
 
-        w, h = scene.camera.film_size
         cam = scene.camera
-        side = int(min(PILOT_RESOLUTION, max(16, np.sqrt(cam.width * cam.height * settings.spp * PILOT_SHARE
-                                                         * max(w, h) / min(w, h)))))
+        w, h = cam.width, cam.height
+        side = int(min(PILOT_RESOLUTION, max(16, np.sqrt(w * h * settings.spp * PILOT_SHARE * max(w, h) / min(w, h)))))
         pw, ph = (side, max(1, round(side * h / w))) if w >= h else (max(1, round(side * w / h)), side)
-        small = scene.with_resolution(pw, ph)
+        pw, ph = min(pw, w), min(ph, h)
+        # a grid of the image's own pixels, so that a camera sample varies as much as in the render
+        xs, ys = ((np.arange(pw) + 0.5) * w / pw).astype(np.int64), ((np.arange(ph) + 0.5) * h / ph).astype(np.int64)
+        image_pixels = (ys[:, None] * w + xs[None, :]).ravel()
         n_pix, n_shadow, e = pw * ph, settings.shadow_rays, scene.n_emitters
         seed = (settings.seed ^ PILOT_SALT) & MAX_SEED  # apart from the render's samples, a valid seed still
         geom, textures = scene_arrays(scene)
-        params = camera_params(small.camera)
-        best = {}
-        for _ in range(PILOT_REPEATS):  # camera rays, which every method pays: they dilute the gain
+        params = camera_params(cam)
+        best, pixels = {}, []
+        for r in range(PILOT_SETS):  # camera rays, which every method pays: they dilute the gain
             t0 = time.perf_counter()
-            org, dirs, tmin, tmax, keys = camera_rays(params, 1, seed, 0, n_pix)
+            org, dirs, tmin, tmax, keys = camera_rays(params, 1, (seed + r) & MAX_SEED, image_pixels)
             prim, _, b1, b2, cam_node, cam_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
             its = surface_interactions(geom, textures, prim, b1, b2, dirs)
             best["camera"] = min(best.get("camera", np.inf), time.perf_counter() - t0)
-        cases = np.full((n_pix, e), CASE_UNKNOWN, np.int8)
-        pixel = (prim, its.position, its.normal, its.material, its.albedo, cases, keys, its.emitted, cam_node,
-                 cam_tri, 1, n_shadow, n_pix)
+            cases = np.full((n_pix, e), CASE_UNKNOWN, np.int8)
+            pixels.append((prim, its.position, its.normal, its.material, its.albedo, cases, keys, its.emitted,
+                           cam_node, cam_tri, 1, n_shadow, n_pix))
         zeros, ones, none = np.zeros((n_pix, e)), np.ones((n_pix, e)), np.zeros((n_pix, e), bool)
-        exact = ((lambda: self._kernel(geom, emitters.arrays, pixel, ones, ~none)) if self.shells.active else
-                 (lambda: shade_exact(geom, emitters.arrays, bvh.arrays, *pixel)))
-        for name, run in (("exact", exact),
-                          ("proxy", lambda: self._kernel(geom, emitters.arrays, pixel, zeros, none)),
-                          ("both", lambda: self._kernel(geom, emitters.arrays, pixel, ones, none))):
-            for _ in range(PILOT_REPEATS):
+        runs = [("exact", lambda px: shade_exact(geom, emitters.arrays, bvh.arrays, *px))]
+        if self.shells.active:
+            runs.append(("shells", lambda px: self._kernel(geom, emitters.arrays, px, ones, ~none)))
+        runs += [("proxy", lambda px: self._kernel(geom, emitters.arrays, px, zeros, none)),
+                 ("both", lambda px: self._kernel(geom, emitters.arrays, px, ones, none))]
+        both = []
+        for name, run in runs:
+            if name == "proxy" and self.shells.active:  # exact visibility with shells or without, the faster
+                if best["shells"] > best["exact"]:
+                    self.shells, self.shells_dropped = ShellTests.none(bvh), True
+                best["exact"] = min(best["exact"], best["shells"])
+            for px in pixels:
                 t0 = time.perf_counter()
-                out = run()
+                out = run(px)
                 best[name] = min(best.get(name, np.inf), time.perf_counter() - t0)
-        sums = np.zeros((REGIONS * REGIONS, e, 5))
-        np.add.at(sums, film_regions(small.camera, 0, n_pix), out[4])
+                if name == "both":
+                    both.append(out[4])
+        sums, pair_variance = region_measures(both, film_regions(cam, image_pixels))
         if sums[..., 4].sum() == 0:
             return
         # the extra exact tests' cost is a difference of two timings: floored, so timing noise cannot zero it
@@ -207,13 +247,12 @@ class ProxyVisibility(VisibilityEstimator):
         self.sums += sums.sum(axis=0)
         self.pilot_segments = int(sums[..., 4].sum())
         for k in range(e):
-            n, mismatch, s1, s2 = sums[:, k, 4], sums[:, k, 1], sums[:, k, 2], sums[:, k, 3]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                variance = np.where(n > 0, s2 - s1 * s1 / n, 0.0)
+            n, mismatch, variance = sums[:, k, 4], sums[:, k, 1], pair_variance[:, k]
             if n.sum() == 0:
                 continue
-            mu = mismatch.sum() / n.sum()
+            mu, nu = mismatch.sum() / n.sum(), variance.sum() / n.sum()
             mismatch = (mismatch + SHRINK * mu) * n / (n + SHRINK)
+            variance = (variance + SHRINK * nu) * n / (n + SHRINK)
             use, q, self.gain[k] = allocate(n, variance, mismatch, rho + kappa, cost_e, 1.0 + kappa)
             if self.gain[k] < GAIN_MARGIN or not use.any():
                 self.exact[:, k] = True
@@ -225,12 +264,12 @@ class ProxyVisibility(VisibilityEstimator):
         (prim, pos, nrm, mat, albedo, cases, keys, emitted, cam_node, cam_tri, spp, n_shadow, n_pix) = pixel
         return shade_proxy(geom, es, self.bvh.arrays, self.proxy_bvh.arrays, prim, pos, nrm, mat, albedo, cases, keys,
                            emitted, cam_node, cam_tri, spp, n_shadow, n_pix, q, exact, self.proxies.clearance,
-                           *self.shells.kernel_args)
+                           *self.proxies.volume.kernel_args, *self.shells.kernel_args)
 
     def shade(self, geom, emitters, interactions, cases, keys, cam_node, cam_tri, spp, n_shadow, n_pix,
               first_pixel):
         its = interactions
-        region = film_regions(self.scene.camera, first_pixel, first_pixel + n_pix)
+        region = film_regions(self.scene.camera, np.arange(first_pixel, first_pixel + n_pix))
         exact = self.exact[region]
         with self.timed("render_kernel"):
             img, m2, counts, n_seg, sums, tests = self._kernel(
@@ -264,7 +303,8 @@ class ProxyVisibility(VisibilityEstimator):
             tmin = self.proxies.clearance / np.sqrt(np.einsum("ij,ij->i", d, d))
             occ, pn, pt = occluded_segments(self.proxy_bvh, query.origin[on_proxy], d, query.tmax[on_proxy],
                                             query.point[on_proxy], tmin)
-        v_p[on_proxy] = 1.0 - occ
+            t_p, _ = transmittances(*self.proxies.volume.kernel_args, query.origin[on_proxy], d, query.tmax[on_proxy])
+        v_p[on_proxy] = (1.0 - occ) * t_p
         node[on_proxy] += pn
         tri[on_proxy] += pt
         with self.timed("exact_trace"):
@@ -288,6 +328,7 @@ class ProxyVisibility(VisibilityEstimator):
         proxy = p.ratio * sum(heavy) if p.triangles is None else p.triangles * len(heavy)
         # triangles (72 bytes) and their BVH (about twice that again); per pixel of a batch q, exact and the sums
         out = {"proxy geometry and its BVH (ratio, triangles)": int((scene.n_triangles - sum(heavy) + proxy) * 200),
+               "volumetric proxies' extinction grid": 8 * VOLUME_RESOLUTION ** 3 if heavy and p.kind != "mesh" else 0,
                "per-pixel q and sums (batch size)": batch_samples // max(1, settings.spp) * scene.n_emitters * 49}
         if p.shells:
             out.update(shell_memory(scene, p.min_triangles))
@@ -295,7 +336,8 @@ class ProxyVisibility(VisibilityEstimator):
 
     def memory_bytes(self):
         own = self.proxy_bvh.nbytes if self.proxy_bvh is not self.bvh else 0
-        return {"proxies": self.proxies.triangles.nbytes + own, "shells": self.shells.nbytes}
+        return {"proxies": self.proxies.triangles.nbytes + own + self.proxies.volume.nbytes,
+                "shells": self.shells.nbytes}
 
     def stats(self):
         out = super().stats()
@@ -307,6 +349,7 @@ class ProxyVisibility(VisibilityEstimator):
         used = ~self.exact
         out.update({
             "proxies": self.proxies.shapes, "proxy_triangles": len(self.proxies.triangles),
+            "volume_grid": list(self.proxies.volume.sigma.shape) if self.proxies.n_volumes else None,
             "cost_ratio": rho, "exact_cost_ratio": exact, "camera_cost_ratio": self.camera_cost,
             "pilot_segments": self.pilot_segments,
             "emitters": [{"q": float(self.q[used[:, k], k].mean()) if used[:, k].any() else None,
@@ -317,4 +360,6 @@ class ProxyVisibility(VisibilityEstimator):
                          for k in range(len(n))],
         })
         out.update(self.shells.stats(self.tests))
+        out["tests"]["proxy"]["voxel"] = int(self.tests[5])
+        out["shells_dropped"] = self.shells_dropped
         return out

@@ -15,6 +15,7 @@ from ..parallel import spread
 from ..rng import mix64, uniform
 from ..segments import SHADOW_EPSILON
 from ..shells import FREE, SOLID, segment_class
+from ..transmittance import optical_depth
 
 PIXELS_PER_BLOCK = 4
 CORRECTION_DIM = 1 << 21  # rng dimension of a segment's Bernoulli draw, apart from other estimators' draws
@@ -39,10 +40,12 @@ def _trace(bvh, root, org, dirs, tmin, tmax, c, work, occ, n_node, n_tri):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, emitted, cam_node, cam_tri, spp,
-                n_shadow, n_pix, q, exact_only, clearance, shells, rest, grid, grid_lo, pitch):
+                n_shadow, n_pix, q, exact_only, clearance, sigma, sigma_lo, sigma_pitch, shells, rest, grid, grid_lo,
+                pitch):
     """The film of a batch of whole pixels (as `fused_exact.shade_exact`) with V_P + B (V - V_P) / q per segment,
     B ~ Bernoulli(q[pixel, emitter]) (V alone where `exact_only[pixel, emitter]`); the proxy test ignores the
-    first `clearance` of each segment.
+    first `clearance` of each segment, and V_P is its visibility times the transmittance through the extinction
+    grid `sigma` of the volumetric proxies (see `probvis.transmittance`).
 
     With `shells` (see `probvis.shells`), a segment whose walk through `grid` enters a SOLID voxel is blocked,
     and one that visits only FREE voxels is tested against `rest` (the scene without its heavy meshes) alone:
@@ -52,7 +55,7 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
     Also returns per pixel and emitter the sums behind δ, (segments tested both ways, Σ ((V - V_P) w)² / q, Σ w V / p,
     Σ (w V)² / p, Σ 1 / p) over segments decided by the shells (p = 1) and segments tested both ways (p = q), w
     the luminance of the unoccluded contribution; and the node and triangle tests against the proxies and the
-    scene (with `rest`), and the shells' voxels visited."""
+    scene (with `rest`), the shells' voxels visited and the extinction grid's."""
     root_s, root_p = root_record(bvh.root), root_record(proxy.root)
     root_r = root_record(rest.root)
     depth = max(bvh.stack_depth, proxy.stack_depth, rest.stack_depth)
@@ -63,7 +66,7 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
     n_seg = np.zeros(n_pix, np.int64)
     n_blocks = (n_pix + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
     sums = np.zeros((n_pix, n_emit, 5))
-    tests = np.zeros((n_blocks, 5), np.int64)  # node and triangle tests: proxy, scene; shell voxels
+    tests = np.zeros((n_blocks, 6), np.int64)  # node and triangle tests: proxy, scene; shell and proxy voxels
     for it in prange(n_blocks):
         blk = spread(it, n_blocks)
         org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
@@ -137,7 +140,13 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
                     occluded_packet(proxy, root_p, org if c == m else org2, dirs if c == m else dirs2, tmin, tmax,
                                     lo, min(SHADOW_PACKET, c - lo), work, occ, n_node, n_tri)
                 for j in range(c):
-                    value[idx[j]] = 1.0 - np.float64(occ[j])
+                    k = idx[j]
+                    value[k] = 0.0
+                    if not occ[j]:
+                        tau, steps = optical_depth(sigma, sigma_lo, sigma_pitch, org[k, 0], org[k, 1], org[k, 2],
+                                                   dirs[k, 0], dirs[k, 1], dirs[k, 2], tmax[k])
+                        value[k] = math.exp(-tau)
+                        tests[blk, 5] += steps
                     tests[blk, 0] += n_node[j]
                     tests[blk, 1] += n_tri[j]
                     counts[px, SH_NODE] += n_node[j]
