@@ -7,10 +7,10 @@ Each shape of at least `min_triangles` triangles is welded into an indexed mesh 
 by the PyVista project) to `ratio` of its triangles or to `triangles`; smaller shapes enter the proxy
 geometry unchanged. A heavy shape made mostly of separate small parts (foliage: nothing for decimation to
 collapse) is prefiltered into an extinction grid instead (`transmittance`), with `kind="auto"`; `kind`
-"mesh" or "volume" forces one for every heavy shape. A shape the decimator cannot handle keeps its own triangles, with a warning: a proxy is
-only ever an approximation that the estimator corrects, so a missing one costs speed, never correctness.
-Proxies are cached on disk (`disk_cache`), keyed by the SHA-256 of the shape's triangles and the decimation
-target.
+"mesh" or "volume" forces one for every heavy shape. A shape the decimator cannot handle keeps its own
+triangles, with a warning: a proxy is only ever an approximation that the estimator corrects, so a missing
+one costs speed, never correctness. Proxies are cached on disk (`disk_cache`), keyed by the SHA-256 of the
+shape's triangles and the decimation target.
 """
 import time
 import warnings

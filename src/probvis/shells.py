@@ -28,7 +28,7 @@ from scipy import ndimage
 from .disk_cache import content_key, load_or_build
 from .proxies import weld
 from .scene.scene import EMITTER_POINT, EMITTER_SPOT
-from .voxels import axis_start, grid_placement, slab
+from .voxels import grid_placement, walk_start, walk_step
 
 RESOLUTION = 64  # voxels along the longest side of the heavy meshes' bounds
 PAD = 1e-3  # triangle bounds are padded by this fraction of a voxel: a segment leaving a heavy mesh starts inside
@@ -82,17 +82,14 @@ def segment_class(grid, lo, pitch, ox, oy, oz, dx, dy, dz, tmax):
     visited; and for SURFACE the t range from entering its first SURFACE voxel to leaving its last, widened by
     half the padding (a heavy mesh can block it only there)."""
     nx, ny, nz = grid.shape
-    t0, t1 = slab(ox, dx, lo[0], lo[0] + nx * pitch, 0.0, tmax)
-    t0, t1 = slab(oy, dy, lo[1], lo[1] + ny * pitch, t0, t1)
-    t0, t1 = slab(oz, dz, lo[2], lo[2] + nz * pitch, t0, t1)
+    t0, t1, i, j, k, si, sj, sk, tx, ty, tz, dtx, dty, dtz = walk_start(nx, ny, nz, lo, pitch, ox, oy, oz, dx, dy,
+                                                                        dz, tmax)
     if t0 > t1:
         return FREE, 0, 0.0, 0.0
-    i, si, tx, dtx = axis_start(ox, dx, lo[0], pitch, ox + t0 * dx, nx)
-    j, sj, ty, dty = axis_start(oy, dy, lo[1], pitch, oy + t0 * dy, ny)
-    k, sk, tz, dtz = axis_start(oz, dz, lo[2], pitch, oz + t0 * dz, nz)
     state, steps = FREE, 0
     t_in, first, last = t0, tmax, 0.0
-    while True:
+    inside = True
+    while inside:
         g = grid[i, j, k]
         steps += 1
         if g == SOLID:
@@ -105,21 +102,7 @@ def segment_class(grid, lo, pitch, ox, oy, oz, dx, dy, dz, tmax):
         if t_out > t1:
             break
         t_in = t_out
-        if tx <= ty and tx <= tz:
-            i += si
-            tx += dtx
-            if i < 0 or i >= nx:
-                break
-        elif ty <= tz:
-            j += sj
-            ty += dty
-            if j < 0 or j >= ny:
-                break
-        else:
-            k += sk
-            tz += dtz
-            if k < 0 or k >= nz:
-                break
+        i, j, k, tx, ty, tz, inside = walk_step(i, j, k, si, sj, sk, tx, ty, tz, dtx, dty, dtz, nx, ny, nz)
     if state == FREE:
         return FREE, steps, 0.0, 0.0
     margin = 0.5 * PAD * pitch / (abs(dx) + abs(dy) + abs(dz))

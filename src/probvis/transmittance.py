@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from .voxels import axis_start, grid_placement, slab
+from .voxels import grid_placement, walk_start, walk_step
 
 RESOLUTION = 64  # voxels along the longest side of the prefiltered meshes' bounds
 SMALL_PARTS = 1.5  # a mesh whose welded vertices exceed this many per triangle is mostly separate small parts
@@ -68,37 +68,20 @@ def optical_depth(sigma, lo, pitch, ox, oy, oz, dx, dy, dz, tmax):
     """∫σ ds along the segment o + t d, t in [0, tmax], walking the voxels it crosses (3D-DDA), and the voxels
     visited."""
     nx, ny, nz = sigma.shape
-    t0, t1 = slab(ox, dx, lo[0], lo[0] + nx * pitch, 0.0, tmax)
-    t0, t1 = slab(oy, dy, lo[1], lo[1] + ny * pitch, t0, t1)
-    t0, t1 = slab(oz, dz, lo[2], lo[2] + nz * pitch, t0, t1)
+    t0, t1, i, j, k, si, sj, sk, tx, ty, tz, dtx, dty, dtz = walk_start(nx, ny, nz, lo, pitch, ox, oy, oz, dx, dy,
+                                                                        dz, tmax)
     if t0 > t1:
         return 0.0, 0
-    i, si, tx, dtx = axis_start(ox, dx, lo[0], pitch, ox + t0 * dx, nx)
-    j, sj, ty, dty = axis_start(oy, dy, lo[1], pitch, oy + t0 * dy, ny)
-    k, sk, tz, dtz = axis_start(oz, dz, lo[2], pitch, oz + t0 * dz, nz)
     tau, steps, t_in = 0.0, 0, t0
-    while True:
+    inside = True
+    while inside:
         steps += 1
         t_out = min(tx, ty, tz)
         tau += sigma[i, j, k] * (min(t_out, t1) - t_in)
         if t_out >= t1:
             break
         t_in = t_out
-        if tx <= ty and tx <= tz:
-            i += si
-            tx += dtx
-            if i < 0 or i >= nx:
-                break
-        elif ty <= tz:
-            j += sj
-            ty += dty
-            if j < 0 or j >= ny:
-                break
-        else:
-            k += sk
-            tz += dtz
-            if k < 0 or k >= nz:
-                break
+        i, j, k, tx, ty, tz, inside = walk_step(i, j, k, si, sj, sk, tx, ty, tz, dtx, dty, dtz, nx, ny, nz)
     return tau * math.sqrt(dx * dx + dy * dy + dz * dz), steps
 
 

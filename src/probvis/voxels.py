@@ -33,3 +33,28 @@ def axis_start(o, d, lo, pitch, p, n):
     if d < 0.0:
         return i, -1, (lo + i * pitch - o) / d, -pitch / d
     return i, 0, np.inf, np.inf
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def walk_start(nx, ny, nz, lo, pitch, ox, oy, oz, dx, dy, dz, tmax):
+    """Where the walk of the segment o + t d, t in [0, tmax], through a grid of nx x ny x nz starts: the t range
+    (t0, t1) inside the grid (t0 > t1: it misses the grid), then per axis the first voxel, the step, the t of
+    the next boundary and the t between boundaries (flat scalars: Numba's parallel analysis takes a tuple of
+    three integers for an array shape)."""
+    t0, t1 = slab(ox, dx, lo[0], lo[0] + nx * pitch, 0.0, tmax)
+    t0, t1 = slab(oy, dy, lo[1], lo[1] + ny * pitch, t0, t1)
+    t0, t1 = slab(oz, dz, lo[2], lo[2] + nz * pitch, t0, t1)
+    i, si, tx, dtx = axis_start(ox, dx, lo[0], pitch, ox + t0 * dx, nx)
+    j, sj, ty, dty = axis_start(oy, dy, lo[1], pitch, oy + t0 * dy, ny)
+    k, sk, tz, dtz = axis_start(oz, dz, lo[2], pitch, oz + t0 * dz, nz)
+    return t0, t1, i, j, k, si, sj, sk, tx, ty, tz, dtx, dty, dtz
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def walk_step(i, j, k, si, sj, sk, tx, ty, tz, dtx, dty, dtz, nx, ny, nz):
+    """Cross the nearest voxel boundary: the next voxel, the boundaries' new t, and whether it is in the grid."""
+    if tx <= ty and tx <= tz:
+        return i + si, j, k, tx + dtx, ty, tz, 0 <= i + si < nx
+    if ty <= tz:
+        return i, j + sj, k, tx, ty + dty, tz, 0 <= j + sj < ny
+    return i, j, k + sk, tx, ty, tz + dtz, 0 <= k + sk < nz

@@ -51,6 +51,16 @@ def segments(scene, n=4000, seed=0):
     return org, end - org
 
 
+def segment_draws(est, org, d, draws=400):
+    """`draws` independent estimates of each segment o + t d, t in [0, 1] (emitter 0, weight 1), by `est`:
+    their means and standard errors."""
+    n = len(org)
+    out = np.array([est.evaluate(ShadowQuery(org, d, np.ones(n), np.arange(n), np.zeros(n, np.int32),
+                                             np.arange(n, dtype=np.uint64) * np.uint64(1000) + np.uint64(k),
+                                             np.ones(n))).value for k in range(draws)])
+    return out.mean(0), out.std(0, ddof=1) / np.sqrt(draws)
+
+
 def test_each_segments_expectation_is_its_exact_visibility():
     """Over 400 independent draws per segment, the mean estimate of every segment is within 5 SE of V (and
     segments the proxy gets right always return V)."""
@@ -61,10 +71,7 @@ def test_each_segments_expectation_is_its_exact_visibility():
     org, d = segments(scene)
     n = len(org)
     exact = 1.0 - occluded_segments(bvh, org, d, np.ones(n), np.arange(n))[0]
-    draws = np.array([est.evaluate(ShadowQuery(org, d, np.ones(n), np.arange(n), np.zeros(n, np.int32),
-                                               np.arange(n, dtype=np.uint64) * np.uint64(1000) + np.uint64(k),
-                                               np.ones(n))).value for k in range(400)])
-    mean, se = draws.mean(0), draws.std(0, ddof=1) / np.sqrt(len(draws))
+    mean, se = segment_draws(est, org, d)
     disagree = se > 0
     assert disagree.any() and (~disagree).any()
     assert np.all(np.abs(mean - exact)[disagree] < 5 * se[disagree] + 1e-12)

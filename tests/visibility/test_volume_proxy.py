@@ -9,8 +9,9 @@ from probvis.accel import build_bvh, occluded_segments
 from probvis.emitters import build_emitter_sampler
 from probvis.proxies import build_proxies
 from probvis.transmittance import ExtinctionGrid, extinction_grid, transmittances
-from probvis.visibility import ShadowQuery
 from probvis.visibility.proxy import ProxyVisibility
+
+from .test_proxy import blob_scene, segment_draws
 
 
 @pytest.fixture(autouse=True)
@@ -85,8 +86,6 @@ OPTIONS = {"min_triangles": 1000}
 
 
 def test_auto_prefilters_separate_parts_and_decimates_connected_meshes():
-    from .test_proxy import blob_scene
-
     leaves = build_proxies(foliage(), min_triangles=1000)
     assert [s["kind"] for s in leaves.shapes] == ["volume"] and leaves.n_volumes == 1
     assert leaves.volume.sigma.sum() > 0 and len(leaves.triangles) == foliage().n_triangles - 3000
@@ -109,10 +108,7 @@ def test_each_segments_expectation_is_its_exact_visibility():
     end = np.column_stack([0.3 + rng.uniform(-0.8, 0.8, n), np.full(n, 2.999), -0.2 + rng.uniform(-0.8, 0.8, n)])
     d = end - org
     exact = 1.0 - occluded_segments(bvh, org, d, np.ones(n), np.arange(n))[0]
-    draws = np.array([est.evaluate(ShadowQuery(org, d, np.ones(n), np.arange(n), np.zeros(n, np.int32),
-                                               np.arange(n, dtype=np.uint64) * np.uint64(1000) + np.uint64(k),
-                                               np.ones(n))).value for k in range(400)])
-    mean, se = draws.mean(0), draws.std(0, ddof=1) / np.sqrt(len(draws))
+    mean, se = segment_draws(est, org, d)
     random = se > 0
     assert random.mean() > 0.5 and (exact == 0).any() and (exact == 1).any()
     assert np.all(np.abs(mean - exact)[random] < 5 * se[random] + 1e-12)

@@ -10,23 +10,23 @@ relative to exact visibility's fused kernel, a region r of n_r segments, exact v
 M_r = Σ (V - V_P)² w² (w the segment's unoccluded contribution) adds variance V_r - M_r + M_r / q_r at cost
 n_r (ρ + e q_r), or V_r at cost n_r with exact visibility alone. V_r is the variance of the region's sum of
 w V over its camera samples, measured from two independent sets of them: what a camera sample's point and
-material add counts once per camera sample, not once per segment, so that many shadow rays per camera
-sample, whose visibility variance is then a small share of the pixel's, leave more to gain. The product of total variance and total cost
-is least where every region takes the cheaper of the two at the exchange rate λ = variance / cost, with
-q_r = √(M_r / (λ e n_r)) (for one region, q = √(δ ρ / ((1 - δ) e)) and the gain over exact visibility
-G = 1 / (√(ρ (1 - δ)) + √(δ e))², δ = M / V: with e = 1 the 2014 paper's control-variate gain); a few rounds of
-updating λ settle it. ρ, e, V_r and M_r come from a pilot in `prepare`: a grid of the image's pixels, up to
+material add counts once per camera sample, not once per segment, so that many shadow rays per camera sample
+(their visibility variance then a small share of the pixel's) leave more to gain. The product of total
+variance and total cost is least where every region takes the cheaper of the two at the exchange rate
+λ = variance / cost, with q_r = √(M_r / (λ e n_r)) (for one region, q = √(δ ρ / ((1 - δ) e)) and the gain
+over exact visibility G = 1 / (√(ρ (1 - δ)) + √(δ e))², δ = M / V: with e = 1 the 2014 paper's control-variate
+gain); a few rounds of updating λ settle it. ρ, e, V_r and M_r come from a pilot in `prepare`: a grid of the image's pixels, up to
 PILOT_RESOLUTION along its longer side (and at most PILOT_SHARE of the render's samples), one sample per pixel,
-rendered by the exact fused kernel (with the shells, if any, and without: shells that do not make exact
-visibility faster are dropped) and by this estimator's, every segment traced both ways, for each of two
-sets of camera samples; each region's mismatch and variance are shrunk toward its emitter's by SHRINK
-segments' worth. The pilot's pixels are the render's own, not a smaller image's larger ones, so that a camera
-sample varies within one as much as in the render. The camera rays, which every method
-pays, are timed too (κ, relative to the exact kernel) and added to both paths' costs, so the gain shrinks
-where shadow rays are few per camera sample. An emitter whose predicted G falls below GAIN_MARGIN (timings of
-a small view flatter the proxy's cache-resident BVH) gets exact visibility everywhere: proxies that do not pay
-are not used, and when that is every emitter the render takes exact visibility's fused kernel. The pilot
-uses its own samples, so q never depends on the render's draws.
+rendered by the exact fused kernel and by this estimator's (with the shells, if any, and without: shells that
+do not make both faster are dropped), every segment traced both ways, for each of two sets of camera samples;
+each region's mismatch and variance are shrunk toward its emitter's by SHRINK segments' worth. The pilot's
+pixels are the render's own, not a smaller image's larger ones, so that a camera sample varies within one as
+much as in the render. The camera rays, which every method pays, are timed too (κ, relative to the exact
+kernel) and added to both paths' costs, so the gain shrinks where shadow rays are few per camera sample. An
+emitter whose predicted G falls below GAIN_MARGIN (timings of a small view flatter the proxy's cache-resident
+BVH) gets exact visibility everywhere: proxies that do not pay are not used, and when that is every emitter the
+render takes exact visibility's fused kernel. The pilot uses its own samples, so q never depends on the
+render's draws.
 
 Heavy meshes of many separate small parts (foliage) get a volumetric proxy instead of a decimated one
 (`--kind`, see `probvis.proxies` and `probvis.transmittance`): V_P is then the proxy BVH's visibility times the
@@ -56,7 +56,7 @@ PILOT_SHARE = 1 / 300  # and at most this share of the render's (six kernel runs
 PILOT_SETS = 2  # independent sets of pilot camera samples: their differences give the variance; each kernel
 # runs on both and the faster time is kept (the first call may load or compile)
 REGIONS = 8  # q=auto chooses q per emitter in REGIONS x REGIONS tiles of the film
-SHRINK = 256  # a region's mismatch energy is shrunk toward its emitter's by this many segments' worth
+SHRINK = 256  # a region's mismatch energy and variance are shrunk toward its emitter's by this many segments' worth
 PILOT_SALT = 0x50524F5859  # mixed into its seed, apart from the render's samples
 Q_MIN = 0.02  # auto: never test fewer segments exactly than this
 GAIN_MARGIN = 1.25  # proxies are used where the predicted gain exceeds this: a small view flatters them
@@ -139,7 +139,7 @@ class ProxyVisibility(VisibilityEstimator):
               "reading the cache)"),
         Phase("proxy_bvh", "prepare", "building the proxy geometry's BVH"),
         Phase("shells", "prepare", "building the shells' voxel grid and the BVH of the rest of the scene (or reading the cache)"),
-        Phase("pilot", "prepare", "measuring proxy and scene tests on a small view of the scene (q=auto)"),
+        Phase("pilot", "prepare", "measuring proxy and scene tests on a grid of the image's pixels (q=auto)"),
         Phase("render_kernel", "batch", "sampling, proxy and scene tests and the film, fused"),
         Phase("proxy_trace", "batch", "testing segments against the proxies (staged interface)"),
         Phase("exact_trace", "batch", "testing the chosen segments against the scene (staged interface)"),
@@ -188,9 +188,9 @@ class ProxyVisibility(VisibilityEstimator):
 
     def _pilot(self, scene, bvh, emitters, settings):
         """Measure costs, variance and mismatch per region on a grid of the image's pixels: exact visibility's
-        fused kernel (and with the shells, if any: dropped unless faster), this estimator's kernel with no exact
-        test (q = 0) and with every segment tested both ways (q = 1); then choose exact or q per region and
-        emitter."""
+        fused kernel and this estimator's with no exact test (q = 0), each with and without the shells if there
+        are any (kept only if they make both faster), and this estimator's with every segment tested both ways
+        (q = 1); then choose exact or q per region and emitter."""
         from ..accel import nearest_hits
         from ..camera import camera_params, camera_rays
         from ..fused_exact import shade_exact
@@ -220,23 +220,32 @@ class ProxyVisibility(VisibilityEstimator):
             pixels.append((prim, its.position, its.normal, its.material, its.albedo, cases, keys, its.emitted,
                            cam_node, cam_tri, 1, n_shadow, n_pix))
         zeros, ones, none = np.zeros((n_pix, e)), np.ones((n_pix, e)), np.zeros((n_pix, e), bool)
-        runs = [("exact", lambda px: shade_exact(geom, emitters.arrays, bvh.arrays, *px))]
-        if self.shells.active:
-            runs.append(("shells", lambda px: self._kernel(geom, emitters.arrays, px, ones, ~none)))
-        runs += [("proxy", lambda px: self._kernel(geom, emitters.arrays, px, zeros, none)),
-                 ("both", lambda px: self._kernel(geom, emitters.arrays, px, ones, none))]
-        both = []
-        for name, run in runs:
-            if name == "proxy" and self.shells.active:  # exact visibility with shells or without, the faster
-                if best["shells"] > best["exact"]:
-                    self.shells, self.shells_dropped = ShellTests.none(bvh), True
-                best["exact"] = min(best["exact"], best["shells"])
+
+        def timed(name, run):  # on both sets of camera samples, the faster time kept; the outputs
+            outs = []
             for px in pixels:
                 t0 = time.perf_counter()
-                out = run(px)
+                outs.append(run(px))
                 best[name] = min(best.get(name, np.inf), time.perf_counter() - t0)
-                if name == "both":
-                    both.append(out[4])
+            return outs
+
+        def proxy_only(px):
+            return self._kernel(geom, emitters.arrays, px, zeros, none)
+
+        timed("exact", lambda px: shade_exact(geom, emitters.arrays, bvh.arrays, *px))
+        if self.shells.active:  # shells that do not make both exact visibility and the proxy path faster go
+            shells, self.shells = self.shells, ShellTests.none(bvh)
+            timed("proxy", proxy_only)
+            self.shells = shells
+            timed("exact_shells", lambda px: self._kernel(geom, emitters.arrays, px, ones, ~none))
+            timed("proxy_shells", proxy_only)
+            if best["exact_shells"] > best["exact"] or best["proxy_shells"] > best["proxy"]:
+                self.shells, self.shells_dropped = ShellTests.none(bvh), True
+            else:
+                best["exact"], best["proxy"] = best["exact_shells"], best["proxy_shells"]
+        else:
+            timed("proxy", proxy_only)
+        both = [out[4] for out in timed("both", lambda px: self._kernel(geom, emitters.arrays, px, ones, none))]
         sums, pair_variance = region_measures(both, film_regions(cam, image_pixels))
         if sums[..., 4].sum() == 0:
             return
