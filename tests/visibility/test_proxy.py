@@ -231,6 +231,12 @@ def test_the_pilot_counts_a_camera_samples_variance_once_per_camera_sample():
     assert variance.sum() / n_pix == pytest.approx(n_seg ** 2 + n_seg, rel=0.1)
     np.testing.assert_allclose(means[..., 4].sum(), n_seg * n_pix)
     np.testing.assert_allclose(means[..., 2].sum(), 0.5 * (sets[0][..., 2].sum() + sets[1][..., 2].sum()))
+    # weighted per pixel (relMSE's 1 / (mean² + 0.01)), the variance and the mismatch energy scale with it
+    sets[0][:, 0, 1] = sets[1][:, 0, 1] = 1.0
+    weighted, w_variance = region_measures(sets, region, np.full(n_pix, 3.0))
+    np.testing.assert_allclose(w_variance, 3 * variance)
+    np.testing.assert_allclose(weighted[..., 1].sum(), 3 * n_pix)
+    np.testing.assert_allclose(weighted[..., 4], means[..., 4])
 
 
 def test_film_regions_follow_the_crop_window():

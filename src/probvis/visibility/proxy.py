@@ -17,8 +17,9 @@ variance and total cost is least where every region takes the cheaper of the two
 over exact visibility G = 1 / (√(ρ (1 - δ)) + √(δ e))², δ = M / V: with e = 1 the 2014 paper's control-variate
 gain); a few rounds of updating λ settle it. ρ, e, V_r and M_r come from a pilot in `prepare`: a grid of the image's pixels, up to
 PILOT_RESOLUTION along its longer side (and at most PILOT_SHARE of the render's samples), one sample per pixel,
-rendered by the exact fused kernel and by this estimator's (with the shells, if any, and without: shells that
-do not make both faster are dropped), every segment traced both ways, for each of two sets of camera samples;
+rendered by the exact fused kernel and by this estimator's, with the shells if any and without them (the
+render takes the configuration whose plan predicts more), every segment traced both ways, for each of two
+sets of camera samples;
 each region's mismatch and variance are shrunk toward its emitter's by SHRINK segments' worth. The pilot's
 pixels are the render's own, not a smaller image's larger ones, so that a camera sample varies within one as
 much as in the render. The camera rays, which every method pays, are timed too (κ, relative to the exact
@@ -95,17 +96,21 @@ def allocate(n, variance, mismatch, rho, exact=1.0, base=1.0, rounds=20):
     return use, q, float(total_v * base * total_n / (v * c))
 
 
-def region_measures(sample_sets, region):
+def region_measures(sample_sets, region, weight=None):
     """Per film region and emitter, from the pilot's per-pixel sums (`shade_proxy`'s, every segment tested both
     ways) of two independent sets of camera samples, one per pixel: the sums' means over the two sets, and the
     variance of exact visibility's Σ w V over a camera sample's segments summed over the region's samples,
     estimated from the two sets' differences pixel by pixel. What a camera sample's point adds to that variance
-    counts once per camera sample, not once per segment."""
+    counts once per camera sample, not once per segment. With `weight` per pixel, the variance and the mismatch
+    energy (the sums' second column) are weighted sums over the pixels."""
     first, second = sample_sets
+    weight = np.ones(len(region)) if weight is None else weight
     sums = np.zeros((REGIONS * REGIONS,) + first.shape[1:])
     np.add.at(sums, region, 0.5 * (first + second))
+    sums[..., 1] = 0.0
+    np.add.at(sums[..., 1], region, 0.5 * (first[..., 1] + second[..., 1]) * weight[:, None])
     variance = np.zeros((REGIONS * REGIONS, first.shape[1]))
-    np.add.at(variance, region, 0.5 * (first[..., 2] - second[..., 2]) ** 2)
+    np.add.at(variance, region, 0.5 * (first[..., 2] - second[..., 2]) ** 2 * weight[:, None])
     return sums, variance
 
 
@@ -171,7 +176,7 @@ class ProxyVisibility(VisibilityEstimator):
         self.tests = np.zeros(6, np.int64)  # node and triangle tests: proxy, scene; shell and proxy voxels
         self.pilot_segments = 0
         self.shells_dropped = False  # the pilot found exact visibility faster without them
-        self.costs = None  # (ρ, e) from the pilot: costs relative to exact visibility's fused kernel
+        self.costs = None  # (ρ, e) from the pilot: costs relative to exact visibility's fused kernel (no shells)
         self.camera_cost = None  # κ: the camera rays' cost, relative to the same
         if not has_proxy:
             self.exact[:] = True  # nothing to gain: every segment is tested exactly
@@ -188,9 +193,10 @@ class ProxyVisibility(VisibilityEstimator):
 
     def _pilot(self, scene, bvh, emitters, settings):
         """Measure costs, variance and mismatch per region on a grid of the image's pixels: exact visibility's
-        fused kernel and this estimator's with no exact test (q = 0), each with and without the shells if there
-        are any (kept only if they make both faster), and this estimator's with every segment tested both ways
-        (q = 1); then choose exact or q per region and emitter."""
+        fused kernel, and this estimator's with no exact test (q = 0) and with every segment tested both ways
+        (q = 1), without the shells and, if there are any, with them (and exact visibility with them); then plan
+        exact or q per region and emitter for both configurations and keep the one with the larger predicted
+        gain over exact visibility."""
         from ..accel import nearest_hits
         from ..camera import camera_params, camera_rays
         from ..fused_exact import shade_exact
@@ -229,45 +235,65 @@ class ProxyVisibility(VisibilityEstimator):
                 best[name] = min(best.get(name, np.inf), time.perf_counter() - t0)
             return outs
 
-        def proxy_only(px):
-            return self._kernel(geom, emitters.arrays, px, zeros, none)
+        region = film_regions(cam, image_pixels)
 
-        timed("exact", lambda px: shade_exact(geom, emitters.arrays, bvh.arrays, *px))
-        if self.shells.active:  # shells that do not make both exact visibility and the proxy path faster go
-            shells, self.shells = self.shells, ShellTests.none(bvh)
-            timed("proxy", proxy_only)
+        def measure(tag, shells):
+            """Time this estimator's kernel with no exact test and with every segment tested both ways (and
+            exact visibility, with shells) under one configuration of shells; the measures per region."""
             self.shells = shells
-            timed("exact_shells", lambda px: self._kernel(geom, emitters.arrays, px, ones, ~none))
-            timed("proxy_shells", proxy_only)
-            if best["exact_shells"] > best["exact"] or best["proxy_shells"] > best["proxy"]:
-                self.shells, self.shells_dropped = ShellTests.none(bvh), True
-            else:
-                best["exact"], best["proxy"] = best["exact_shells"], best["proxy_shells"]
-        else:
-            timed("proxy", proxy_only)
-        both = [out[4] for out in timed("both", lambda px: self._kernel(geom, emitters.arrays, px, ones, none))]
-        sums, pair_variance = region_measures(both, film_regions(cam, image_pixels))
-        if sums[..., 4].sum() == 0:
+            if shells.active:
+                timed("exact_" + tag, lambda px: self._kernel(geom, emitters.arrays, px, ones, ~none))
+            timed("proxy_" + tag, lambda px: self._kernel(geom, emitters.arrays, px, zeros, none))
+            outs = timed("both_" + tag, lambda px: self._kernel(geom, emitters.arrays, px, ones, none))
+            # errors are judged relative to the pixel (relMSE): each pixel weighs 1 / (its luminance² + 0.01)
+            lum = 0.5 * sum(out[0] @ np.array([0.212671, 0.715160, 0.072169]) for out in outs)
+            return region_measures([out[4] for out in outs], region, 1.0 / (lum ** 2 + 0.01))
+
+        timed("exact_plain", lambda px: shade_exact(geom, emitters.arrays, bvh.arrays, *px))
+        configs = {"plain": ShellTests.none(bvh)}
+        if self.shells.active:
+            configs["shells"] = self.shells
+        measured = {tag: measure(tag, shells) for tag, shells in configs.items()}
+        unit = best["exact_plain"]  # costs relative to exact visibility's fused kernel without shells
+        self.camera_cost = kappa = best["camera"] / unit
+        plans = {}
+        for tag, (sums, pair_variance) in measured.items():
+            if sums[..., 4].sum() == 0:
+                continue
+            base = best.get("exact_" + tag, unit) / unit
+            # the extra exact tests' cost is a difference of two timings: floored, so noise cannot zero it
+            rho = best["proxy_" + tag] / unit
+            cost_e = max(best["both_" + tag] - best["proxy_" + tag], 0.01 * unit) / unit
+            emitter_plans, score = [], []
+            for k in range(e):
+                n, mismatch, variance = sums[:, k, 4], sums[:, k, 1], pair_variance[:, k]
+                if n.sum() == 0:
+                    emitter_plans.append(None)
+                    continue
+                mu, nu = mismatch.sum() / n.sum(), variance.sum() / n.sum()
+                mismatch = (mismatch + SHRINK * mu) * n / (n + SHRINK)
+                variance = (variance + SHRINK * nu) * n / (n + SHRINK)
+                use, q, gain = allocate(n, variance, mismatch, rho + kappa, cost_e, base + kappa)
+                use &= gain >= GAIN_MARGIN
+                emitter_plans.append((use, q, gain * (1 + kappa) / (base + kappa)))
+                # a plan that uses the proxies must win by the margin, as within a configuration
+                score.append((gain / GAIN_MARGIN if use.any() else 1.0) * (1 + kappa) / (base + kappa))
+            plans[tag] = (float(np.mean(score)), (rho, cost_e), sums, emitter_plans)
+        if not plans:
+            self.shells = configs.get("shells", configs["plain"])
             return
-        # the extra exact tests' cost is a difference of two timings: floored, so timing noise cannot zero it
-        self.costs = rho, cost_e = (best["proxy"] / best["exact"],
-                                    max(best["both"] - best["proxy"], 0.01 * best["exact"]) / best["exact"])
-        self.camera_cost = kappa = best["camera"] / best["exact"]
+        tag = max(plans, key=lambda t: plans[t][0])  # with shells or without, whichever the pilot finds better
+        _, self.costs, sums, emitter_plans = plans[tag]
+        self.shells = configs[tag]
+        self.shells_dropped = tag == "plain" and "shells" in configs
         self.sums += sums.sum(axis=0)
         self.pilot_segments = int(sums[..., 4].sum())
-        for k in range(e):
-            n, mismatch, variance = sums[:, k, 4], sums[:, k, 1], pair_variance[:, k]
-            if n.sum() == 0:
+        for k, plan in enumerate(emitter_plans):
+            if plan is None:
                 continue
-            mu, nu = mismatch.sum() / n.sum(), variance.sum() / n.sum()
-            mismatch = (mismatch + SHRINK * mu) * n / (n + SHRINK)
-            variance = (variance + SHRINK * nu) * n / (n + SHRINK)
-            use, q, self.gain[k] = allocate(n, variance, mismatch, rho + kappa, cost_e, 1.0 + kappa)
-            if self.gain[k] < GAIN_MARGIN or not use.any():
-                self.exact[:, k] = True
-            else:
-                self.exact[:, k] = ~use
-                self.q[:, k] = q
+            use, q, self.gain[k] = plan
+            self.exact[:, k] = ~use
+            self.q[:, k] = np.where(use, q, self.q[:, k])
 
     def _kernel(self, geom, es, pixel, q, exact):
         (prim, pos, nrm, mat, albedo, cases, keys, emitted, cam_node, cam_tri, spp, n_shadow, n_pix) = pixel
