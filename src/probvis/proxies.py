@@ -82,8 +82,9 @@ def decimate(tris, target):
     return np.ascontiguousarray(pv[pf]), None
 
 
-def _cached_decimate(tris, target, use_cache):
-    """`decimate` through the on-disk cache: (triangles or None, why not, whether it came from the cache)."""
+def _cached_decimate(tris, digest, target, use_cache):
+    """`decimate` through the on-disk cache (`digest`: the triangles' content key): (triangles or None, why not,
+    whether it came from the cache)."""
     why = []
 
     def build():
@@ -91,21 +92,23 @@ def _cached_decimate(tris, target, use_cache):
         why.append(reason)
         return None if out is None else {"triangles": out}
 
-    key = content_key(f"proxy v{CACHE_VERSION} target {target}", tris)
+    key = content_key(f"proxy v{CACHE_VERSION} target {target} of {digest}")
     out, cached = load_or_build("proxies", key, build, use_cache)
     return (None if out is None else out["triangles"]), (why[0] if why else None), cached
 
 
-def _cached_small_parts(tris, use_cache):
-    """`transmittance.mostly_small_parts` of a triangle soup, welded (seconds for a million triangles) once."""
+def _cached_small_parts(tris, digest, use_cache):
+    """`transmittance.mostly_small_parts` of a triangle soup (`digest`: its content key), welded (seconds for a
+    million triangles) once."""
     def build():
         return {"vertices": np.array(len(weld(tris)[0]))}
 
-    out, _ = load_or_build("parts", content_key(f"welded vertices v{CACHE_VERSION}", tris), build, use_cache)
+    out, _ = load_or_build("parts", content_key(f"welded vertices v{CACHE_VERSION} of {digest}"), build, use_cache)
     return mostly_small_parts(int(out["vertices"]), len(tris))
 
 
-def build_proxies(scene, ratio=0.01, triangles=None, min_triangles=MIN_TRIANGLES, use_cache=True, kind="auto"):
+def build_proxies(scene, ratio=0.01, triangles=None, min_triangles=MIN_TRIANGLES, use_cache=True,
+                  kind="auto"):
     """`ProxyGeometry` of a scene: shapes of at least `min_triangles` decimated to `ratio` of their triangles
     (or to `triangles` each) or, by `kind`, prefiltered into the extinction grid; the others kept."""
     t0 = time.perf_counter()
@@ -116,13 +119,14 @@ def build_proxies(scene, ratio=0.01, triangles=None, min_triangles=MIN_TRIANGLES
             parts.append(tris)
             continue
         t = time.perf_counter()
-        if kind == "volume" or (kind == "auto" and _cached_small_parts(tris, use_cache)):
+        digest = content_key("triangles", tris)  # hashed once: both cache keys derive from it
+        if kind == "volume" or (kind == "auto" and _cached_small_parts(tris, digest, use_cache)):
             volumes.append(tris)
             report.append({"name": shape.name, "kind": "volume", "triangles": shape.n_triangles,
                            "proxy_triangles": None, "seconds": time.perf_counter() - t, "cached": None})
             continue
         target = target_count(shape.n_triangles, ratio, triangles)
-        proxy, why, cached = _cached_decimate(tris, target, use_cache)
+        proxy, why, cached = _cached_decimate(tris, digest, target, use_cache)
         if proxy is None:
             warnings.warn(f"proxies: shape '{shape.name}' keeps its {shape.n_triangles} triangles: {why}",
                           stacklevel=2)

@@ -61,6 +61,7 @@ SHRINK = 256  # a region's mismatch energy and variance are shrunk toward its em
 PILOT_SALT = 0x50524F5859  # mixed into its seed, apart from the render's samples
 Q_MIN = 0.02  # auto: never test fewer segments exactly than this
 GAIN_MARGIN = 1.25  # proxies are used where the predicted gain exceeds this: a small view flatters them
+SHELL_MARGIN = 1.05  # shells are kept where their plan predicts this much more than the plan without them
 
 
 def _parse_q(value):
@@ -282,7 +283,9 @@ class ProxyVisibility(VisibilityEstimator):
         if not plans:
             self.shells = configs.get("shells", configs["plain"])
             return
-        tag = max(plans, key=lambda t: plans[t][0])  # with shells or without, whichever the pilot finds better
+        # with shells or without, whichever the pilot finds better; shells must win by SHELL_MARGIN (their walk
+        # costs a few percent where it decides nothing, within the pilot's timing noise)
+        tag = max(plans, key=lambda t: plans[t][0] / (SHELL_MARGIN if t == "shells" else 1.0))
         _, self.costs, sums, emitter_plans = plans[tag]
         self.shells = configs[tag]
         self.shells_dropped = tag == "plain" and "shells" in configs
