@@ -227,16 +227,17 @@ def test_the_pilot_counts_a_camera_samples_variance_once_per_camera_sample():
         sums[:, 0, 2] = n_seg * rng.standard_normal(n_pix) + rng.standard_normal((n_pix, n_seg)).sum(1)
         sums[:, 0, 4] = n_seg
         sets.append(sums)
-    means, variance = region_measures(sets, region)
+    means, variance, _ = region_measures(sets, region)
     assert variance.sum() / n_pix == pytest.approx(n_seg ** 2 + n_seg, rel=0.1)
     np.testing.assert_allclose(means[..., 4].sum(), n_seg * n_pix)
     np.testing.assert_allclose(means[..., 2].sum(), 0.5 * (sets[0][..., 2].sum() + sets[1][..., 2].sum()))
     # weighted per pixel (relMSE's 1 / (mean² + 0.01)), the variance and the mismatch energy scale with it
     sets[0][:, 0, 1] = sets[1][:, 0, 1] = 1.0
-    weighted, w_variance = region_measures(sets, region, np.full(n_pix, 3.0))
+    plain, w_variance, w_mismatch = region_measures(sets, region, np.full(n_pix, 3.0))
     np.testing.assert_allclose(w_variance, 3 * variance)
-    np.testing.assert_allclose(weighted[..., 1].sum(), 3 * n_pix)
-    np.testing.assert_allclose(weighted[..., 4], means[..., 4])
+    np.testing.assert_allclose(w_mismatch.sum(), 3 * n_pix)
+    np.testing.assert_allclose(plain[..., 1].sum(), n_pix)
+    np.testing.assert_allclose(plain[..., 4], means[..., 4])
 
 
 def test_film_regions_follow_the_crop_window():

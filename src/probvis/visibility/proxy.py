@@ -101,18 +101,18 @@ def region_measures(sample_sets, region, weight=None):
     """Per film region and emitter, from the pilot's per-pixel sums (`shade_proxy`'s, every segment tested both
     ways) of two independent sets of camera samples, one per pixel: the sums' means over the two sets, and the
     variance of exact visibility's Σ w V over a camera sample's segments summed over the region's samples,
-    estimated from the two sets' differences pixel by pixel. What a camera sample's point adds to that variance
-    counts once per camera sample, not once per segment. With `weight` per pixel, the variance and the mismatch
-    energy (the sums' second column) are weighted sums over the pixels."""
+    estimated from the two sets' differences pixel by pixel, and the mismatch energy (the sums' second column),
+    both weighted per pixel by `weight`. What a camera sample's point adds to that variance counts once per
+    camera sample, not once per segment."""
     first, second = sample_sets
-    weight = np.ones(len(region)) if weight is None else weight
+    weight = (np.ones(len(region)) if weight is None else weight)[:, None]
     sums = np.zeros((REGIONS * REGIONS,) + first.shape[1:])
     np.add.at(sums, region, 0.5 * (first + second))
-    sums[..., 1] = 0.0
-    np.add.at(sums[..., 1], region, 0.5 * (first[..., 1] + second[..., 1]) * weight[:, None])
     variance = np.zeros((REGIONS * REGIONS, first.shape[1]))
-    np.add.at(variance, region, 0.5 * (first[..., 2] - second[..., 2]) ** 2 * weight[:, None])
-    return sums, variance
+    np.add.at(variance, region, 0.5 * (first[..., 2] - second[..., 2]) ** 2 * weight)
+    mismatch = np.zeros((REGIONS * REGIONS, first.shape[1]))
+    np.add.at(mismatch, region, 0.5 * (first[..., 1] + second[..., 1]) * weight)
+    return sums, variance, mismatch
 
 
 def film_regions(camera, pix):
@@ -258,7 +258,7 @@ class ProxyVisibility(VisibilityEstimator):
         unit = best["exact_plain"]  # costs relative to exact visibility's fused kernel without shells
         self.camera_cost = kappa = best["camera"] / unit
         plans = {}
-        for tag, (sums, pair_variance) in measured.items():
+        for tag, (sums, pair_variance, pair_mismatch) in measured.items():
             if sums[..., 4].sum() == 0:
                 continue
             base = best.get("exact_" + tag, unit) / unit
@@ -267,7 +267,7 @@ class ProxyVisibility(VisibilityEstimator):
             cost_e = max(best["both_" + tag] - best["proxy_" + tag], 0.01 * unit) / unit
             emitter_plans, score = [], []
             for k in range(e):
-                n, mismatch, variance = sums[:, k, 4], sums[:, k, 1], pair_variance[:, k]
+                n, mismatch, variance = sums[:, k, 4], pair_mismatch[:, k], pair_variance[:, k]
                 if n.sum() == 0:
                     emitter_plans.append(None)
                     continue
