@@ -19,7 +19,7 @@ from .parallel import spread
 from .rng import uniform
 from .scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, EMITTER_SPOT
 
-_LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
+LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 POINTS_PER_BLOCK = 64  # shading points per parallel work item of `sample_emitters`
 
 
@@ -108,7 +108,7 @@ def environment_arrays(env):
     image = np.zeros((2, 1, 3)) if env is None else env.image
     h, w = image.shape[:2]
     ext = np.ascontiguousarray(np.concatenate([image, image[:, :1]], axis=1))
-    lum = np.abs(ext) @ _LUMINANCE
+    lum = np.abs(ext) @ LUMINANCE
     corners = np.stack([lum[:-1, :-1], lum[:-1, 1:], lum[1:, :-1], lum[1:, 1:]])
     cos_t = np.cos(np.linspace(0.0, np.pi, h))
     solid = (2.0 * np.pi / w) * (cos_t[:-1] - cos_t[1:])[:, None] * np.ones((1, w))
@@ -193,7 +193,7 @@ def build_emitter_sampler(scene):
         tri_prob[offsets[i]:offsets[i + 1]], tri_alias[offsets[i]:offsets[i + 1]] = alias_table(
             tri_area[order[offsets[i]:offsets[i + 1]]])
     kind = scene.emitter_kind
-    lum = scene.emitter_radiance @ _LUMINANCE
+    lum = scene.emitter_radiance @ LUMINANCE
     lo, hi = scene.bounds()
     sphere = np.append(0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-6))
     env, env_integral = environment_arrays(scene.environment)

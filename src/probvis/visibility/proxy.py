@@ -42,6 +42,7 @@ import time
 import numpy as np
 
 from ..accel import build_bvh, occluded_segments
+from ..emitters import LUMINANCE
 from ..errors import ProbvisError
 from ..proxies import KINDS, MIN_TRIANGLES, build_proxies
 from ..rng import uniforms
@@ -247,7 +248,7 @@ class ProxyVisibility(VisibilityEstimator):
             timed("proxy_" + tag, lambda px: self._kernel(geom, emitters.arrays, px, zeros, none))
             outs = timed("both_" + tag, lambda px: self._kernel(geom, emitters.arrays, px, ones, none))
             # errors are judged relative to the pixel (relMSE): each pixel weighs 1 / (its luminance² + 0.01)
-            lum = 0.5 * sum(out[0] @ np.array([0.212671, 0.715160, 0.072169]) for out in outs)
+            lum = 0.5 * sum(out[0] @ LUMINANCE for out in outs)
             return region_measures([out[4] for out in outs], region, 1.0 / (lum ** 2 + 0.01))
 
         timed("exact_plain", lambda px: shade_exact(geom, emitters.arrays, bvh.arrays, *px))
@@ -341,7 +342,7 @@ class ProxyVisibility(VisibilityEstimator):
             tmin = self.proxies.clearance / np.sqrt(np.einsum("ij,ij->i", d, d))
             occ, pn, pt = occluded_segments(self.proxy_bvh, query.origin[on_proxy], d, query.tmax[on_proxy],
                                             query.point[on_proxy], tmin)
-            t_p, _ = transmittances(*self.proxies.volume.kernel_args, query.origin[on_proxy], d, query.tmax[on_proxy])
+            t_p, steps = transmittances(*self.proxies.volume.kernel_args, query.origin[on_proxy], d, query.tmax[on_proxy])
         v_p[on_proxy] = (1.0 - occ) * t_p
         node[on_proxy] += pn
         tri[on_proxy] += pt
@@ -352,6 +353,7 @@ class ProxyVisibility(VisibilityEstimator):
         node[on_scene] += sn
         tri[on_scene] += st
         self.tests[:4] += (int(pn.sum()), int(pt.sum()), int(sn.sum()), int(st.sum()))
+        self.tests[5] += int(steps.sum())
         value = np.where(exact_only, 0.0, v_p)
         value[on_scene] += np.where(exact_only[on_scene], v, (v - v_p[on_scene]) / q[on_scene])
         both = on_scene[~exact_only[on_scene]]
