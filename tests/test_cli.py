@@ -142,7 +142,8 @@ def test_estimators_lists_every_estimator_with_its_options(capsys):
     assert set(listed) >= {"exact", "occlusion-map", "probvis"}
     flags = {o["flag"] for o in listed["probvis"]["options"]}
     assert {"--estimator", "--grouping", "--photons", "--adaptive-photons"} <= flags and "--penumbra" not in flags
-    assert listed["exact"]["fused_any_hit"] and [o["flag"] for o in listed["exact"]["options"]] == [
+    assert listed["exact"]["render_path"].startswith("The integrator's fused kernel")
+    assert listed["probvis"]["render_path"] == "staged" and [o["flag"] for o in listed["exact"]["options"]] == [
         "--shells", "--min-triangles", "--cache"]
     assert [a["name"] for a in listed["occlusion-map"]["aovs"]] == ["cases"]
     assert {p["name"] for p in listed["probvis"]["phases"]} >= {"photons", "lookup", "grouping"}

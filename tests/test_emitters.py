@@ -3,7 +3,9 @@ import numpy as np
 import pytest
 from numba import njit
 
-from probvis.emitters import EmitterArrays, alias_table, environment_arrays, sample_on_emitter
+from probvis.alias import alias_table
+from probvis.emitters import EmitterArrays, sample_on_emitter
+from probvis.environment import environment_arrays
 
 
 def alias_distribution(prob, alias):
@@ -49,7 +51,7 @@ def test_points_are_uniform_by_area_on_a_mesh_emitter():
     prob, alias = alias_table(areas)
     table = EmitterArrays(np.ones(1), np.ones(1), np.array([0, 4]), np.arange(4), prob, alias, np.zeros(1, np.int8),
                           np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 4)), np.ones(4),
-                          *environment_arrays(None)[0])  # one area emitter: triangles 0..3
+                          *environment_arrays(None, np.zeros(3))[0])  # one area emitter: triangles 0..3
     n = 200_000
     tri, pts = _sample_many(table, triangles, n, 3)
     share = areas / areas.sum()

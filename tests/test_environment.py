@@ -5,7 +5,8 @@ import pytest
 
 import probvis
 from probvis import ProbvisError
-from probvis.emitters import build_emitter_sampler, environment_radiance, sample_environment
+from probvis.emitters import build_emitter_sampler
+from probvis.environment import environment_radiance, sample_environment
 from probvis.io.image import read_linear_rgb, write_exr
 from tests.conftest import assert_matches_mitsuba, sensor, write_scene
 

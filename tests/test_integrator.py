@@ -5,6 +5,7 @@ import pytest
 
 import probvis
 from probvis import ProbvisError
+from probvis.visibility import RenderPath
 from probvis.visibility.exact import ExactVisibility
 from tests.conftest import sensor, write_scene
 
@@ -75,9 +76,10 @@ def test_same_image_whatever_the_thread_count_and_seed_matters():
 
 
 class StagedExact(ExactVisibility):
-    """Exact visibility through the staged path (slots, compaction, `evaluate`, accumulate)."""
+    """Exact visibility through the staged path (slots, compaction, `evaluate`, the samples' radiance)."""
 
-    fused_any_hit = False
+    def render_path(self):
+        return RenderPath.STAGED
 
 
 @pytest.mark.parametrize("two_lights, shadow_rays", [(False, 3), (True, 70)])

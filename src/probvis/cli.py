@@ -229,11 +229,21 @@ def _cmd_render(args):
     return 0
 
 
+def _render_path_doc(cls):
+    """How an estimator class renders: "staged" (segments, `evaluate`), or what its own `render_path` says."""
+    from .visibility import VisibilityEstimator
+
+    if cls.render_path is VisibilityEstimator.render_path:
+        return "staged"
+    doc = " ".join((cls.render_path.__doc__ or "its own choice").split())
+    return doc.split(". ")[0].rstrip(".")
+
+
 def _describe(cls):
     """An estimator's declarations as a JSON-serialisable dict."""
     return {
         "name": cls.name, "class": f"{cls.__module__}:{cls.__qualname__}", "summary": cls.summary,
-        "fused_any_hit": cls.fused_any_hit is True, "fused_shade": bool(cls.fused_shade),
+        "render_path": _render_path_doc(cls),
         "options": [{"name": o.name, "flag": o.flag, "type": o.describe_type(),
                      "default": list(o.default) if isinstance(o.default, tuple) else o.default, "help": o.help}
                     for o in cls.options],
@@ -252,9 +262,7 @@ def _cmd_estimators(args):
         return 0
     for d in described:
         print(f"{d['name']}  —  {d['summary']}")
-        fusion = ("; exact any-hit: the integrator may fuse it" if d["fused_any_hit"] else
-                  "; renders through its own fused kernel" if d["fused_shade"] else "")
-        print(f"    class {d['class']}{fusion}")
+        print(f"    class {d['class']}; render path: {d['render_path']}")
         for o in d["options"]:
             default = "automatic" if o["default"] is None else _show(o["default"])
             print(f"    {o['flag']}  ({o['type']}; default {default})")

@@ -1,66 +1,32 @@
-"""Stage 5 of a render: the film. Camera samples' radiance is averaged per pixel (box filter), with the
-second moment, per-pixel test counts and the estimator's AOVs beside it."""
+"""The last stage of a render: the film. Camera samples' radiance is averaged per pixel (box filter), with the
+second moment, per-pixel test counts, case shares and the estimator's AOVs beside it."""
 import numpy as np
 from numba import njit, prange
 
 from .cases import CASE_MASK, N_CASES
-
-N_COUNTS = 5  # per-pixel counts: camera-ray triangle and node tests, shadow triangle and node tests, negatives
-CAM_TRI, CAM_NODE, SH_TRI, SH_NODE, NEGATIVE = range(N_COUNTS)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def add_sample(img, m2, q, l0, l1, l2):
-    """Add one camera sample's radiance to pixel q's sum and sum of squares."""
-    img[q, 0] += l0
-    img[q, 1] += l1
-    img[q, 2] += l2
-    m2[q, 0] += l0 * l0
-    m2[q, 1] += l1 * l1
-    m2[q, 2] += l2 * l2
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def pixel_mean(img, m2, q, spp):
-    """Turn pixel q's sums over its spp samples into means (box filter)."""
-    for c in range(3):
-        img[q, c] /= spp
-        m2[q, c] /= spp
+from .shading import CAM_NODE, CAM_TRI, N_COUNTS, SH_NODE, SH_TRI
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def accumulate(emitted, contrib, active, offsets, value, cam_node, cam_tri, sh_node, sh_tri, spp, n_shadow, n_pix):
-    """Pixel means of a batch of whole pixels: each camera sample's `emitted` radiance plus, over its active
-    shadow slots, unoccluded contribution x visibility estimate (`value`, dense: `offsets[i]` onwards for camera
-    sample i). Returns the means, the second moments and the per-pixel counts (see N_COUNTS)."""
+def pixel_moments(radiance, spp):
+    """Per pixel of spp consecutive camera samples: the mean of their radiance and of its square."""
+    n_pix = radiance.shape[0] // spp
     img = np.zeros((n_pix, 3))
     m2 = np.zeros((n_pix, 3))
-    counts = np.zeros((n_pix, N_COUNTS), np.int64)
-    for q in prange(n_pix):
+    for px in prange(n_pix):
         for s in range(spp):
-            i = q * spp + s
-            counts[q, CAM_TRI] += cam_tri[i]
-            counts[q, CAM_NODE] += cam_node[i]
-            l0, l1, l2 = emitted[i, 0], emitted[i, 1], emitted[i, 2]
-            k = offsets[i]
-            for j in range(n_shadow):
-                slot = i * n_shadow + j
-                if active[slot]:
-                    v = value[k]
-                    l0 += contrib[slot, 0] * v
-                    l1 += contrib[slot, 1] * v
-                    l2 += contrib[slot, 2] * v
-                    counts[q, SH_TRI] += sh_tri[k]
-                    counts[q, SH_NODE] += sh_node[k]
-                    counts[q, NEGATIVE] += v < 0.0
-                    k += 1
-            add_sample(img, m2, q, l0, l1, l2)
-        pixel_mean(img, m2, q, spp)
-    return img, m2, counts
+            for c in range(3):
+                x = radiance[px * spp + s, c]
+                img[px, c] += x
+                m2[px, c] += x * x
+        for c in range(3):
+            img[px, c] /= spp
+            m2[px, c] /= spp
+    return img, m2
 
 
 class Film:
-    """Everything a render accumulates per pixel, filled batch by batch (pixels [p0, p1) at a time)."""
+    """Everything a render accumulates per pixel, filled batch by batch (`add`: a batch of whole pixels)."""
 
     def __init__(self, width, height, spp, n_emitters, segment_aovs=()):
         n = width * height
@@ -71,23 +37,21 @@ class Film:
         self.case_counts = None  # (n, emitters, N_CASES) samples per case, once an estimator classifies
         self.segment_aovs = {name: np.zeros(n) for name in segment_aovs}
 
-    def store(self, p0, p1, img, m2, counts):
-        """The means, second moments and counts of pixels [p0, p1)."""
-        self.image[p0:p1], self.moment2[p0:p1], self.counts[p0:p1] = img, m2, counts
+    def add(self, batch, shaded):
+        """A `ShadedBatch` of the `ShadingBatch` `batch`: its pixels' means, second moments, counts and AOVs."""
+        pix = batch.pixel
+        self.image[pix], self.moment2[pix] = pixel_moments(shaded.radiance, self.spp)
+        self.counts[pix] = shaded.counts
+        for name, v in (shaded.aovs or {}).items():
+            self.segment_aovs[name][pix] += v
 
-    def add_cases(self, p0, p1, cases):
-        """Count the occlusion cases (camera samples x emitters, CASE_*) of pixels [p0, p1)."""
+    def add_cases(self, batch):
+        """Count the batch's occlusion cases (camera samples x emitters, CASE_*) per pixel."""
         if self.case_counts is None:
             self.case_counts = np.zeros((len(self.image), self.n_emitters, N_CASES), np.int32)
-        per_px = cases.reshape(p1 - p0, self.spp, -1) & CASE_MASK
+        per_px = batch.cases.reshape(len(batch.pixel), self.spp, -1) & CASE_MASK
         for c in range(N_CASES):
-            self.case_counts[p0:p1, :, c] = (per_px == c).sum(axis=1)
-
-    def add_segment_aovs(self, p0, p1, sample, values):
-        """Add per-segment AOV `values` (name -> (n,)) of segments made by camera samples `sample` (batch indices)."""
-        pixel = sample // self.spp
-        for name, v in values.items():
-            self.segment_aovs[name][p0:p1] += np.bincount(pixel, weights=v, minlength=p1 - p0) / self.spp
+            self.case_counts[batch.pixel, :, c] = (per_px == c).sum(axis=1)
 
     def totals(self):
         """Counts summed over the image, by name."""

@@ -1,13 +1,15 @@
 """Direct illumination, run stage by stage over batches of whole pixels (wavefront style):
 
-    camera rays (`camera`) -> surface interactions (`interaction`) -> emitter samples (`emitters`)
-    -> shadow segments (`segments`) -> visibility (`visibility`, the estimator) -> film (`film`)
+    scene -> BVH (`accel`) and emitter sampler (`emitters`), once per render; the estimator's `prepare`;
+    per batch: camera rays (`camera`) -> first hits (`accel`) -> surface interactions (`interaction`)
+    -> the estimator's cases (`classify`) -> the render path -> film (`film`)
 
-Estimators that declare `fused_any_hit` (exact visibility) take a fused last three stages instead
-(`fused_exact`: sample, trace and sum a shading point's segments while they are in cache), with the staged
-path's numbers bit for bit; estimators that declare `fused_shade` render whole pixels through their own fused
-kernel (`VisibilityEstimator.shade`). This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0`: each camera sample
-takes `shadow_rays` emitter samples (emitter by power, triangle by area, uniform point) with a Lambertian BRDF.
+The render path is chosen once, after `prepare`, by the estimator (`VisibilityEstimator.render_path`): the
+staged path makes the batch's shadow segments (`segments`) and asks the estimator's `evaluate`; exact
+visibility takes the fused kernel (`fused_exact`: sample, trace and sum a shading point's segments while they
+are in cache, the staged path's numbers bit for bit); an estimator with a kernel of its own renders the batch
+itself (`shade`). This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0`: each camera sample takes
+`shadow_rays` emitter samples (emitter by power, triangle by area, uniform point) with a Lambertian BRDF.
 """
 import sys
 import time
@@ -23,18 +25,18 @@ from . import memory
 from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
-from .emitters import add_environment, build_emitter_sampler, sample_emitters
+from .emitters import build_emitter_sampler
 from .errors import ProbvisError
-from .film import Film, accumulate
+from .film import Film
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
 from .render_stats import render_stats
 from .scene import Scene, load_scene
-from .scene.scene import EMITTER_ENVIRONMENT
-from .segments import SegmentBuffers, compact
+from .segments import SegmentBuffers, compact, sample_emitters, sample_radiance
 from .settings import RenderSettings
-from .visibility import ShadingPoints, ShadowQuery, VisibilityEstimator, estimator_class
+from .shading import ShadedBatch, ShadingBatch
+from .visibility import RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, estimator_class
 
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
 COMPILE_TIME = "1-3 minutes"  # what the first run's kernel compilation takes on 2 cores (60-150 s measured)
@@ -57,12 +59,73 @@ class RenderResult:
     aovs: dict = field(default_factory=dict)
 
 
+class Integrator:
+    """Mitsuba's `direct` integrator on one scene: the structures of one render and the front end of a batch
+    (camera rays, their first hits, surface interactions). An estimator's `prepare` receives it: a kernel of its
+    own takes `scene_arrays`, and a pilot renders through `shading_batch` and `shade_exact`."""
+
+    def __init__(self, scene, bvh, emitters):
+        self.scene, self.bvh, self.emitters = scene, bvh, emitters
+        self.camera = camera_params(scene.camera)
+        self.scene_arrays, self.textures = scene_arrays(scene)
+
+    def shading_batch(self, pixels, spp, shadow_rays, seed):
+        """The `ShadingBatch` of image pixels `pixels` (row-major, int64), every case unknown."""
+        org, dirs, tmin, tmax, keys = camera_rays(self.camera, spp, seed, pixels)
+        prim, _, b1, b2, cam_node, cam_tri = nearest_hits(self.bvh, org, dirs, tmin, tmax)
+        its = surface_interactions(self.scene_arrays, self.textures, self.emitters.arrays, prim, b1, b2, dirs)
+        cases = np.full((len(prim), self.scene.n_emitters), CASE_UNKNOWN, np.int8)
+        return ShadingBatch(pixels, spp, shadow_rays, prim, its.emitted, its.position, its.normal, its.material,
+                            its.albedo, cases, keys, cam_node, cam_tri)
+
+    def shade_exact(self, batch):
+        """The fused exact-visibility kernel's `ShadedBatch`."""
+        return ShadedBatch(*shade_exact(self.scene_arrays, self.emitters.arrays, self.bvh.arrays, batch))
+
+
+class StagedPath:
+    """The batch's shadow segments (`segments`), the estimator's `evaluate` on them, each sample's radiance."""
+
+    def __init__(self, integrator, estimator, n_slots):
+        self.integrator, self.estimator = integrator, estimator
+        self.buffers = SegmentBuffers(n_slots)
+
+    def __call__(self, batch):
+        it = self.integrator
+        slots = self.buffers.slots(len(batch.keys) * batch.shadow_rays)
+        emitted = batch.emitted + sample_emitters(it.scene_arrays, it.emitters.arrays, batch, slots)
+        offsets = compact(batch, slots, self.buffers.dense)
+        seg = self.buffers.segments(int(offsets[-1]))
+        query = ShadowQuery(origin=seg.origin, direction=seg.direction, tmax=seg.tmax, point=seg.point,
+                            emitter=seg.emitter, key=seg.key, weight=seg.weight)
+        res = self.estimator.evaluate(query)
+        radiance, counts, segments = sample_radiance(batch, emitted, slots, offsets, res.value, res.node_tests,
+                                                     res.triangle_tests)
+        pixel = query.point // batch.spp
+        aovs = {name: np.bincount(pixel, weights=v, minlength=len(batch.pixel)) / batch.spp
+                for name, v in res.aovs.items()}
+        return ShadedBatch(radiance, counts, segments, aovs)
+
+
+def make_path(integrator, estimator, path, n_slots):
+    """The render path `path` (a `RenderPath`, the estimator's choice after `prepare`) as a function of a
+    `ShadingBatch` to its `ShadedBatch`."""
+    if path == RenderPath.FUSED_EXACT:
+        return integrator.shade_exact
+    if path == RenderPath.OWN_KERNEL:
+        return estimator.shade
+    if path == RenderPath.STAGED:
+        return StagedPath(integrator, estimator, n_slots)
+    raise ProbvisError(f"visibility '{estimator.name}': render_path() returned {path!r}, not a RenderPath")
+
+
 @dataclass
 class _Pass:
     """What one pass over the image produced, for the stats."""
 
     film: Film
     bvh: object
+    path: RenderPath
     shadow_rays: int
     camera_hits: int
     cases: list
@@ -74,22 +137,17 @@ def render_pass(scene, settings, estimator, progress=False):
     t0 = time.perf_counter()
     bvh = build_bvh(scene.triangles)
     emitters = build_emitter_sampler(scene)
+    integrator = Integrator(scene, bvh, emitters)
     t1 = time.perf_counter()
-    estimator.prepare(scene, bvh, emitters, settings)
+    estimator.prepare(scene, bvh, emitters, settings, integrator)
     t2 = time.perf_counter()
-
-    cam = camera_params(scene.camera)
-    geom, textures = scene_arrays(scene)
-    es = emitters.arrays
-    env_scale = scene.emitter_radiance[scene.emitter_kind == EMITTER_ENVIRONMENT]  # what camera rays that miss see
-    width, height = scene.camera.width, scene.camera.height
-    n_pix_total = width * height
+    n_pix_total = scene.camera.width * scene.camera.height
     spp, n_shadow = settings.spp, settings.shadow_rays
     per_batch = batch_pixels(scene, settings)
-    # fused_any_hit is checked per batch, after `classify`: an estimator with its own kernel may settle it late
-    staged = not (estimator.fused_any_hit or estimator.fused_shade)
-    buffers = SegmentBuffers(per_batch * spp * n_shadow) if staged else None
-    film = Film(width, height, spp, scene.n_emitters, [a.name for a in estimator.aovs if a.kind == "segment"])
+    chosen = estimator.render_path()
+    path = make_path(integrator, estimator, chosen, per_batch * spp * n_shadow)
+    film = Film(scene.camera.width, scene.camera.height, spp, scene.n_emitters,
+                [a.name for a in estimator.aovs if a.kind == "segment"])
     n_segments, camera_hits, case_totals = 0, 0, [0] * N_CASES
     bar = None
     if progress and sys.stderr.isatty():
@@ -100,56 +158,29 @@ def render_pass(scene, settings, estimator, progress=False):
         try:
             for p0 in range(0, n_pix_total, per_batch):
                 check_interrupt()
-                p1 = min(n_pix_total, p0 + per_batch)
-                org, dirs, tmin, tmax, keys = camera_rays(cam, spp, settings.seed, np.arange(p0, p1))
-                prim, _, b1, b2, cam_node, cam_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
-                its = surface_interactions(geom, textures, prim, b1, b2, dirs)
-                for scale in env_scale:
-                    add_environment(its.emitted, prim, dirs, es, scale)
-                cases = estimator.classify(ShadingPoints(its.position, its.normal,
-                                                         np.where(its.material >= 0, prim, -1), keys))
-                if cases is None:
-                    cases = np.full((len(prim), scene.n_emitters), CASE_UNKNOWN, np.int8)
-                else:
-                    film.add_cases(p0, p1, cases)
-                    shaded = cases[its.material >= 0] & CASE_MASK
+                batch = integrator.shading_batch(np.arange(p0, min(n_pix_total, p0 + per_batch)), spp, n_shadow,
+                                                 settings.seed)
+                shaded = batch.material >= 0
+                cases = estimator.classify(ShadingPoints(batch.position, batch.normal,
+                                                         np.where(shaded, batch.triangle, -1), batch.keys))
+                if cases is not None:
+                    batch = batch._replace(cases=cases)
+                    film.add_cases(batch)
+                    counted = cases[shaded] & CASE_MASK
                     for c in range(N_CASES):
-                        case_totals[c] += int((shaded == c).sum())
-                if estimator.fused_any_hit:
-                    img, m2, cnt, n_seg = shade_exact(geom, es, bvh.arrays, prim, its.position, its.normal,
-                                                      its.material, its.albedo, cases, keys, its.emitted, cam_node,
-                                                      cam_tri, spp, n_shadow, p1 - p0)
-                    n_q = int(n_seg.sum())
-                elif estimator.fused_shade:
-                    img, m2, cnt, n_seg = estimator.shade(geom, es, its, cases, keys, cam_node, cam_tri, spp,
-                                                          n_shadow, p1 - p0, p0)
-                    n_q = int(n_seg.sum())
-                else:
-                    s_org, s_dir, contrib, s_emit, active = buffers.slots(len(prim) * n_shadow)
-                    emitted = its.emitted + sample_emitters(geom, es, prim, its.position, its.normal, its.material,
-                                                            its.albedo, cases, keys, n_shadow, s_org, s_dir, contrib,
-                                                            s_emit, active)
-                    offsets = compact(active, s_org, s_dir, s_emit, contrib, keys, n_shadow, *buffers.segments())
-                    n_q = int(offsets[-1])
-                    query = ShadowQuery(origin=buffers.org[:n_q], direction=buffers.dirs[:n_q],
-                                        tmax=buffers.tmax[:n_q], point=buffers.point[:n_q],
-                                        emitter=buffers.emit[:n_q], key=buffers.key[:n_q],
-                                        weight=buffers.weight[:n_q])
-                    res = estimator.evaluate(query)
-                    img, m2, cnt = accumulate(emitted, contrib, active, offsets, res.value, cam_node, cam_tri,
-                                              res.node_tests, res.triangle_tests, spp, n_shadow, p1 - p0)
-                    if res.aovs:
-                        film.add_segment_aovs(p0, p1, query.point, res.aovs)
-                film.store(p0, p1, img, m2, cnt)
-                n_segments += n_q
-                camera_hits += int((prim >= 0).sum())
+                        case_totals[c] += int((counted == c).sum())
+                result = path(batch)
+                film.add(batch, result)
+                n_segments += int(result.segments.sum())
+                camera_hits += int((batch.triangle >= 0).sum())
                 if bar is not None:
-                    bar.update(p1 - p0)
+                    bar.update(len(batch.pixel))
         finally:
             if bar is not None:
                 bar.close()
     seconds = {"bvh": t1 - t0, "prepare": t2 - t1, "render": time.perf_counter() - t2}
-    return _Pass(film, bvh, n_segments, camera_hits, case_totals if film.case_counts is not None else None, seconds)
+    return _Pass(film, bvh, chosen, n_segments, camera_hits,
+                 case_totals if film.case_counts is not None else None, seconds)
 
 
 _warmed = set()
@@ -238,7 +269,8 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     else:
         options = dict(visibility_options or {})
         estimator = estimator_class(visibility)(**options)
-    need = memory.estimate(scene, settings, estimator, batch_pixels(scene, settings))
+    staged = type(estimator).render_path is VisibilityEstimator.render_path  # may need the slot buffers
+    need = memory.estimate(scene, settings, estimator, batch_pixels(scene, settings), staged)
     if (type(estimator), repr(sorted(options.items()))) not in _warmed:
         need["kernels"] = memory.KERNEL_BYTES  # loading (or compiling) the kernels comes after the estimate
     memory.check(need, MEMORY_HINTS)

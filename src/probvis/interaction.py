@@ -1,8 +1,9 @@
 """Stage 2 of a render: the surface interaction at each camera ray's closest hit.
 
-Gives the radiance of an emitter seen directly, the shading point, its shading normal turned to the camera's
-side, its material and its albedo (the material's reflectance, or its texture at the point's uv). As in Mitsuba 3, a plain `diffuse` BSDF is one-sided (nothing is reflected from its
-back) and area emitters emit from their front side only.
+Gives the radiance of an emitter seen directly (or of the environment, for a ray that misses), the shading
+point, its shading normal turned to the camera's side, its material and its albedo (the material's reflectance,
+or its texture at the point's uv). As in Mitsuba 3, a plain `diffuse` BSDF is one-sided (nothing is reflected
+from its back) and area emitters emit from their front side only.
 """
 import math
 from typing import NamedTuple
@@ -10,6 +11,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from .environment import environment_radiance
 from .geometry import unit_normals
 from .texture import texture_arrays, texture_value
 
@@ -51,7 +53,7 @@ class Interactions(NamedTuple):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _surface(geom, tx, prim, b1, b2, dirs):
+def _surface(geom, tx, es, prim, b1, b2, dirs):
     triangles, vnormals, tri_mat, tri_emit = geom.triangles, geom.vertex_normals, geom.tri_material, geom.tri_emitter
     twosided, radiance = geom.twosided, geom.emitter_radiance
     n = prim.shape[0]
@@ -60,9 +62,14 @@ def _surface(geom, tx, prim, b1, b2, dirs):
     nrm = np.zeros((n, 3))
     mat = np.full(n, -1, np.int32)
     albedo = np.zeros((n, 3))
+    scale = es.env_scale
+    sky = scale[0] != 0.0 or scale[1] != 0.0 or scale[2] != 0.0
     for i in prange(n):
         tri = prim[i]
         if tri < 0:
+            if sky:
+                l0, l1, l2 = environment_radiance(es, dirs[i, 0], dirs[i, 1], dirs[i, 2])
+                emitted[i, 0], emitted[i, 1], emitted[i, 2] = l0 * scale[0], l1 * scale[1], l2 * scale[2]
             continue
         c1, c2 = b1[i], b2[i]
         c0 = 1.0 - c1 - c2
@@ -97,8 +104,8 @@ def _surface(geom, tx, prim, b1, b2, dirs):
     return emitted, pos, nrm, mat, albedo
 
 
-def surface_interactions(geom, textures, prim, b1, b2, dirs):
-    """`Interactions` of camera rays with directions `dirs` that hit triangles `prim` at barycentrics (b1, b2);
-    `textures` are the scene's `TextureArrays`."""
-    emitted, pos, nrm, mat, albedo = _surface(geom, textures, prim, b1, b2, dirs)
+def surface_interactions(geom, textures, es, prim, b1, b2, dirs):
+    """`Interactions` of camera rays with directions `dirs` that hit triangles `prim` (-1: a miss) at barycentrics
+    (b1, b2); `textures` are the scene's `TextureArrays`, `es` its `EmitterArrays` (for the environment)."""
+    emitted, pos, nrm, mat, albedo = _surface(geom, textures, es, prim, b1, b2, dirs)
     return Interactions(prim, emitted, pos, nrm, mat, albedo)

@@ -19,16 +19,16 @@ PIXEL_BYTES = 3 * 8 * 2 + 5 * 8 + 2 * 8 + 3 * 4 * 2  # film sums, counts, the AO
 TRIANGLE_BYTES = 72 + 72 + 24 + 4 + 4 + 72 + 8 + 2 * 128  # scene arrays, BVH-order copy, ids, nodes
 
 
-def estimate(scene, settings, estimator, batch_pixels):
-    """Bytes by part (a dict) of rendering `scene` with `settings` and `estimator`."""
+def estimate(scene, settings, estimator, batch_pixels, staged=True):
+    """Bytes by part (a dict) of rendering `scene` with `settings` and `estimator`; `staged`: its render may take
+    the staged path, whose batches have shadow-ray slots and segments."""
     n_pix = scene.camera.width * scene.camera.height
     per_batch = batch_pixels * settings.spp
     parts = {
         "film": n_pix * (PIXEL_BYTES + 8 * sum(a.kind == "segment" for a in estimator.aovs)
                          + (scene.n_emitters * N_CASES * (4 + 8) if any(a.kind == "cases" for a in estimator.aovs)
                             else 0)),
-        "batch": per_batch * (SAMPLE_BYTES + settings.shadow_rays * (0 if estimator.fused_any_hit
-                                                                       else SLOT_BYTES + SEGMENT_BYTES)),
+        "batch": per_batch * (SAMPLE_BYTES + settings.shadow_rays * (SLOT_BYTES + SEGMENT_BYTES if staged else 0)),
         "scene": scene.n_triangles * TRIANGLE_BYTES,
         "process": psutil.Process().memory_info().rss,  # what is already resident: Python, Numba, the scene
     }

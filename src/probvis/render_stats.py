@@ -30,6 +30,7 @@ def render_stats(scene, settings, estimator, result, image, clamp, seconds, memo
         "seed": settings.seed,
         "threads": numba.get_num_threads(),
         "visibility": {"name": estimator.name, **estimator.settings()},
+        "render_path": result.path.value,
         "seconds": seconds,
         "memory": memory,
         "triangles": scene.n_triangles,

@@ -20,6 +20,7 @@ not. Grids are cached on disk (`disk_cache`) keyed by the heavy meshes, the emit
 """
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -206,11 +207,19 @@ def _emitter_within(boxes, tris):
     return bool(np.any(np.all((boxes[:, 0] <= hi) & (boxes[:, 1] >= lo), axis=1)))
 
 
+class ShellArrays(NamedTuple):
+    """`ShellTests` as the kernels take them (the BVH of the rest of the scene apart: `ShellTests.rest`)."""
+
+    active: bool  # False: no shells, the other fields are placeholders never walked
+    grid: np.ndarray  # (X, Y, Z) uint8 FREE, SURFACE or SOLID
+    lo: np.ndarray  # (3,) the grid's corner
+    pitch: float
+
+
 @dataclass
 class ShellTests:
-    """What the fused kernel needs to decide segments by shells: whether there are any, the grid and the BVH
-    of the rest of the scene (without its heavy meshes), which the segments the grid finds clear are tested
-    against."""
+    """What a kernel needs to decide segments by shells: whether there are any, the grid and the BVH of the rest
+    of the scene (without its heavy meshes), which the segments the grid finds clear are tested against."""
 
     active: bool
     rest: object  # BVH
@@ -220,26 +229,21 @@ class ShellTests:
     shells: Shells = None
 
     @property
-    def kernel_args(self):
-        return (self.active, self.rest.arrays, self.grid, self.lo, self.pitch)
+    def arrays(self):
+        return ShellArrays(self.active, self.grid, self.lo, self.pitch)
 
     @property
     def nbytes(self):
         """Bytes the shells add: the grid and the rest-of-scene BVH (none without shells)."""
         return self.grid.nbytes + self.rest.nbytes if self.active else 0
 
-    def stats(self, tests):
-        """The shells' report and the tests made (`shade_proxy`'s five counts): node and triangle tests of proxy
-        and scene geometry (the rest of the scene's included), voxels the shells' walks visited."""
-        out = {"tests": {"proxy": {"node": int(tests[0]), "triangle": int(tests[1])},
-                         "scene": {"node": int(tests[2]), "triangle": int(tests[3])},
-                         "shells": {"voxel": int(tests[4])}}}
+    def report(self):
+        """The shells' description for the stats (None without shells)."""
         s = self.shells
-        if s is not None:
-            out["shells"] = {"meshes": s.shapes, "grid": list(s.grid.shape), "voxel": s.pitch,
-                             "solid_voxels": s.solid_voxels, "surface_voxels": s.surface_voxels,
-                             "seconds": s.seconds, "cached": s.cached, "bytes": self.nbytes}
-        return out
+        if s is None:
+            return None
+        return {"meshes": s.shapes, "grid": list(s.grid.shape), "voxel": s.pitch, "solid_voxels": s.solid_voxels,
+                "surface_voxels": s.surface_voxels, "seconds": s.seconds, "cached": s.cached, "bytes": self.nbytes}
 
     @classmethod
     def none(cls, bvh):

@@ -13,6 +13,7 @@ variance, are small where the foliage is sparse or dense.
 """
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -21,6 +22,14 @@ from .voxels import grid_placement, walk_start, walk_step
 
 RESOLUTION = 64  # voxels along the longest side of the prefiltered meshes' bounds
 SMALL_PARTS = 1.5  # a mesh whose welded vertices exceed this many per triangle is mostly separate small parts
+
+
+class VolumeArrays(NamedTuple):
+    """An `ExtinctionGrid` as the kernels take it."""
+
+    sigma: np.ndarray  # (X, Y, Z) float64 projected area per volume
+    lo: np.ndarray  # (3,) the grid's corner
+    pitch: float
 
 
 @dataclass
@@ -32,8 +41,8 @@ class ExtinctionGrid:
     pitch: float
 
     @property
-    def kernel_args(self):
-        return self.sigma, self.lo, self.pitch
+    def arrays(self):
+        return VolumeArrays(self.sigma, self.lo, self.pitch)
 
     @property
     def nbytes(self):
@@ -64,12 +73,13 @@ def extinction_grid(parts, resolution=RESOLUTION):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def optical_depth(sigma, lo, pitch, ox, oy, oz, dx, dy, dz, tmax):
-    """∫σ ds along the segment o + t d, t in [0, tmax], walking the voxels it crosses (3D-DDA), and the voxels
-    visited."""
+def optical_depth(volume, ox, oy, oz, dx, dy, dz, tmax):
+    """∫σ ds along the segment o + t d, t in [0, tmax], through the `VolumeArrays`, walking the voxels it crosses
+    (3D-DDA), and the voxels visited."""
+    sigma = volume.sigma
     nx, ny, nz = sigma.shape
-    t0, t1, i, j, k, si, sj, sk, tx, ty, tz, dtx, dty, dtz = walk_start(nx, ny, nz, lo, pitch, ox, oy, oz, dx, dy,
-                                                                        dz, tmax)
+    t0, t1, i, j, k, si, sj, sk, tx, ty, tz, dtx, dty, dtz = walk_start(nx, ny, nz, volume.lo, volume.pitch, ox, oy,
+                                                                        oz, dx, dy, dz, tmax)
     if t0 > t1:
         return 0.0, 0
     tau, steps, t_in = 0.0, 0, t0
@@ -86,12 +96,13 @@ def optical_depth(sigma, lo, pitch, ox, oy, oz, dx, dy, dz, tmax):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def transmittances(sigma, lo, pitch, org, dirs, tmax):
-    """exp(-∫σ ds) of each segment o + t d, t in [0, tmax], and the voxels each walk visited."""
+def transmittances(volume, org, dirs, tmax):
+    """exp(-∫σ ds) of each segment o + t d, t in [0, tmax], through the `VolumeArrays`, and the voxels each walk
+    visited."""
     n = len(org)
     out, steps = np.empty(n), np.empty(n, np.int32)
     for s in prange(n):
-        tau, steps[s] = optical_depth(sigma, lo, pitch, org[s, 0], org[s, 1], org[s, 2], dirs[s, 0], dirs[s, 1],
+        tau, steps[s] = optical_depth(volume, org[s, 0], org[s, 1], org[s, 2], dirs[s, 0], dirs[s, 1],
                                       dirs[s, 2], tmax[s])
         out[s] = math.exp(-tau)
     return out, steps

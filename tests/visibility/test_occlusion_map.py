@@ -9,6 +9,7 @@ from probvis import ProbvisError
 from probvis.accel import build_bvh, closest_hit
 from probvis.cases import CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_SHADOWED
 from probvis.emitters import build_emitter_sampler, triangle_irradiance
+from probvis.integrator import Integrator
 from probvis.visibility.occlusion_map import closed_orientation
 from probvis.scene import SceneBuilder, load_scene
 from probvis.scene import shapes as shp
@@ -20,7 +21,8 @@ from tests.conftest import sensor, write_scene
 
 def prepared(scene, **options):
     est = make_estimator("occlusion-map", **options)
-    est.prepare(scene, build_bvh(scene.triangles), build_emitter_sampler(scene), scene.defaults)
+    bvh, emitters = build_bvh(scene.triangles), build_emitter_sampler(scene)
+    est.prepare(scene, bvh, emitters, scene.defaults, Integrator(scene, bvh, emitters))
     return est
 
 

@@ -13,8 +13,8 @@ from probvis.visibility import make_estimator
 from probvis.visibility.probabilistic import power, shifted, standard
 from probvis.visibility.probabilistic.mixture import choose
 from probvis.visibility.probabilistic.decomposition import CONFIGS
-from probvis.visibility.probabilistic.kernels import (GROUP_COUNT, GROUP_SOLID_ANGLE, evaluate_segments, group_lists,
-                                               solid_angle)
+from probvis.visibility.probabilistic.kernels import (GROUP_COUNT, GROUP_SOLID_ANGLE, GroupedLists, TermTables,
+                                               evaluate_segments, group_lists, solid_angle)
 
 
 def decompositions(rng):
@@ -94,7 +94,8 @@ def test_kernel_estimates_are_unbiased_by_sampling(levels, cells, covered):
     for d in (standard((0.5, 0.3, 0.2)), shifted(), power(4)):
         value, tests, _, term = evaluate_segments(
             tris, np.zeros(4, np.int8), np.zeros((4, 3)), org, dirs, np.ones(n), np.zeros(n, np.int64), keys,
-            grouped, bounds, levels, cells, np.cumsum(d.p)[None], d.coefficients()[None], d.mode[None])
+            GroupedLists(grouped, bounds, levels, cells),
+            TermTables(np.cumsum(d.p)[None], d.coefficients()[None], d.mode[None]))
         se = value.std() / np.sqrt(n)
         assert abs(value.mean() - truth) < 4 * se + 1e-12, (d.name, value.mean(), truth, se)
         assert tests.max() <= 4 and set(np.unique(term)) <= {0, 1, 2}

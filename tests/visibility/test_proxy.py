@@ -8,6 +8,7 @@ import probvis
 from probvis import ProbvisError
 from probvis.accel import build_bvh, occluded_segments
 from probvis.emitters import build_emitter_sampler
+from probvis.integrator import Integrator
 from probvis.proxies import build_proxies, decimate
 from probvis.scene import SceneBuilder
 from probvis.scene import shapes as shp
@@ -15,7 +16,8 @@ from probvis.scene import transform as tf
 from probvis.scene.scene import Camera
 from probvis.settings import RenderSettings
 from probvis.visibility import ShadowQuery
-from probvis.visibility.proxy import Q_MIN, REGIONS, ProxyVisibility, allocate, film_regions, region_measures
+from probvis.visibility.proxy import ProxyVisibility
+from probvis.visibility.proxy_plan import Q_MIN, REGIONS, allocate, film_regions, region_measures
 
 
 @pytest.fixture(autouse=True)
@@ -67,7 +69,8 @@ def test_each_segments_expectation_is_its_exact_visibility():
     scene = blob_scene()
     bvh = build_bvh(scene.triangles)
     est = ProxyVisibility(q="0.3", **OPTIONS)
-    est.prepare(scene, bvh, build_emitter_sampler(scene), scene.defaults)
+    emitters = build_emitter_sampler(scene)
+    est.prepare(scene, bvh, emitters, scene.defaults, Integrator(scene, bvh, emitters))
     org, d = segments(scene)
     n = len(org)
     exact = 1.0 - occluded_segments(bvh, org, d, np.ones(n), np.arange(n))[0]
@@ -104,8 +107,8 @@ def test_images_are_unbiased(q, shells):
 class Checkerboard(ProxyVisibility):
     """Proxy visibility with exact visibility in every other film region and q 0.1 or 0.5 in the others."""
 
-    def prepare(self, scene, bvh, emitters, settings):
-        super().prepare(scene, bvh, emitters, settings)
+    def prepare(self, scene, bvh, emitters, settings, integrator):
+        super().prepare(scene, bvh, emitters, settings, integrator)
         r = np.arange(len(self.q))
         self.exact[:] = (r % 2 == 0)[:, None]
         self.q[:] = np.where(r % 3 == 0, 0.1, 0.5)[:, None]

@@ -7,6 +7,7 @@ import pytest
 import probvis
 from probvis.accel import build_bvh, occluded_segments
 from probvis.emitters import build_emitter_sampler
+from probvis.integrator import Integrator
 from probvis.proxies import build_proxies
 from probvis.transmittance import ExtinctionGrid, extinction_grid, transmittances
 from probvis.visibility.proxy import ProxyVisibility
@@ -41,7 +42,7 @@ def test_optical_depth_matches_the_closed_form():
     d[100:200, :2] = 0.0  # along z
     lo = box_lengths(org, d, np.zeros(3), np.array([0.5, 1, 1]))
     hi = box_lengths(org, d, np.array([0.5, 0, 0]), np.ones(3))
-    t, steps = transmittances(*grid.kernel_args, org, d, np.ones(len(org)))
+    t, steps = transmittances(grid.arrays, org, d, np.ones(len(org)))
     np.testing.assert_allclose(t, np.exp(-2 * lo - 0.5 * hi), rtol=1e-9, atol=1e-12)
     assert np.all(steps[lo + hi == 0] <= 1) and steps.max() <= 30
     assert 0.1 < np.mean(lo + hi == 0) < 0.9
@@ -71,7 +72,7 @@ def test_a_random_cloud_blocks_as_its_extinction_predicts():
     end = np.column_stack([rng.uniform(0.1, 0.9, m), rng.uniform(0.1, 0.9, m), np.full(m, 1.2)])
     d = end - org
     v = 1.0 - occluded_segments(build_bvh(tris), org, d, np.ones(m), np.arange(m))[0]
-    t, _ = transmittances(*g.kernel_args, org, d, np.ones(m))
+    t, _ = transmittances(g.arrays, org, d, np.ones(m))
     assert 0.2 < v.mean() < 0.8
     se = v.std(ddof=1) / np.sqrt(m)
     assert abs(v.mean() - t.mean()) < 4 * se + 0.03
@@ -101,7 +102,8 @@ def test_each_segments_expectation_is_its_exact_visibility():
     scene = foliage()
     bvh = build_bvh(scene.triangles)
     est = ProxyVisibility(q="0.3", **OPTIONS)
-    est.prepare(scene, bvh, build_emitter_sampler(scene), scene.defaults)
+    emitters = build_emitter_sampler(scene)
+    est.prepare(scene, bvh, emitters, scene.defaults, Integrator(scene, bvh, emitters))
     rng = np.random.default_rng(1)
     n = 3000
     org = np.column_stack([rng.uniform(-1.5, 1.5, n), np.full(n, 1e-3), rng.uniform(-1.5, 1.5, n)])

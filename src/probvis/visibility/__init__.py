@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..errors import ProbvisError
 from .base import (CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES, Aov, Option, Phase,
-                   ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult)
+                   RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult)
 
 ENTRY_POINT_GROUP = "probvis.visibility"
 BUILTIN = {
@@ -95,5 +95,5 @@ def make_estimator(name, **options):
 
 
 __all__ = ["BUILTIN", "CASE_LIT", "CASE_NAMES", "CASE_PENUMBRA", "CASE_SHADOWED", "CASE_UNKNOWN", "ENTRY_POINT_GROUP",
-           "N_CASES", "Aov", "Option", "Phase", "ShadingPoints", "ShadowQuery", "VisibilityEstimator",
+           "N_CASES", "Aov", "Option", "Phase", "RenderPath", "ShadingPoints", "ShadowQuery", "VisibilityEstimator",
            "VisibilityResult", "available_names", "estimator_class", "make_estimator"]

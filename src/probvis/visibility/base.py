@@ -10,6 +10,7 @@ An estimator class declares, the way a Mitsuba plugin does, its `name`, a one-li
 from them), the `phases` it times and the `aovs` it adds to the render.
 """
 import abc
+import enum
 import math
 import time
 from contextlib import contextmanager
@@ -176,13 +177,24 @@ class VisibilityResult:
     aovs: dict = field(default_factory=dict)  # name -> (n,) per-segment values of the declared "segment" AOVs
 
 
+class RenderPath(enum.Enum):
+    """How the integrator renders with an estimator, chosen once per render after `prepare`
+    (`VisibilityEstimator.render_path`)."""
+
+    STAGED = "staged"  # shadow segments made for the batch, `evaluate` on them, then the film
+    FUSED_EXACT = "fused-exact"  # exact any-hit visibility: the integrator's fused kernel, same numbers as staged
+    OWN_KERNEL = "own-kernel"  # the estimator renders each batch itself: `shade`
+
+
 class VisibilityEstimator(abc.ABC):
     """Subclass it, declare `name`, `summary`, `options`, `phases` and `aovs`, and implement `evaluate`.
 
     Life of an estimator in a render: `__init__(**options)` validates the options into `self.params`;
-    `prepare` runs once with the scene, its BVH, the emitter sampler and the render settings; then, per batch
-    of pixels, `classify` (optional) sees the shading points before their segments are made and `evaluate`
-    estimates the segments' visibility. `stats` adds the estimator's measurements to the render's stats.
+    `prepare` runs once with the scene, its BVH, the emitter sampler, the render settings and the integrator;
+    `render_path` then says how the batches are rendered. Per batch of pixels, `classify` (optional) sees the
+    shading points before their segments are made; on the staged path `evaluate` estimates the segments'
+    visibility, on its own path `shade` renders the batch. `stats` adds the estimator's measurements to the
+    render's stats.
     """
 
     name: ClassVar[str] = ""
@@ -190,12 +202,6 @@ class VisibilityEstimator(abc.ABC):
     options: ClassVar[tuple] = ()
     phases: ClassVar[tuple] = ()
     aovs: ClassVar[tuple] = ()
-    # True if `evaluate` returns exactly 1 - (any hit against the scene's BVH, traversed in packets of a shading
-    # point's segments): the integrator may then run its fused kernel (`fused_exact`), same numbers, less traffic
-    fused_any_hit: ClassVar[bool] = False
-    # True if the estimator renders whole pixels itself through `shade` (its own fused kernel) instead of
-    # answering `evaluate` per batch of segments
-    fused_shade: ClassVar[bool] = False
 
     def __init__(self, **options):
         self.params = SimpleNamespace(**self.parse_options(options))
@@ -229,9 +235,19 @@ class VisibilityEstimator(abc.ABC):
         finally:
             self.seconds[phase] += time.perf_counter() - t0
 
-    def prepare(self, scene, bvh, emitters, settings):
-        """Build per-scene structures (timed as the render's "prepare" phase); keep what `evaluate` needs."""
+    def prepare(self, scene, bvh, emitters, settings, integrator):
+        """Build per-scene structures (timed as the render's "prepare" phase); keep what `evaluate` needs.
+        `emitters` is the `EmitterSampler`; `integrator` the render's integrator, for estimators that render
+        through a kernel of their own (`integrator.scene_arrays`, the kernels' scene) or measure a pilot
+        (`integrator.shading_batch`, `integrator.shade_exact`)."""
         self.scene, self.bvh, self.emitters, self.render_settings = scene, bvh, emitters, settings
+        self.integrator = integrator
+
+    def render_path(self):
+        """How the batches of this render are rendered (a `RenderPath`), asked once after `prepare`: STAGED by
+        default; FUSED_EXACT only if `evaluate` returns exactly 1 - (any hit against the scene's BVH,
+        traversed in packets of a shading point's segments); OWN_KERNEL if `shade` renders the batches."""
+        return RenderPath.STAGED
 
     def classify(self, points: ShadingPoints):
         """Optionally an (m, n_emitters) int8 array of CASE_* per shading point and emitter: lit ones are
@@ -244,12 +260,10 @@ class VisibilityEstimator(abc.ABC):
     def evaluate(self, query: ShadowQuery) -> VisibilityResult:
         """Visibility estimates for a batch of segments."""
 
-    def shade(self, geom, emitters, interactions, cases, keys, cam_node, cam_tri, spp, n_shadow, n_pix,
-              first_pixel):
-        """With `fused_shade`: the film of the batch of whole pixels first_pixel..first_pixel+n_pix-1 (row-major
-        in the image), as `fused_exact.shade_exact` returns it (means, second moments, per-pixel counts,
-        segments per pixel)."""
-        raise NotImplementedError
+    def shade(self, batch):
+        """On the OWN_KERNEL path: the `probvis.shading.ShadedBatch` of a `ShadingBatch` (each camera sample's
+        radiance, per-pixel counts and segments), as the kernels of `probvis.shading` make it."""
+        raise NotImplementedError(f"{type(self).__name__} renders through its own kernel but defines no shade()")
 
     def memory_estimate(self, scene, settings, batch_samples):
         """Bytes by part of the estimator's own structures (photons, look-ups, ...) for a render of `scene` with

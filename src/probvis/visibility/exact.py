@@ -9,9 +9,11 @@ import numpy as np
 
 from ..accel import occluded_segments
 from ..proxies import MIN_TRIANGLES
+from ..shading import ShadedBatch
 from ..shells import shell_memory, shell_tests
 from ..transmittance import ExtinctionGrid
-from .base import Option, Phase, VisibilityEstimator, VisibilityResult
+from .base import Option, Phase, RenderPath, VisibilityEstimator, VisibilityResult
+from .proxy_kernel import N_TESTS, Correction, geometry_tests, shade_proxy
 
 
 class ExactVisibility(VisibilityEstimator):
@@ -27,35 +29,32 @@ class ExactVisibility(VisibilityEstimator):
         Phase("shells", "prepare", "building the shells' voxel grid and the BVH of the rest of the scene (or reading the cache)"),
         Phase("render_kernel", "batch", "with shells: sampling, shell and scene tests and the film, fused"),
     )
-    fused_any_hit = True
 
-    def prepare(self, scene, bvh, emitters, settings):
-        super().prepare(scene, bvh, emitters, settings)
+    def prepare(self, scene, bvh, emitters, settings, integrator):
+        super().prepare(scene, bvh, emitters, settings, integrator)
         self.shells = None
         if self.params.shells:
             with self.timed("shells"):
                 self.shells = shell_tests(scene, bvh, self.params.min_triangles, self.params.cache)
-            if self.shells.active:
-                self.fused_any_hit, self.fused_shade = False, True  # renders through the shell kernel
-        self.tests = np.zeros(6, np.int64)
+        self.tests = np.zeros(N_TESTS, np.int64)
+
+    def render_path(self):
+        """The integrator's fused kernel; with shells, the proxy kernel with every emitter exact-only."""
+        return RenderPath.OWN_KERNEL if self.shells is not None and self.shells.active else RenderPath.FUSED_EXACT
 
     def evaluate(self, query):
         occluded, n_node, n_tri = occluded_segments(self.bvh, query.origin, query.direction, query.tmax, query.point)
         return VisibilityResult(1.0 - occluded, n_node, n_tri)
 
-    def shade(self, geom, emitters, interactions, cases, keys, cam_node, cam_tri, spp, n_shadow, n_pix,
-              first_pixel):
-        from .proxy_kernel import shade_proxy
-
-        its, e = interactions, self.scene.n_emitters
-        with self.timed("render_kernel"):
-            img, m2, counts, n_seg, _, tests = shade_proxy(
-                geom, emitters, self.bvh.arrays, self.bvh.arrays, its.triangle, its.position, its.normal,
-                its.material, its.albedo, cases, keys, its.emitted, cam_node, cam_tri, spp, n_shadow, n_pix,
-                np.ones((n_pix, e)), np.ones((n_pix, e), bool), 0.0, *ExtinctionGrid.none().kernel_args,
-                *self.shells.kernel_args)
+    def shade(self, batch):
+        n_pix, e = len(batch.pixel), self.scene.n_emitters
+        with self.timed("render_kernel"):  # every segment exact: the proxy arguments are placeholders
+            radiance, counts, n_seg, _, tests = shade_proxy(
+                self.integrator.scene_arrays, self.emitters.arrays, self.bvh.arrays, batch, self.bvh.arrays,
+                ExtinctionGrid.none().arrays, 0.0, self.shells.arrays, self.shells.rest.arrays,
+                Correction(np.ones((n_pix, e)), np.ones((n_pix, e), bool)))
         self.tests += tests
-        return img, m2, counts, n_seg
+        return ShadedBatch(radiance, counts, n_seg)
 
     def memory_estimate(self, scene, settings, batch_samples):
         return shell_memory(scene, self.params.min_triangles) if self.params.shells else {}
@@ -66,6 +65,8 @@ class ExactVisibility(VisibilityEstimator):
     def stats(self):
         out = super().stats()
         if self.shells is not None:
-            out.update(self.shells.stats(self.tests))
+            out["tests"] = geometry_tests(self.tests)
+            if self.shells.shells is not None:
+                out["shells"] = self.shells.report()
         return out
 

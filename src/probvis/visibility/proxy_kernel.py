@@ -1,24 +1,51 @@
 """Proxy visibility's fused kernel: per shading point, emitter sampling, the shell tests that decide segments
-exactly, the proxy test of the others, the exact test of the chosen ones and the film, while the segments are
-in cache (the shape of `fused_exact`, with more BVHs and the control variate). Exact visibility with shells
-renders through it too, every emitter exact-only. It also returns what `ProxyVisibility` measures: per
-emitter the sums behind δ, and the tests split between proxy, scene and shell geometry."""
+exactly, the proxy test of the others, the exact test of the chosen ones and each camera sample's radiance,
+while the segments are in cache (the shape of the integrator's fused exact kernel, with more BVHs and the
+control variate). Exact visibility with shells renders through it too, every emitter exact-only. It also
+returns what `ProxyVisibility` measures: per pixel and emitter the sums behind δ, and the tests split between
+proxy, scene and shell geometry.
+"""
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
 
 from ..accel import SHADOW_PACKET, occluded_packet, packet_work, root_record
-from ..emitters import point_samples
-from ..film import CAM_NODE, CAM_TRI, N_COUNTS, NEGATIVE, SH_NODE, SH_TRI, add_sample, pixel_mean
+from ..color import luminance
 from ..parallel import spread
 from ..rng import mix64, uniform
-from ..segments import SHADOW_EPSILON
+from ..shading import CAM_NODE, CAM_TRI, NEGATIVE, SH_NODE, SH_TRI, SHADOW_EPSILON, point_samples, shaded_arrays
 from ..shells import FREE, SOLID, segment_class
 from ..transmittance import optical_depth
 
 PIXELS_PER_BLOCK = 4
 CORRECTION_DIM = 1 << 21  # rng dimension of a segment's Bernoulli draw, apart from other estimators' draws
+# tests by geometry (summed over the batch): node and triangle tests of proxy and scene geometry (the rest of
+# the scene's included), voxels walked in the shells' grid and in the extinction grid
+N_TESTS = 6
+PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SHELL_VOXEL, VOLUME_VOXEL = range(N_TESTS)
+# per pixel and emitter, over segments decided by the shells (p = 1) and segments tested both ways (p = q):
+# segments tested both ways, Σ ((V - V_P) w)² / q, Σ w V / p, Σ (w V)² / p, Σ 1 / p (w: the luminance of the
+# segment's unoccluded contribution)
+N_SUMS = 5
+SUM_BOTH, SUM_MISMATCH, SUM_WV, SUM_WV2, SUM_INV_P = range(N_SUMS)
+
+
+class Correction(NamedTuple):
+    """Per pixel of the batch and emitter: the probability q of testing a segment exactly, and whether it is
+    tested exactly alone (no proxy)."""
+
+    q: np.ndarray  # (n_pix, emitters)
+    exact_only: np.ndarray  # (n_pix, emitters) bool
+
+
+def geometry_tests(tests):
+    """`shade_proxy`'s tests (N_TESTS slots) as the stats report them."""
+    return {"proxy": {"node": int(tests[PROXY_NODE]), "triangle": int(tests[PROXY_TRI]),
+                      "voxel": int(tests[VOLUME_VOXEL])},
+            "scene": {"node": int(tests[SCENE_NODE]), "triangle": int(tests[SCENE_TRI])},
+            "shells": {"voxel": int(tests[SHELL_VOXEL])}}
 
 
 @njit(cache=True, error_model="numpy")
@@ -39,34 +66,28 @@ def _trace(bvh, root, org, dirs, tmin, tmax, c, work, occ, n_node, n_tri):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, emitted, cam_node, cam_tri, spp,
-                n_shadow, n_pix, q, exact_only, clearance, sigma, sigma_lo, sigma_pitch, shells, rest, grid, grid_lo,
-                pitch):
-    """The film of a batch of whole pixels (as `fused_exact.shade_exact`) with V_P + B (V - V_P) / q per segment,
-    B ~ Bernoulli(q[pixel, emitter]) (V alone where `exact_only[pixel, emitter]`); the proxy test ignores the
-    first `clearance` of each segment, and V_P is its visibility times the transmittance through the extinction
-    grid `sigma` of the volumetric proxies (see `probvis.transmittance`).
+def shade_proxy(geom, es, bvh, batch, proxy, volume, clearance, shells, rest, plan):
+    """`ShadedBatch` arrays of a `ShadingBatch` (as the fused exact kernel's) with V_P + B (V - V_P) / q per
+    segment, B ~ Bernoulli(`plan.q[pixel, emitter]`) (V alone where `plan.exact_only`, a `Correction`); V_P is
+    the visibility against the `proxy` BVH, whose test ignores the first `clearance` of each segment, times the
+    transmittance through the extinction grid `volume` of the volumetric proxies (see `probvis.transmittance`).
 
-    With `shells` (see `probvis.shells`), a segment whose walk through `grid` enters a SOLID voxel is blocked,
-    and one that visits only FREE voxels is tested against `rest` (the scene without its heavy meshes) alone:
-    both exactly, with no proxy test and no variance. The exact test of the others covers the scene only over
-    the t range of their SURFACE voxels (where heavy meshes can be) and `rest` over the whole segment.
+    With `shells.active` (`ShellArrays`, see `probvis.shells`), a segment whose walk through the grid enters a
+    SOLID voxel is blocked, and one that visits only FREE voxels is tested against `rest` (the BVH of the scene
+    without its heavy meshes) alone: both exactly, with no proxy test and no variance. The exact test of the
+    others covers the scene only over the t range of their SURFACE voxels (where heavy meshes can be) and
+    `rest` over the whole segment.
 
-    Also returns per pixel and emitter the sums behind δ, (segments tested both ways, Σ ((V - V_P) w)² / q, Σ w V / p,
-    Σ (w V)² / p, Σ 1 / p) over segments decided by the shells (p = 1) and segments tested both ways (p = q), w
-    the luminance of the unoccluded contribution; and the node and triangle tests against the proxies and the
-    scene (with `rest`), the shells' voxels visited and the extinction grid's."""
-    root_s, root_p = root_record(bvh.root), root_record(proxy.root)
-    root_r = root_record(rest.root)
+    Also returns the per pixel and emitter sums (N_SUMS slots) and the tests by geometry (N_TESTS slots)."""
+    root_s, root_p, root_r = root_record(bvh.root), root_record(proxy.root), root_record(rest.root)
     depth = max(bvh.stack_depth, proxy.stack_depth, rest.stack_depth)
-    n_emit = q.shape[1]
-    img = np.zeros((n_pix, 3))
-    m2 = np.zeros((n_pix, 3))
-    counts = np.zeros((n_pix, N_COUNTS), np.int64)
-    n_seg = np.zeros(n_pix, np.int64)
+    q, exact_only = plan.q, plan.exact_only
+    spp, n_shadow = batch.spp, batch.shadow_rays
+    radiance, counts, n_seg = shaded_arrays(batch)
+    n_pix, n_emit = q.shape
     n_blocks = (n_pix + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
-    sums = np.zeros((n_pix, n_emit, 5))
-    tests = np.zeros((n_blocks, 6), np.int64)  # node and triangle tests: proxy, scene; shell and proxy voxels
+    sums = np.zeros((n_pix, n_emit, N_SUMS))
+    tests = np.zeros((n_blocks, N_TESTS), np.int64)
     for it in prange(n_blocks):
         blk = spread(it, n_blocks)
         org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
@@ -88,22 +109,21 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
         for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
             for s in range(spp):
                 i = px * spp + s
-                counts[px, CAM_TRI] += cam_tri[i]
-                counts[px, CAM_NODE] += cam_node[i]
-                a0, a1, a2, m = point_samples(i, geom, es, prim, pos, nrm, mat, albedo, cases, keys, n_shadow, 0,
-                                              org, dirs, contrib, s_emit, active, True)
+                counts[px, CAM_TRI] += batch.cam_tri[i]
+                counts[px, CAM_NODE] += batch.cam_node[i]
+                a0, a1, a2, m = point_samples(i, geom, es, batch, 0, org, dirs, contrib, s_emit, active, True)
                 for k in range(m):
                     decided[k] = False
                     value[k] = 0.0
                     t_lo[k] = 0.0
                     t_hi[k] = tmax[k]
-                if shells:  # walk the shells' grid; the segments it finds clear meet the rest of the scene only
+                if shells.active:  # walk the shells' grid; the segments it finds clear meet the rest of the scene only
                     c = 0
                     for k in range(m):
                         state, steps, t_lo[k], t_hi[k] = segment_class(
-                            grid, grid_lo, pitch, org[k, 0], org[k, 1], org[k, 2], dirs[k, 0], dirs[k, 1], dirs[k, 2],
-                            tmax[k])
-                        tests[blk, 4] += steps
+                            shells.grid, shells.lo, shells.pitch, org[k, 0], org[k, 1], org[k, 2], dirs[k, 0],
+                            dirs[k, 1], dirs[k, 2], tmax[k])
+                        tests[blk, SHELL_VOXEL] += steps
                         if state == SOLID:
                             decided[k] = True
                         elif state == FREE:
@@ -115,18 +135,17 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
                         k = idx[j]
                         decided[k] = True
                         value[k] = 1.0 - np.float64(occ[j])
-                        tests[blk, 2] += n_node[j]
-                        tests[blk, 3] += n_tri[j]
+                        tests[blk, SCENE_NODE] += n_node[j]
+                        tests[blk, SCENE_TRI] += n_tri[j]
                         counts[px, SH_NODE] += n_node[j]
                         counts[px, SH_TRI] += n_tri[j]
                     for k in range(m):  # decided segments count in the variance with p = 1
                         e = s_emit[k]
                         if decided[k] and not exact_only[px, e]:
-                            wv = value[k] * (0.212671 * contrib[k, 0] + 0.715160 * contrib[k, 1]
-                                             + 0.072169 * contrib[k, 2])
-                            sums[px, e, 2] += wv
-                            sums[px, e, 3] += wv * wv
-                            sums[px, e, 4] += 1.0
+                            wv = value[k] * luminance(contrib[k, 0], contrib[k, 1], contrib[k, 2])
+                            sums[px, e, SUM_WV] += wv
+                            sums[px, e, SUM_WV2] += wv * wv
+                            sums[px, e, SUM_INV_P] += 1.0
                 # the proxy test of the undecided segments of emitters that use proxies
                 c = 0
                 for k in range(m):
@@ -137,26 +156,26 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
                 if c < m:
                     _gather(org, dirs, idx, c, org2, dirs2)
                 for lo in range(0, c, SHADOW_PACKET):  # inlined, as is the exact test below: the hot traversals
-                    occluded_packet(proxy, root_p, org if c == m else org2, dirs if c == m else dirs2, tmin, tmax,
-                                    lo, min(SHADOW_PACKET, c - lo), work, occ, n_node, n_tri)
+                    occluded_packet(proxy, root_p, org if c == m else org2, dirs if c == m else dirs2, tmin,
+                                    tmax, lo, min(SHADOW_PACKET, c - lo), work, occ, n_node, n_tri)
                 for j in range(c):
                     k = idx[j]
                     value[k] = 0.0
                     if not occ[j]:
-                        tau, steps = optical_depth(sigma, sigma_lo, sigma_pitch, org[k, 0], org[k, 1], org[k, 2],
-                                                   dirs[k, 0], dirs[k, 1], dirs[k, 2], tmax[k])
+                        tau, steps = optical_depth(volume, org[k, 0], org[k, 1], org[k, 2], dirs[k, 0],
+                                                   dirs[k, 1], dirs[k, 2], tmax[k])
                         value[k] = math.exp(-tau)
-                        tests[blk, 5] += steps
-                    tests[blk, 0] += n_node[j]
-                    tests[blk, 1] += n_tri[j]
+                        tests[blk, VOLUME_VOXEL] += steps
+                    tests[blk, PROXY_NODE] += n_node[j]
+                    tests[blk, PROXY_TRI] += n_tri[j]
                     counts[px, SH_NODE] += n_node[j]
                     counts[px, SH_TRI] += n_tri[j]
                 # the exact test of the undecided segments of exact-only emitters and a random fraction q of the rest
                 c = 0
                 for k in range(m):
                     e = s_emit[k]
-                    if not decided[k] and (exact_only[px, e] or
-                                           uniform(mix64(keys[i] + np.uint64(k + 1)), CORRECTION_DIM) < q[px, e]):
+                    if not decided[k] and (exact_only[px, e] or uniform(mix64(batch.keys[i] + np.uint64(k + 1)),
+                                                                        CORRECTION_DIM) < q[px, e]):
                         idx[c] = k
                         tmin[c] = t_lo[k]
                         t_end[c] = t_hi[k]
@@ -169,10 +188,10 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
                 for j in range(c):
                     counts[px, SH_NODE] += n_node[j]
                     counts[px, SH_TRI] += n_tri[j]
-                    tests[blk, 2] += n_node[j]
-                    tests[blk, 3] += n_tri[j]
+                    tests[blk, SCENE_NODE] += n_node[j]
+                    tests[blk, SCENE_TRI] += n_tri[j]
                     occ2[j] = occ[j]
-                if shells:  # and the rest of the scene along the whole segment, where that found no blocker
+                if shells.active:  # and the rest of the scene along the whole segment, where that found no blocker
                     f = 0
                     for j in range(c):
                         if not occ[j]:
@@ -184,8 +203,8 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
                         occ2[idx2[j]] = occ[j]
                         counts[px, SH_NODE] += n_node[j]
                         counts[px, SH_TRI] += n_tri[j]
-                        tests[blk, 2] += n_node[j]
-                        tests[blk, 3] += n_tri[j]
+                        tests[blk, SCENE_NODE] += n_node[j]
+                        tests[blk, SCENE_TRI] += n_tri[j]
                 for j in range(c):
                     k = idx[j]
                     e = s_emit[k]
@@ -193,20 +212,19 @@ def shade_proxy(geom, es, bvh, proxy, prim, pos, nrm, mat, albedo, cases, keys, 
                     if exact_only[px, e]:
                         value[k] = v
                         continue
-                    w = 0.212671 * contrib[k, 0] + 0.715160 * contrib[k, 1] + 0.072169 * contrib[k, 2]
-                    sums[px, e, 0] += 1.0
-                    sums[px, e, 1] += ((v - value[k]) * w) ** 2 / q[px, e]
-                    sums[px, e, 2] += w * v / q[px, e]
-                    sums[px, e, 3] += (w * v) ** 2 / q[px, e]
-                    sums[px, e, 4] += 1.0 / q[px, e]
+                    w = luminance(contrib[k, 0], contrib[k, 1], contrib[k, 2])
+                    sums[px, e, SUM_BOTH] += 1.0
+                    sums[px, e, SUM_MISMATCH] += ((v - value[k]) * w) ** 2 / q[px, e]
+                    sums[px, e, SUM_WV] += w * v / q[px, e]
+                    sums[px, e, SUM_WV2] += (w * v) ** 2 / q[px, e]
+                    sums[px, e, SUM_INV_P] += 1.0 / q[px, e]
                     value[k] += (v - value[k]) / q[px, e]
-                l0, l1, l2 = emitted[i, 0] + a0, emitted[i, 1] + a1, emitted[i, 2] + a2
+                l0, l1, l2 = batch.emitted[i, 0] + a0, batch.emitted[i, 1] + a1, batch.emitted[i, 2] + a2
                 for k in range(m):
                     l0 += contrib[k, 0] * value[k]
                     l1 += contrib[k, 1] * value[k]
                     l2 += contrib[k, 2] * value[k]
                     counts[px, NEGATIVE] += value[k] < 0.0
                 n_seg[px] += m
-                add_sample(img, m2, px, l0, l1, l2)
-            pixel_mean(img, m2, px, spp)
-    return img, m2, counts, n_seg, sums, tests.sum(axis=0)
+                radiance[i, 0], radiance[i, 1], radiance[i, 2] = l0, l1, l2
+    return radiance, counts, n_seg, sums, tests.sum(axis=0)

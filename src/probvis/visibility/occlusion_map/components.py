@@ -5,6 +5,8 @@ crosses at all it leaves the solid through a triangle whose outward side faces t
 for visibility towards the light end, a closed component's triangles that face away from the light end never
 need a ray-triangle test: only those facing it can be the first blocker found on an occluded segment.
 """
+from typing import NamedTuple
+
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -54,10 +56,24 @@ def closed_orientation(scene, comps=None):
     return sign[label]
 
 
+class BlockerGroups(NamedTuple):
+    """What each recorded blocker stands for in a candidate list: group `group[t]` of triangle t lists
+    `tris[offsets[g]:offsets[g + 1]]`."""
+
+    group: np.ndarray  # (triangles,) int32
+    offsets: np.ndarray  # (groups + 1,) int64
+    tris: np.ndarray  # int32 triangle ids, grouped
+
+    @classmethod
+    def singletons(cls, n_triangles):
+        """Each triangle stands for itself."""
+        return cls(np.arange(n_triangles, dtype=np.int32), np.arange(n_triangles + 1, dtype=np.int64),
+                   np.arange(n_triangles, dtype=np.int32))
+
+
 def blocker_groups(label, n_comp, max_size):
-    """What a recorded blocker stands for in a candidate list: its whole connected component when that has at
-    most `max_size` triangles (a box of a city, say), else itself. Returns (group per triangle, CSR offsets
-    per group, triangle ids)."""
+    """What a recorded blocker stands for in a candidate list (`BlockerGroups`): its whole connected component
+    when that has at most `max_size` triangles (a box of a city, say), else itself."""
     n = len(label)
     size = np.bincount(label, minlength=n_comp)
     small = size[label] <= max_size
@@ -66,4 +82,4 @@ def blocker_groups(label, n_comp, max_size):
     used, group = np.unique(group, return_inverse=True)
     order = np.argsort(group, kind="stable").astype(np.int32)
     off = np.concatenate([[0], np.cumsum(np.bincount(group, minlength=len(used)))]).astype(np.int64)
-    return group.astype(np.int32), off, order
+    return BlockerGroups(group.astype(np.int32), off, order)

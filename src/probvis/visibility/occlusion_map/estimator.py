@@ -14,7 +14,7 @@ from ..base import (CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKN
                     VisibilityEstimator, VisibilityResult)
 from . import verification
 from .adaptive_photons import refine
-from .components import blocker_groups, closed_orientation, components
+from .components import BlockerGroups, blocker_groups, closed_orientation, components
 from .map import OcclusionMap
 from .photons import MAX_HITS, shoot_photons
 
@@ -90,8 +90,8 @@ class OcclusionMapVisibility(VisibilityEstimator):
         v = self.params.verify
         return None if v == "off" else v if v == "auto" else float(v)
 
-    def prepare(self, scene, bvh, emitters, settings):
-        super().prepare(scene, bvh, emitters, settings)
+    def prepare(self, scene, bvh, emitters, settings, integrator):
+        super().prepare(scene, bvh, emitters, settings, integrator)
         self.tally = verification.Tally()
         p = self.params
         lo, hi = scene.bounds()
@@ -115,8 +115,7 @@ class OcclusionMapVisibility(VisibilityEstimator):
                 self.orientation = np.where(whole, closed_orientation(scene, comps), 0).astype(np.int8)
             groups = blocker_groups(comps[0], comps[2], GROUP_COMPONENTS)
         else:  # lists are not used: each triangle stands for itself
-            groups = (np.arange(n_tri, dtype=np.int32), np.arange(n_tri + 1, dtype=np.int64),
-                      np.arange(n_tri, dtype=np.int32))
+            groups = BlockerGroups.singletons(n_tri)
         self.seconds["map_build"] += time.perf_counter() - t_geom
         with self.timed("photons"):
             photons = shoot_photons(scene, bvh, emitters, n, settings.seed)

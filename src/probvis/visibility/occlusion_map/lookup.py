@@ -18,8 +18,8 @@ from ...cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN
 def _gather(nbr, i, pn, nb, start, ray_tris, group, nx, ny, nz, normal_cos, buf):
     """Blocker groups of point i's agreeing shadow photons into `buf`; returns (light, shadow, gathered)."""
     n_light, n_shadow, m = 0, 0, 0
-    for q in range(nbr.shape[1]):
-        j = nbr[i, q]
+    for k in range(nbr.shape[1]):
+        j = nbr[i, k]
         if j < 0 or pn[j, 0] * nx + pn[j, 1] * ny + pn[j, 2] * nz < normal_cos:
             continue
         if nb[j] == 0:
@@ -51,16 +51,18 @@ def _unique_by_frequency(buf, m):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_tris, normal_cos, min_photons,
-                    max_hits, with_lists):
+def classify_points(nbr, nrm, photons, groups, normal_cos, min_photons, max_hits, with_lists):
     """Case, candidate list (CSR of triangles, most often recorded groups first), agreeing (light, shadow)
     photon counts and, for penumbra points with lists, the Good-Turing estimate of the list's unseen blockers
     (the share of recorded blockers recorded only once: the chance that the next shadow photon would record a
     blocker not in the list) per point.
 
     `nbr` (m, k) holds photon ids of one emitter's photons near each point (-1 for none); `nrm` the points'
-    normals (a zero normal marks a point that is not shaded). Without `with_lists` the lists are left empty.
+    normals (a zero normal marks a point that is not shaded); `photons` the `PhotonArrays`, `groups` the
+    `BlockerGroups`. Without `with_lists` the lists are left empty.
     """
+    pn, nb, start, ray_tris = photons.normal, photons.n_blockers, photons.start, photons.ray_tris
+    group, group_off, group_tris = groups.group, groups.offsets, groups.tris
     m, k = nbr.shape
     case = np.full(m, CASE_UNKNOWN, np.int8)
     counts = np.zeros((m, 2), np.int32)
@@ -103,7 +105,7 @@ def classify_points(nbr, nrm, pn, nb, start, ray_tris, group, group_off, group_t
             groups, _ = _unique_by_frequency(buf, g)
             w = offsets[i]
             for gr in groups:
-                for q in range(group_off[gr], group_off[gr + 1]):
-                    tris[w] = group_tris[q]
+                for h in range(group_off[gr], group_off[gr + 1]):
+                    tris[w] = group_tris[h]
                     w += 1
     return case, offsets, tris, counts, unseen

@@ -48,8 +48,8 @@ class Lookup:
 class OcclusionMap:
     """Photons of each emitter in a `scipy.spatial.cKDTree`; `radius=None` picks one from the photon density.
 
-    `groups` (group per triangle, CSR offsets per group, triangle ids) says what a recorded blocker stands for
-    in a candidate list (see `volumetric.blocker_groups`)."""
+    `groups` (`BlockerGroups`) says what a recorded blocker stands for in a candidate list (see
+    `components.blocker_groups`)."""
 
     def __init__(self, photons: Photons, n_emitters, neighbours, groups, radius=None):
         self.photons = photons
@@ -110,8 +110,8 @@ class OcclusionMap:
         offs, tris, nbrs = [np.zeros(1, np.int64)], [], []
         for e in range(self.n_emitters):
             nbr = self.neighbours(pos, e)
-            c, o, t, counts[:, e], unseen[:, e] = classify_points(nbr, nrm, p.normal, p.n_blockers, p.start, p.ray_tris,
-                                                    *self.groups, NORMAL_COS, MIN_PHOTONS, MAX_HITS, with_lists)
+            c, o, t, counts[:, e], unseen[:, e] = classify_points(nbr, nrm, p.arrays, self.groups, NORMAL_COS,
+                                                                  MIN_PHOTONS, MAX_HITS, with_lists)
             case[:, e] = c
             offs.append(o[1:] + offs[-1][-1])
             tris.append(t)

@@ -7,13 +7,15 @@ crossings beyond that lie behind 15 blockers and are dropped.
 """
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
 
 from ...accel import all_hits
 from ...geometry import unit_normal
-from ...emitters import sample_environment, sample_on_emitter
+from ...emitters import sample_on_emitter
+from ...environment import sample_environment
 from ...scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT
 from ...rng import make_key, uniform
 
@@ -21,6 +23,15 @@ MAX_HITS = 16
 PHOTON_STREAM = 0x5048  # rng stream of photon rays, apart from the camera's
 ADAPTIVE_STREAM = 0x5049  # rng stream of the emitter points of adaptive photon rays
 BATCH = 1 << 18  # photon rays per all-hits batch (bounds the (rays, MAX_HITS) scratch arrays)
+
+
+class PhotonArrays(NamedTuple):
+    """What the look-up kernels read of the photons."""
+
+    normal: np.ndarray  # (p, 3)
+    n_blockers: np.ndarray  # (p,) int32, 0 for light photons
+    start: np.ndarray  # (p,) int64 into ray_tris
+    ray_tris: np.ndarray  # int32
 
 
 @dataclass
@@ -40,6 +51,10 @@ class Photons:
     @property
     def shadow(self):
         return self.n_blockers > 0
+
+    @property
+    def arrays(self):
+        return PhotonArrays(self.normal, self.n_blockers, self.start, self.ray_tris)
 
     def __len__(self):
         return len(self.emitter)

@@ -13,7 +13,8 @@ from ..occlusion_map import verification
 from ..occlusion_map.map import NORMAL_COS
 from . import mixture
 from .decomposition import MODE_EXACT
-from .kernels import GROUP_COUNT, GROUP_RANDOM, GROUP_SOLID_ANGLE, configuration_counts, evaluate_segments, group_lists
+from .kernels import (GROUP_COUNT, GROUP_RANDOM, GROUP_SOLID_ANGLE, GroupedLists, TermTables, configuration_counts,
+                      evaluate_segments, group_lists)
 from .power import power as power_decomposition
 from .shifted import shifted as shifted_decomposition
 from .standard import standard as standard_decomposition
@@ -75,8 +76,8 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
         except (ValueError, TypeError) as exc:
             raise ProbvisError(str(exc)) from None
 
-    def prepare(self, scene, bvh, emitters, settings):
-        super().prepare(scene, bvh, emitters, settings)
+    def prepare(self, scene, bvh, emitters, settings, integrator):
+        super().prepare(scene, bvh, emitters, settings, integrator)
         self._stats.update(term_selections=[0, 0, 0], exact_selections=0, group_balance=None,
                            adaptive_strategies=[0] * (len(mixture.P_GRID) + 1))
         self._balance = np.zeros(2)
@@ -115,8 +116,7 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
         ph = self.map.photons
         for e in range(self.scene.n_emitters):
             sl = slice(e * n_rep, (e + 1) * n_rep)
-            counts[sl] = configuration_counts(lk.neighbours[e], nrm, ph.normal, ph.n_blockers, ph.start, ph.ray_tris,
-                                              tris, bounds[sl], n_rep, NORMAL_COS)
+            counts[sl] = configuration_counts(lk.neighbours[e], nrm, ph.arrays, tris, bounds[sl], n_rep, NORMAL_COS)
         size_a = bounds[:, 1] - bounds[:, 0]
         size_b = bounds[:, 2] - bounds[:, 1]
         self.cdf, self.coef, self.mode, best = mixture.choose(counts, size_a, size_b, self._pair_q(lk))
@@ -149,8 +149,9 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
             sub, p = idx[rest], pair[rest]
             value[rest], n_tri[rest], n_cull, term = evaluate_segments(
                 self.scene.triangles, self.orientation, self.fnormal, query.origin[sub], query.direction[sub],
-                query.tmax[sub], p, query.key[sub], self.grouped, self.bounds, self.params.levels, self.params.cells,
-                self.cdf, self.coef, self.mode)
+                query.tmax[sub], p, query.key[sub],
+                GroupedLists(self.grouped, self.bounds, self.params.levels, self.params.cells),
+                TermTables(self.cdf, self.coef, self.mode))
             self._stats["culled_candidates"] += int(n_cull.sum())
             sel = np.bincount(term[term >= 0], minlength=3)
             for k in range(3):

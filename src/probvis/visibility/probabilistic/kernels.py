@@ -5,6 +5,7 @@ along the ray (by distance from the point), each split recursively `levels` time
 cells = levels = 1 that is the 2013 paper's single split into A and B.
 """
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -69,10 +70,10 @@ def group_lists(triangles, pos, offsets, tris, n_rep, method, levels, cells, see
     out = np.empty_like(tris)
     bounds = np.empty((n_pairs, n_leaves + 1), np.int64)
     balance = np.zeros((n_pairs, 2))
-    for q in prange(n_pairs):
-        lo, hi = offsets[q], offsets[q + 1]
+    for pr in prange(n_pairs):
+        lo, hi = offsets[pr], offsets[pr + 1]
         n = hi - lo
-        i = q % n_rep
+        i = pr % n_rep
         px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
         weight = np.empty(n)
         for a in range(n):
@@ -89,7 +90,7 @@ def group_lists(triangles, pos, offsets, tris, n_rep, method, levels, cells, see
             by_dist = np.argsort(dist, kind="mergesort")
             for a in range(n):
                 leaf[by_dist[a]] = (a * cells) // max(n, 1)
-        key = mix64(np.uint64(seed) + np.uint64(q) * np.uint64(0x9E3779B97F4A7C15))
+        key = mix64(np.uint64(seed) + np.uint64(pr) * np.uint64(0x9E3779B97F4A7C15))
         for level in range(levels):
             # elements grouped by leaf, list order inside each (one leaf, in list order, at the top of one cell)
             order = np.arange(n) if level == 0 and cells == 1 else np.argsort(leaf, kind="mergesort")
@@ -102,15 +103,15 @@ def group_lists(triangles, pos, offsets, tris, n_rep, method, levels, cells, see
                 a = b
             if level == 0:
                 for e in range(n):
-                    balance[q, leaf[e] % 2] += weight[e]
+                    balance[pr, leaf[e] % 2] += weight[e]
         # leaves in order, the frequency order kept inside each leaf (a stable sort by leaf)
         counts = np.zeros(n_leaves + 1, np.int64)
         for a in range(n):
             counts[leaf[a] + 1] += 1
         for g in range(n_leaves):
             counts[g + 1] += counts[g]
-            bounds[q, g] = lo + counts[g]
-        bounds[q, n_leaves] = hi
+            bounds[pr, g] = lo + counts[g]
+        bounds[pr, n_leaves] = hi
         for a in range(n):
             out[lo + counts[leaf[a]]] = tris[lo + a]
             counts[leaf[a]] += 1
@@ -127,24 +128,24 @@ def _leaf_visible(triangles, orientation, fnormal, o, d, rs, tmax, tris, lo, hi,
 
 
 @njit(cache=True, error_model="numpy")
-def _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, q, g0, g1, depth, cdf, coef, mode,
+def _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, pr, g0, g1, depth, cdf, coef, mode,
               key, dim, tests, chosen):
-    """Unbiased estimate of the visibility of leaves g0..g1-1 of pair q, a subtree of the given depth."""
+    """Unbiased estimate of the visibility of leaves g0..g1-1 of pair pr, a subtree of the given depth."""
     if depth == 0:
-        return _leaf_visible(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds[q, g0], bounds[q, g1],
+        return _leaf_visible(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds[pr, g0], bounds[pr, g1],
                              tests)
     mid = (g0 + g1) // 2
     u = uniform(key, dim[0])
     dim[0] += 1
     t = 0
-    while t < 2 and u >= cdf[q, t]:
+    while t < 2 and u >= cdf[pr, t]:
         t += 1
     if chosen[0] < 0:
         chosen[0] = t
-    m = mode[q, t]
+    m = mode[pr, t]
     va, vb = 0.0, 0.0
     if m == MODE_A or m == MODE_AB_BLOCKED or m == MODE_BOTH or m == MODE_EXACT:
-        va = _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, q, g0, mid, depth - 1, cdf,
+        va = _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, pr, g0, mid, depth - 1, cdf,
                        coef, mode, key, dim, tests, chosen)
     need_b = m == MODE_B or m == MODE_BOTH
     if m == MODE_AB_BLOCKED:
@@ -152,17 +153,36 @@ def _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, q, 
     if m == MODE_EXACT:
         need_b = not (depth == 1 and va == 0.0)  # A blocks: visibility is 0 whatever B is
     if need_b:
-        vb = _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, q, mid, g1, depth - 1, cdf,
+        vb = _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, pr, mid, g1, depth - 1, cdf,
                        coef, mode, key, dim, tests, chosen)
-    return coef[q, t, 0] + coef[q, t, 1] * va + coef[q, t, 2] * vb + coef[q, t, 3] * va * vb
+    return coef[pr, t, 0] + coef[pr, t, 1] * va + coef[pr, t, 2] * vb + coef[pr, t, 3] * va * vb
+
+
+class GroupedLists(NamedTuple):
+    """The candidate lists of a batch's pairs, each reordered into `cells * 2**levels` leaves (`group_lists`)."""
+
+    tris: np.ndarray  # reordered triangle ids
+    bounds: np.ndarray  # (pairs, leaves + 1) absolute leaf boundaries in `tris`
+    levels: int
+    cells: int
+
+
+class TermTables(NamedTuple):
+    """Per pair (or one row for all, `Decomposition`'s): the cumulative term probabilities, each term's
+    coefficients of 1, V_A, V_B, V_A V_B, and the groups it tests (MODE_*)."""
+
+    cdf: np.ndarray  # (pairs, 3)
+    coef: np.ndarray  # (pairs, 3, 4)
+    mode: np.ndarray  # (pairs, 3) int8
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def evaluate_segments(triangles, orientation, fnormal, org, dirs, tmax, pair, keys, tris, bounds, levels, cells, cdf,
-                      coef, mode):
-    """Probabilistic visibility of each segment over its pair's grouped candidates: the product over cells of
-    each cell's recursive estimate. Returns values, triangle tests, culled candidates and the top-level term
-    chosen (first cell)."""
+def evaluate_segments(triangles, orientation, fnormal, org, dirs, tmax, pair, keys, groups, terms):
+    """Probabilistic visibility of each segment over its pair's grouped candidates (`GroupedLists`, terms from
+    `TermTables`): the product over cells of each cell's recursive estimate. Returns values, triangle tests,
+    culled candidates and the top-level term chosen (first cell)."""
+    tris, bounds, levels, cells = groups.tris, groups.bounds, groups.levels, groups.cells
+    cdf, coef, mode = terms.cdf, terms.coef, terms.mode
     n = org.shape[0]
     value = np.empty(n)
     n_tri = np.zeros(n, np.int32)
@@ -178,10 +198,10 @@ def evaluate_segments(triangles, orientation, fnormal, org, dirs, tmax, pair, ke
             d = (dirs[s, 0], dirs[s, 1], dirs[s, 2])
             rs = ray_setup(d[0], d[1], d[2])
             tests[0], tests[1], dim[0], chosen[0] = 0, 0, 0, -1
-            q = pair[s]
+            pr = pair[s]
             v = 1.0
             for c in range(cells):
-                v *= _estimate(triangles, orientation, fnormal, o, d, rs, tmax[s], tris, bounds, q, c * per_cell,
+                v *= _estimate(triangles, orientation, fnormal, o, d, rs, tmax[s], tris, bounds, pr, c * per_cell,
                                (c + 1) * per_cell, levels, cdf, coef, mode, keys[s], dim, tests, chosen)
             value[s] = v
             n_tri[s], n_cull[s], term[s] = tests[0], tests[1], chosen[0]
@@ -189,18 +209,19 @@ def evaluate_segments(triangles, orientation, fnormal, org, dirs, tmax, pair, ke
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def configuration_counts(nbr, nrm, pn, nb, start, ray_tris, tris, bounds, n_rep, normal_cos):
-    """Per pair, how many agreeing neighbour photons saw each configuration (V_A, V_B) of its top-level
-    split (leaves of the first half are A): a light photon sees (1, 1), a shadow photon is blocked by A or B
-    when one of its recorded blockers lies in that group."""
+def configuration_counts(nbr, nrm, photons, tris, bounds, n_rep, normal_cos):
+    """Per pair, how many agreeing neighbour photons (`PhotonArrays`) saw each configuration (V_A, V_B) of its
+    top-level split (leaves of the first half are A): a light photon sees (1, 1), a shadow photon is blocked by
+    A or B when one of its recorded blockers lies in that group."""
+    pn, nb, start, ray_tris = photons.normal, photons.n_blockers, photons.start, photons.ray_tris
     n_pairs = bounds.shape[0]
     half = (bounds.shape[1] - 1) // 2
     out = np.zeros((n_pairs, 4))
-    for q in prange(n_pairs):
-        lo, mid, hi = bounds[q, 0], bounds[q, half], bounds[q, bounds.shape[1] - 1]
+    for pr in prange(n_pairs):
+        lo, mid, hi = bounds[pr, 0], bounds[pr, half], bounds[pr, bounds.shape[1] - 1]
         if hi == lo:
             continue
-        i = q % n_rep
+        i = pr % n_rep
         a_sorted = np.sort(tris[lo:mid])
         b_sorted = np.sort(tris[mid:hi])
         for k in range(nbr.shape[1]):
@@ -216,5 +237,5 @@ def configuration_counts(nbr, nrm, pn, nb, start, ray_tris, tris, bounds, n_rep,
                 p = np.searchsorted(b_sorted, b)
                 if p < b_sorted.shape[0] and b_sorted[p] == b:
                     vb = 0
-            out[q, 2 * va + vb] += 1.0
+            out[pr, 2 * va + vb] += 1.0
     return out

@@ -23,23 +23,24 @@ _VB = np.array([vb for _, vb in CONFIGS], dtype=np.int64)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _choose(counts, size_a, size_b, verify_q, p_grid, prior, xs, vs, vas, vbs, cdf, coef, mode, best):
+def _choose(counts, size_a, size_b, verify_q, cdf, coef, mode, best):
     """Per pair the strategy with the least variance x cost; fills cdf, coef, mode and best (0 = exact)."""
+    p_grid, prior, xs, vs, vas, vbs = P_GRID, PRIOR, _X, _V, _VA, _VB  # constants compiled in
     n_terms = 3
-    for q in prange(counts.shape[0]):
+    for pr in prange(counts.shape[0]):
         total = 4 * prior
         for c in range(4):
-            total += counts[q, c]
-        # the verification's correction term B (V - V_list) / q, the same whichever strategy evaluates V_list:
+            total += counts[pr, c]
+        # the verification's correction term B (V - V_list) / pr, the same whichever strategy evaluates V_list:
         # non-zero when the list says visible (probability pi_11) and missed a blocker (rule of succession over
         # the pair's photons); its variance and its cost (the list, then the whole scene) add to every strategy
-        vq = verify_q[q]
-        p11 = (counts[q, 3] + prior) / total
+        vq = verify_q[pr]
+        p11 = (counts[pr, 3] + prior) / total
         var_v = p11 / ((total - 4 * prior + 2.0) * vq) if vq > 0.0 else 0.0
-        cost_v = vq * p11 * (size_a[q] + size_b[q] + 1.0)
+        cost_v = vq * p11 * (size_a[pr] + size_b[pr] + 1.0)
         pi = np.empty(4)
         for c in range(4):
-            pi[c] = (counts[q, c] + prior) / total
+            pi[c] = (counts[pr, c] + prior) / total
         ex = np.zeros(n_terms)
         ev, ev2 = 0.0, 0.0
         for c in range(4):
@@ -50,8 +51,8 @@ def _choose(counts, size_a, size_b, verify_q, p_grid, prior, xs, vs, vas, vbs, c
         # a group of n candidates costs n tests when visible, about (n + 1) / 2 when it blocks
         cost = np.empty((4, n_terms + 1))  # per configuration: the three terms, then exact evaluation
         for c in range(4):
-            ca = size_a[q] if vas[c] == 1 else (size_a[q] + 1) / 2
-            cb = size_b[q] if vbs[c] == 1 else (size_b[q] + 1) / 2
+            ca = size_a[pr] if vas[c] == 1 else (size_a[pr] + 1) / 2
+            cb = size_b[pr] if vbs[c] == 1 else (size_b[pr] + 1) / 2
             cost[c, 0] = ca
             cost[c, 1] = cb
             cost[c, 2] = ca + (vas[c] == 0) * cb
@@ -77,21 +78,21 @@ def _choose(counts, size_a, size_b, verify_q, p_grid, prior, xs, vs, vas, vbs, c
             if score < best_score * (1 - 1e-9):
                 chosen, best_score = g + 1, score
                 s_best[:] = s
-        best[q] = chosen
+        best[pr] = chosen
         if chosen == 0:
-            mode[q, 0], mode[q, 1], mode[q, 2] = MODE_EXACT, MODE_B, MODE_AB_BLOCKED
-            cdf[q, 0] = cdf[q, 1] = cdf[q, 2] = 1.0
-            coef[q, 0, 3] = 1.0  # V_A V_B
+            mode[pr, 0], mode[pr, 1], mode[pr, 2] = MODE_EXACT, MODE_B, MODE_AB_BLOCKED
+            cdf[pr, 0] = cdf[pr, 1] = cdf[pr, 2] = 1.0
+            coef[pr, 0, 3] = 1.0  # V_A V_B
             continue
         p = p_grid[chosen - 1]
-        mode[q, 0], mode[q, 1], mode[q, 2] = MODE_A, MODE_B, MODE_AB_BLOCKED
-        cdf[q, 0], cdf[q, 1], cdf[q, 2] = p[0], p[0] + p[1], 1.0
+        mode[pr, 0], mode[pr, 1], mode[pr, 2] = MODE_A, MODE_B, MODE_AB_BLOCKED
+        cdf[pr, 0], cdf[pr, 1], cdf[pr, 2] = p[0], p[0] + p[1], 1.0
         # term 0: (V_A - s0)/p0; term 1: (V_B - s1)/p1; term 2: ((1-V_A)(1-V_B) - s2)/p2
-        coef[q, 0, 0], coef[q, 0, 1] = -s_best[0] / p[0], 1 / p[0]
-        coef[q, 1, 0], coef[q, 1, 2] = -s_best[1] / p[1], 1 / p[1]
-        coef[q, 2, 0] = (1 - s_best[2]) / p[2]
-        coef[q, 2, 1] = coef[q, 2, 2] = -1 / p[2]
-        coef[q, 2, 3] = 1 / p[2]
+        coef[pr, 0, 0], coef[pr, 0, 1] = -s_best[0] / p[0], 1 / p[0]
+        coef[pr, 1, 0], coef[pr, 1, 2] = -s_best[1] / p[1], 1 / p[1]
+        coef[pr, 2, 0] = (1 - s_best[2]) / p[2]
+        coef[pr, 2, 1] = coef[pr, 2, 2] = -1 / p[2]
+        coef[pr, 2, 3] = 1 / p[2]
 
 
 def choose(counts, size_a, size_b, verify_q=None):
@@ -106,5 +107,5 @@ def choose(counts, size_a, size_b, verify_q=None):
     mode = np.empty((n, 3), np.int8)
     best = np.empty(n, np.int64)
     _choose(np.ascontiguousarray(counts, dtype=float), np.asarray(size_a, dtype=float),
-            np.asarray(size_b, dtype=float), verify_q, P_GRID, PRIOR, _X, _V, _VA, _VB, cdf, coef, mode, best)
+            np.asarray(size_b, dtype=float), verify_q, cdf, coef, mode, best)
     return cdf, coef, mode, best

@@ -1,0 +1,89 @@
+"""The environment emitter (Mitsuba's `envmap` or `constant`): its radiance from a direction, which camera rays
+that miss the scene see, and directions sampled towards it for shading points.
+
+The radiance is Mitsuba's: bilinear between pixel centres of the latitude-longitude map (u = atan2(x, -z) / 2π,
+v = acos(y) / π in the map's frame), the first column repeated after the last. Sampling picks a cell between
+four pixel centres by its largest corner luminance times its solid angle (alias table), then a direction
+uniform in solid angle within it: the pdf is constant per cell and positive wherever the radiance is not zero.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from .alias import alias_sample, alias_table
+from .color import LUMINANCE
+
+
+def environment_arrays(env, scale):
+    """The `env_*` fields of `emitters.EmitterArrays` (in order) for a scene's `Environment` (None: a black
+    placeholder) with radiance `scale` (3,), and the integral of its luminance over the sphere (for its power)."""
+    image = np.zeros((2, 1, 3)) if env is None else env.image
+    h, w = image.shape[:2]
+    ext = np.ascontiguousarray(np.concatenate([image, image[:, :1]], axis=1))
+    lum = np.abs(ext) @ LUMINANCE
+    corners = np.stack([lum[:-1, :-1], lum[:-1, 1:], lum[1:, :-1], lum[1:, 1:]])
+    cos_t = np.cos(np.linspace(0.0, np.pi, h))
+    solid = (2.0 * np.pi / w) * (cos_t[:-1] - cos_t[1:])[:, None] * np.ones((1, w))
+    weight = (corners.max(axis=0) * solid).ravel()
+    total = weight.sum()
+    cell_pdf = weight / (total * solid.ravel()) if total > 0 else np.zeros_like(weight)
+    prob, alias = alias_table(weight)
+    to_world = np.eye(3) if env is None else env.to_world
+    integral = float((corners.mean(axis=0) * solid).sum())
+    fields = (ext, prob, alias, cell_pdf, to_world, np.linalg.inv(to_world), 0.5 / w,
+              np.zeros(3) if env is None else np.asarray(scale, np.float64))
+    return fields, integral
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def environment_radiance(es, dx, dy, dz):
+    """Mitsuba's envmap radiance (before its scale) arriving from world direction d (any length); `es` is the
+    `EmitterArrays`."""
+    m = es.env_to_local
+    x = m[0, 0] * dx + m[0, 1] * dy + m[0, 2] * dz
+    y = m[1, 0] * dx + m[1, 1] * dy + m[1, 2] * dz
+    z = m[2, 0] * dx + m[2, 1] * dy + m[2, 2] * dz
+    r = math.sqrt(x * x + y * y + z * z)
+    u = math.atan2(x, -z) * (0.5 / math.pi) - es.env_shift
+    u -= math.floor(u)
+    v = math.acos(min(max(y / r, -1.0), 1.0)) / math.pi
+    h, w1 = es.env_image.shape[0], es.env_image.shape[1]
+    return _bilinear(es.env_image, u * (w1 - 1), v * (h - 1))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _bilinear(image, fx, fy):
+    """Bilinear interpolation of `image` at pixel coordinates (fx, fy), pixel (i, j) at (j, i)."""
+    i = min(int(fy), image.shape[0] - 2)
+    j = min(int(fx), image.shape[1] - 2)
+    wx, wy = fx - j, fy - i
+    out = [0.0, 0.0, 0.0]
+    for c in range(3):
+        top = (1.0 - wx) * image[i, j, c] + wx * image[i, j + 1, c]
+        bottom = (1.0 - wx) * image[i + 1, j, c] + wx * image[i + 1, j + 1, c]
+        out[c] = (1.0 - wy) * top + wy * bottom
+    return out[0], out[1], out[2]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def sample_environment(es, u1, u2, u3):
+    """A world direction towards the environment (`es`: the `EmitterArrays`), by its cells: (dx, dy, dz,
+    solid-angle pdf, and the radiance r, g, b before the emitter's scale)."""
+    h, w = es.env_image.shape[0], es.env_image.shape[1] - 1
+    k = alias_sample(es.env_cell_prob, es.env_cell_alias, 0, es.env_cell_prob.shape[0], u1)
+    i, j = k // w, k % w
+    step = math.pi / (h - 1)
+    c0, c1 = math.cos(i * step), math.cos((i + 1) * step)
+    cos_t = c0 - u3 * (c0 - c1)
+    theta = math.acos(min(max(cos_t, -1.0), 1.0))
+    sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+    phi = 2.0 * math.pi * ((j + u2) / w + es.env_shift)
+    lx, ly, lz = math.sin(phi) * sin_t, cos_t, -math.cos(phi) * sin_t
+    m = es.env_to_world
+    dx = m[0, 0] * lx + m[0, 1] * ly + m[0, 2] * lz
+    dy = m[1, 0] * lx + m[1, 1] * ly + m[1, 2] * lz
+    dz = m[2, 0] * lx + m[2, 1] * ly + m[2, 2] * lz
+    r = math.sqrt(dx * dx + dy * dy + dz * dz)
+    l0, l1, l2 = _bilinear(es.env_image, j + u2, min(theta / step, h - 1.0))
+    return dx / r, dy / r, dz / r, es.env_cell_pdf[k], l0, l1, l2

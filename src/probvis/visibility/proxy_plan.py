@@ -1,0 +1,195 @@
+"""The plan of proxy visibility with `q=auto`: per emitter and film region, exact visibility alone or the proxy
+with its own q, chosen from a pilot to minimise variance × cost (the 2014 paper's choice among the original
+geometry, the proxy and the correction, made per region; derived in docs/decisions.md, "Efficiency-aware q").
+
+The pilot renders a grid of the image's own pixels, one sample each, for two independent sets of camera
+samples: exact visibility through the integrator's fused kernel, and the proxy kernel with no exact test and
+with every segment tested both ways, without the shells and, if there are any, with them. From those it takes
+the costs (relative to exact visibility), each region's variance and mismatch energy, and plans both
+configurations; the render takes the one whose plan predicts more.
+"""
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..color import LUMINANCE
+from ..settings import MAX_SEED
+from ..shells import ShellTests
+from .base import CASE_UNKNOWN
+from .proxy_kernel import N_SUMS, SUM_INV_P, SUM_MISMATCH, SUM_WV, Correction
+
+PILOT_RESOLUTION = 64  # the pilot's pixels along the image's longer side: up to 4,096 camera samples,
+PILOT_SHARE = 1 / 300  # and at most this share of the render's (six kernel runs: about 2% of its time)
+PILOT_SETS = 2  # independent sets of pilot camera samples: their differences give the variance; each kernel
+# runs on both and the faster time is kept (the first call may load or compile)
+REGIONS = 8  # q per emitter in REGIONS x REGIONS tiles of the film
+SHRINK = 256  # a region's mismatch energy and variance are shrunk toward its emitter's by this many segments' worth
+PILOT_SALT = 0x50524F5859  # mixed into its seed, apart from the render's samples
+Q_MIN = 0.02  # never test fewer segments exactly than this
+GAIN_MARGIN = 1.25  # proxies are used where the predicted gain exceeds this: a small view flatters them
+SHELL_MARGIN = 1.05  # shells are kept where their plan predicts this much more than the plan without them
+
+
+@dataclass
+class Plan:
+    """What the pilot chose and measured."""
+
+    exact: np.ndarray  # (regions, emitters) bool: exact visibility alone
+    q: np.ndarray  # (regions, emitters) probability of the exact test where the proxy is used
+    gain: np.ndarray  # (emitters,) predicted efficiency gain over exact visibility (NaN: nothing measured)
+    shells: ShellTests  # the configuration chosen (the shells, or none)
+    shells_dropped: bool  # shells were built but the plan without them predicts more
+    costs: tuple = None  # (ρ, e): the proxy path's cost without and the extra exact test's, relative to exact
+    camera_cost: float = None  # κ: the camera rays' cost, relative to the same
+    sums: np.ndarray = None  # (emitters, N_SUMS) what the pilot measured
+    segments: int = 0  # pilot segments measured both ways
+
+
+def allocate(n, variance, mismatch, rho, exact=1.0, base=1.0, rounds=20):
+    """Per region (arrays over regions of one emitter: segments, exact visibility's variance of the region's sum
+    over its camera samples, mismatch energy) whether to use the proxy and its q, minimising total variance x
+    total cost, with costs per segment `base` for exact visibility and `rho` + `exact` q for the proxy; and the
+    predicted gain over exact visibility, (Σ V) base n / (variance x cost)."""
+    n, variance, mismatch = (np.asarray(x, float) for x in (n, variance, mismatch))
+    total_v, total_n = variance.sum(), n.sum()
+    if total_v <= 0 or total_n <= 0:
+        return np.zeros(len(n), bool), np.ones(len(n)), 1.0
+    lam = total_v / (base * total_n)
+    for _ in range(rounds):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.clip(np.sqrt(np.where(n > 0, mismatch / (lam * exact * n), 1.0)), Q_MIN, 1.0)
+        proxy_v = variance - mismatch + mismatch / q
+        proxy_c = n * (rho + exact * q)
+        use = proxy_v + lam * proxy_c < variance + lam * base * n
+        v = np.where(use, proxy_v, variance).sum()
+        c = np.where(use, proxy_c, base * n).sum()
+        lam = v / c
+    return use, q, float(total_v * base * total_n / (v * c))
+
+
+def region_measures(sample_sets, region, weight=None):
+    """Per film region and emitter, from the pilot's per-pixel sums (`shade_proxy`'s, every segment tested both
+    ways) of two independent sets of camera samples, one per pixel: the sums' means over the two sets, and the
+    variance of exact visibility's Σ w V over a camera sample's segments summed over the region's samples,
+    estimated from the two sets' differences pixel by pixel, and the mismatch energy, both weighted per pixel by
+    `weight`. What a camera sample's point adds to that variance counts once per camera sample, not once per
+    segment."""
+    first, second = sample_sets
+    weight = (np.ones(len(region)) if weight is None else weight)[:, None]
+    sums = np.zeros((REGIONS * REGIONS,) + first.shape[1:])
+    np.add.at(sums, region, 0.5 * (first + second))
+    variance = np.zeros((REGIONS * REGIONS, first.shape[1]))
+    np.add.at(variance, region, 0.5 * (first[..., SUM_WV] - second[..., SUM_WV]) ** 2 * weight)
+    mismatch = np.zeros((REGIONS * REGIONS, first.shape[1]))
+    np.add.at(mismatch, region, 0.5 * (first[..., SUM_MISMATCH] + second[..., SUM_MISMATCH]) * weight)
+    return sums, variance, mismatch
+
+
+def film_regions(camera, pix):
+    """The REGIONS x REGIONS tile of the film that each image pixel (row-major indices) lies in."""
+    fw, fh = camera.film_size
+    x = (camera.crop_x + pix % camera.width + 0.5) / fw
+    y = (camera.crop_y + pix // camera.width + 0.5) / fh
+    return (np.minimum(x * REGIONS, REGIONS - 1).astype(np.int64)
+            + REGIONS * np.minimum(y * REGIONS, REGIONS - 1).astype(np.int64))
+
+
+def pilot_pixels(camera, spp):
+    """The pilot's grid of the image's own pixels (row-major indices), so that a camera sample varies within one
+    as much as in the render: up to PILOT_RESOLUTION along the longer side, at most PILOT_SHARE of the render's
+    camera samples."""
+    w, h = camera.width, camera.height
+    side = int(min(PILOT_RESOLUTION, max(16, np.sqrt(w * h * spp * PILOT_SHARE * max(w, h) / min(w, h)))))
+    pw, ph = (side, max(1, round(side * h / w))) if w >= h else (max(1, round(side * w / h)), side)
+    pw, ph = min(pw, w), min(ph, h)
+    xs, ys = ((np.arange(pw) + 0.5) * w / pw).astype(np.int64), ((np.arange(ph) + 0.5) * h / ph).astype(np.int64)
+    return (ys[:, None] * w + xs[None, :]).ravel()
+
+
+def run_pilot(integrator, settings, kernel, configs, q_default):
+    """Measure and plan (a `Plan`). `kernel(batch, shells, correction)` runs the proxy kernel; `configs` maps
+    "plain" (no shells) and, if the scene has them, "shells" to `ShellTests`."""
+    scene = integrator.scene
+    cam, e = scene.camera, scene.n_emitters
+    image_pixels = pilot_pixels(cam, settings.spp)
+    n_pix = len(image_pixels)
+    seed = (settings.seed ^ PILOT_SALT) & MAX_SEED  # apart from the render's samples, a valid seed still
+    best, batches = {}, []
+    for r in range(PILOT_SETS):  # camera rays, which every method pays: they dilute the gain
+        t0 = time.perf_counter()
+        batch = integrator.shading_batch(image_pixels, 1, settings.shadow_rays, (seed + r) & MAX_SEED)
+        best["camera"] = min(best.get("camera", np.inf), time.perf_counter() - t0)
+        batches.append(batch._replace(cases=np.full_like(batch.cases, CASE_UNKNOWN)))
+    measure_all = Correction(np.ones((n_pix, e)), np.zeros((n_pix, e), bool))
+    proxy_only = Correction(np.zeros((n_pix, e)), np.zeros((n_pix, e), bool))
+    exact_only = Correction(np.ones((n_pix, e)), np.ones((n_pix, e), bool))
+
+    def timed(name, run):  # on both sets of camera samples, the faster time kept; the outputs
+        outs = []
+        for batch in batches:
+            t0 = time.perf_counter()
+            outs.append(run(batch))
+            best[name] = min(best.get(name, np.inf), time.perf_counter() - t0)
+        return outs
+
+    region = film_regions(cam, image_pixels)
+
+    def measure(tag, shells):
+        """Time the proxy kernel with no exact test and with every segment tested both ways (and exact
+        visibility, with shells) under one configuration of shells; the measures per region."""
+        if shells.active:
+            timed("exact_" + tag, lambda b: kernel(b, shells, exact_only))
+        timed("proxy_" + tag, lambda b: kernel(b, shells, proxy_only))
+        outs = timed("both_" + tag, lambda b: kernel(b, shells, measure_all))
+        # errors are judged relative to the pixel (relMSE): each pixel weighs 1 / (its luminance² + 0.01)
+        lum = 0.5 * sum(out[0] @ LUMINANCE for out in outs)
+        return region_measures([out[3] for out in outs], region, 1.0 / (lum ** 2 + 0.01))
+
+    timed("exact_plain", integrator.shade_exact)
+    measured = {tag: measure(tag, shells) for tag, shells in configs.items()}
+    unit = best["exact_plain"]  # costs relative to exact visibility's fused kernel without shells
+    kappa = best["camera"] / unit
+    plans = {}
+    for tag, (sums, pair_variance, pair_mismatch) in measured.items():
+        if sums[..., SUM_INV_P].sum() == 0:
+            continue
+        base = best.get("exact_" + tag, unit) / unit
+        # the extra exact tests' cost is a difference of two timings: floored, so noise cannot zero it
+        rho = best["proxy_" + tag] / unit
+        cost_e = max(best["both_" + tag] - best["proxy_" + tag], 0.01 * unit) / unit
+        emitter_plans, score = [], []
+        for k in range(e):
+            n, mismatch, variance = sums[:, k, SUM_INV_P], pair_mismatch[:, k], pair_variance[:, k]
+            if n.sum() == 0:
+                emitter_plans.append(None)
+                continue
+            mu, nu = mismatch.sum() / n.sum(), variance.sum() / n.sum()
+            mismatch = (mismatch + SHRINK * mu) * n / (n + SHRINK)
+            variance = (variance + SHRINK * nu) * n / (n + SHRINK)
+            use, q, gain = allocate(n, variance, mismatch, rho + kappa, cost_e, base + kappa)
+            use &= gain >= GAIN_MARGIN
+            emitter_plans.append((use, q, gain * (1 + kappa) / (base + kappa)))
+            # a plan that uses the proxies must win by the margin, as within a configuration
+            score.append((gain / GAIN_MARGIN if use.any() else 1.0) * (1 + kappa) / (base + kappa))
+        plans[tag] = (float(np.mean(score)), (rho, cost_e), sums, emitter_plans)
+    regions = REGIONS * REGIONS
+    plan = Plan(np.zeros((regions, e), bool), np.full((regions, e), q_default), np.full(e, np.nan),
+                configs.get("shells", configs["plain"]), False, camera_cost=kappa, sums=np.zeros((e, N_SUMS)))
+    if not plans:
+        return plan
+    # with shells or without, whichever the pilot finds better; shells must win by SHELL_MARGIN (their walk
+    # costs a few percent where it decides nothing, within the pilot's timing noise)
+    tag = max(plans, key=lambda t: plans[t][0] / (SHELL_MARGIN if t == "shells" else 1.0))
+    _, plan.costs, sums, emitter_plans = plans[tag]
+    plan.shells = configs[tag]
+    plan.shells_dropped = tag == "plain" and "shells" in configs
+    plan.sums = sums.sum(axis=0)
+    plan.segments = int(sums[..., SUM_INV_P].sum())
+    for k, chosen in enumerate(emitter_plans):
+        if chosen is None:
+            continue
+        use, q, plan.gain[k] = chosen
+        plan.exact[:, k] = ~use
+        plan.q[:, k] = np.where(use, q, plan.q[:, k])
+    return plan
