@@ -24,7 +24,7 @@ def shade_exact(geom, es, bvh, batch):
     for it in prange(n_blocks):
         blk = spread(it, n_blocks)
         org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
-        s_emit = np.empty(n_shadow, np.int32)
+        s_emit, sample = np.empty(n_shadow, np.int32), np.empty(n_shadow, np.int64)
         active = np.empty(n_shadow, np.bool_)
         tmin = np.zeros(n_shadow)
         tmax = np.full(n_shadow, 1.0 - SHADOW_EPSILON)
@@ -37,7 +37,7 @@ def shade_exact(geom, es, bvh, batch):
                 i = px * spp + s
                 counts[px, CAM_TRI] += batch.cam_tri[i]
                 counts[px, CAM_NODE] += batch.cam_node[i]
-                a0, a1, a2, m = point_samples(i, geom, es, batch, 0, org, dirs, contrib, s_emit, active, True)
+                a0, a1, a2, m = point_samples(i, geom, es, batch, 0, org, dirs, contrib, s_emit, active, sample, True)
                 for lo in range(0, m, SHADOW_PACKET):
                     occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, min(SHADOW_PACKET, m - lo), work, occ,
                                     sh_node, sh_tri)

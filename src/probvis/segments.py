@@ -66,6 +66,7 @@ def sample_emitters(geom, es, batch, slots):
     """`shading.point_samples` of every camera sample of the batch, sample i in slots i * shadow_rays onwards;
     returns the analytic radiance (of lit emitters) per camera sample."""
     s_org, s_dir, contrib, s_emit, active = slots  # kernels write through plain arrays, never through a record
+    unused = np.empty(0, np.int64)  # the dense-only sample indices
     n = batch.triangle.shape[0]
     analytic = np.zeros((n, 3))
     n_blocks = (n + POINTS_PER_BLOCK - 1) // POINTS_PER_BLOCK
@@ -73,7 +74,7 @@ def sample_emitters(geom, es, batch, slots):
         blk = spread(it, n_blocks)
         for i in range(blk * POINTS_PER_BLOCK, min(n, (blk + 1) * POINTS_PER_BLOCK)):
             analytic[i, 0], analytic[i, 1], analytic[i, 2] = point_samples(
-                i, geom, es, batch, i * batch.shadow_rays, s_org, s_dir, contrib, s_emit, active, False)[:3]
+                i, geom, es, batch, i * batch.shadow_rays, s_org, s_dir, contrib, s_emit, active, unused, False)[:3]
     return analytic
 
 

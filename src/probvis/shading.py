@@ -155,7 +155,7 @@ def emitter_segment(slot, le, scale, rgb, u, es, triangles, fnormals, p, s, gn, 
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def point_samples(i, geom, es, batch, base, s_org, s_dir, contrib, s_emit, active, dense):
+def point_samples(i, geom, es, batch, base, s_org, s_dir, contrib, s_emit, active, sample, dense):
     """Direct light at camera sample `i` of the `ShadingBatch` (`geom` is the `SceneArrays`, `es` the
     `EmitterArrays`), per emitter as the visibility estimator's `batch.cases` say:
 
@@ -166,7 +166,9 @@ def point_samples(i, geom, es, batch, base, s_org, s_dir, contrib, s_emit, activ
     slot, segment origin and direction, the unoccluded contribution (already divided by pdf and shadow rays), the
     emitter id and the active flag (the other outputs of an inactive slot are meaningless). With `dense` (a
     constant in each caller) only the active samples are kept, in slots base..base + m - 1 (a sample is
-    written at base + m and kept by advancing m). Returns the analytic radiance and m (0 without `dense`).
+    written at base + m and kept by advancing m), and `sample` says which emitter sample (0..shadow_rays - 1)
+    each kept slot holds: the staged path keys a segment's random numbers by it (`segments.compact`). Returns
+    the analytic radiance and m (0 without `dense`).
     """
     triangles, fnormals, radiance = geom.triangles, geom.face_normals, geom.emitter_radiance
     pmf, area = es.pmf, es.area
@@ -203,8 +205,9 @@ def point_samples(i, geom, es, batch, base, s_org, s_dir, contrib, s_emit, activ
             u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
             slot = base + m if dense else base + j
             emitter_segment(slot, only, scale, rgb, u, es, triangles, fnormals, p, s, gn, eps, contrib, s_org,
-                             s_dir, s_emit, active)
+                            s_dir, s_emit, active)
             if dense:
+                sample[slot] = j
                 m += active[slot]
         return a0, a1, a2, m
     for j in range(n_shadow):
@@ -213,8 +216,9 @@ def point_samples(i, geom, es, batch, base, s_org, s_dir, contrib, s_emit, activ
         u = (uniform(key, 3 + 4 * j), uniform(key, 4 + 4 * j), uniform(key, 5 + 4 * j))
         slot = base + m if dense else base + j
         emitter_segment(slot, le, area[le] * inv_pi / (p_e * n_shadow), rgb, u, es, triangles, fnormals, p, s,
-                         gn, eps, contrib, s_org, s_dir, s_emit, active)
+                        gn, eps, contrib, s_org, s_dir, s_emit, active)
         if dense:
+            sample[slot] = j
             m += active[slot]
     return a0, a1, a2, m
 

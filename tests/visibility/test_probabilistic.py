@@ -7,6 +7,7 @@ import pytest
 
 import probvis
 from probvis import ProbvisError
+from probvis.accel import CandidateGeometry
 from probvis.cli import main
 from probvis.rng import make_key
 from probvis.visibility import make_estimator
@@ -89,13 +90,13 @@ def test_kernel_estimates_are_unbiased_by_sampling(levels, cells, covered):
     n = 40000
     org, dirs = np.zeros((n, 3)), np.tile([0.0, 0.0, 1.0], (n, 1))
     offsets, ids = np.array([0, 4]), np.arange(4, dtype=np.int32)
-    grouped, bounds, _ = group_lists(tris, np.zeros((1, 3)), offsets, ids, 1, GROUP_COUNT, levels, cells, 0)
+    grouped, bounds, _ = group_lists(tris, np.zeros((1, 3)), offsets, ids, ids, 1, GROUP_COUNT, levels, cells, 0)
     keys = np.array([make_key(11, 1, i) for i in range(n)], dtype=np.uint64)
     for d in (standard((0.5, 0.3, 0.2)), shifted(), power(4)):
         value, tests, _, term = evaluate_segments(
-            tris, np.zeros(4, np.int8), np.zeros((4, 3)), org, dirs, np.ones(n), np.zeros(n, np.int64), keys,
-            GroupedLists(grouped, bounds, levels, cells),
-            TermTables(np.cumsum(d.p)[None], d.coefficients()[None], d.mode[None]))
+            CandidateGeometry(tris, np.zeros(4, np.int8), np.zeros((4, 3))), org, dirs, np.ones(n),
+            np.zeros(n, np.int64), keys, GroupedLists(grouped, bounds, levels, cells),
+            TermTables(np.cumsum(d.p)[None], d.coefficients()[None], d.mode[None], False))
         se = value.std() / np.sqrt(n)
         assert abs(value.mean() - truth) < 4 * se + 1e-12, (d.name, value.mean(), truth, se)
         assert tests.max() <= 4 and set(np.unique(term)) <= {0, 1, 2}
@@ -104,16 +105,37 @@ def test_kernel_estimates_are_unbiased_by_sampling(levels, cells, covered):
 def test_solid_angle_grouping_balances_the_accumulated_solid_angle():
     rng = np.random.default_rng(2)
     tris = rng.normal(size=(60, 1, 3)) * 0.1 + rng.normal(size=(60, 3, 3)) * 0.03 + [0, 0, 1]
-    grouped, bounds, balance = group_lists(tris, np.zeros((1, 3)), np.array([0, 60]), np.arange(60, dtype=np.int32),
-                                           1, GROUP_SOLID_ANGLE, 1, 1, 0)
+    ids = np.arange(60, dtype=np.int32)
+    grouped, bounds, balance = group_lists(tris, np.zeros((1, 3)), np.array([0, 60]), ids, ids, 1, GROUP_SOLID_ANGLE,
+                                           1, 1, 0)
     w = np.array([solid_angle(tris, t, 0.0, 0.0, 0.0) for t in range(60)])
     a, b = grouped[:bounds[0, 1]], grouped[bounds[0, 1]:]
     assert sorted(grouped.tolist()) == list(range(60))
     assert abs(w[a].sum() - w[b].sum()) <= w.max() + 1e-12
     np.testing.assert_allclose(balance[0], [w[a].sum(), w[b].sum()])
-    _, cb, _ = group_lists(tris, np.zeros((1, 3)), np.array([0, 60]), np.arange(60, dtype=np.int32), 1, GROUP_COUNT,
-                           1, 1, 0)
+    _, cb, _ = group_lists(tris, np.zeros((1, 3)), np.array([0, 60]), ids, ids, 1, GROUP_COUNT, 1, 1, 0)
     assert cb[0, 1] - cb[0, 0] == 30
+
+
+def test_blocker_groups_go_to_one_side_whole():
+    """Candidates of one blocker group (a run of the list, here 20 groups of 3) land in the same group, A or B,
+    keeping their order; the solid angle still balances to within the largest blocker group."""
+    rng = np.random.default_rng(5)
+    tris = rng.normal(size=(60, 1, 3)) * 0.1 + rng.normal(size=(60, 3, 3)) * 0.03 + [0, 0, 1]
+    ids = np.arange(60, dtype=np.int32)
+    unit = (ids // 3).astype(np.int32)
+    grouped, bounds, balance = group_lists(tris, np.zeros((1, 3)), np.array([0, 60]), ids, unit, 1,
+                                           GROUP_SOLID_ANGLE, 1, 1, 0)
+    side = np.empty(60, int)
+    side[grouped[:bounds[0, 1]]] = 0
+    side[grouped[bounds[0, 1]:]] = 1
+    assert all(len(set(side[unit == u])) == 1 for u in range(20))
+    for part in (grouped[:bounds[0, 1]], grouped[bounds[0, 1]:]):
+        assert list(part) == sorted(part)  # list order kept within a group
+    w = np.array([solid_angle(tris, t, 0.0, 0.0, 0.0) for t in range(60)])
+    per_unit = np.bincount(unit, weights=w)
+    assert abs(balance[0, 0] - balance[0, 1]) <= per_unit.max() + 1e-12
+    np.testing.assert_allclose(balance[0].sum(), w.sum())
 
 
 def test_solid_angle_of_an_octant_triangle():

@@ -6,12 +6,12 @@ the candidate-list test (`first_blocker`, `visibility_from_lists`, `culled`); th
 (`ray_setup`, `hit_triangle`). `closest_hit` and `any_hit` trace one ray at a time: test oracles.
 """
 from .bvh import BVH, BVHArrays, build_bvh
-from .candidates import culled, first_blocker, visibility_from_lists
+from .candidates import CandidateGeometry, buffered_blocker, culled, first_blocker, visibility_from_lists
 from .packet import (MAX_PACKET, SHADOW_PACKET, any_hit_packets, closest_hit_packets, nearest_hits, occluded_packet,
                      occluded_segments, packet_starts, packet_work, root_record)
 from .traversal import CHUNK, all_hits, any_hit, closest_hit, hit_triangle, ray_setup
 
-__all__ = ["BVH", "BVHArrays", "CHUNK", "MAX_PACKET", "SHADOW_PACKET", "all_hits", "any_hit", "any_hit_packets", "build_bvh",
+__all__ = ["BVH", "BVHArrays", "CHUNK", "CandidateGeometry", "MAX_PACKET", "SHADOW_PACKET", "all_hits", "any_hit", "any_hit_packets", "buffered_blocker", "build_bvh",
            "closest_hit", "closest_hit_packets", "culled", "first_blocker", "hit_triangle", "nearest_hits",
            "occluded_packet", "occluded_segments", "packet_starts", "packet_work", "ray_setup", "root_record",
            "visibility_from_lists"]

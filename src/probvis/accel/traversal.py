@@ -50,15 +50,15 @@ def slab_setup(dx, dy, dz):
 @njit(cache=True, error_model="numpy", inline="always")
 def hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
     """Watertight ray-triangle test of triangle `p` of `tv`; returns (t, b1, b2) with t = inf on a miss."""
-    ax = tv[p, 0, kx] - o[kx]
-    ay = tv[p, 0, ky] - o[ky]
-    az = tv[p, 0, kz] - o[kz]
-    bx = tv[p, 1, kx] - o[kx]
-    by = tv[p, 1, ky] - o[ky]
-    bz = tv[p, 1, kz] - o[kz]
-    cx = tv[p, 2, kx] - o[kx]
-    cy = tv[p, 2, ky] - o[ky]
-    cz = tv[p, 2, kz] - o[kz]
+    return sheared_hit(tv[p, 0, kx] - o[kx], tv[p, 0, ky] - o[ky], tv[p, 0, kz] - o[kz],
+                       tv[p, 1, kx] - o[kx], tv[p, 1, ky] - o[ky], tv[p, 1, kz] - o[kz],
+                       tv[p, 2, kx] - o[kx], tv[p, 2, ky] - o[ky], tv[p, 2, kz] - o[kz], sx, sy, sz, tmin, tmax)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def sheared_hit(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz, tmin, tmax):
+    """The watertight test of a triangle whose vertices, minus the ray's origin, are given in the ray's permuted
+    axes (`ray_setup`'s kx, ky, kz): (t, b1, b2), t = inf on a miss."""
     ax -= sx * az
     ay -= sy * az
     bx -= sx * bz

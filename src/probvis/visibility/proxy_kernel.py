@@ -92,7 +92,7 @@ def shade_proxy(geom, es, bvh, batch, proxy, volume, clearance, shells, rest, pl
         blk = spread(it, n_blocks)
         org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
         org2, dirs2 = np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
-        s_emit = np.empty(n_shadow, np.int32)
+        s_emit, sample = np.empty(n_shadow, np.int32), np.empty(n_shadow, np.int64)
         active = np.empty(n_shadow, np.bool_)
         tmin = np.empty(n_shadow)
         zero = np.zeros(n_shadow)
@@ -111,7 +111,7 @@ def shade_proxy(geom, es, bvh, batch, proxy, volume, clearance, shells, rest, pl
                 i = px * spp + s
                 counts[px, CAM_TRI] += batch.cam_tri[i]
                 counts[px, CAM_NODE] += batch.cam_node[i]
-                a0, a1, a2, m = point_samples(i, geom, es, batch, 0, org, dirs, contrib, s_emit, active, True)
+                a0, a1, a2, m = point_samples(i, geom, es, batch, 0, org, dirs, contrib, s_emit, active, sample, True)
                 for k in range(m):
                     decided[k] = False
                     value[k] = 0.0

@@ -1,17 +1,25 @@
 """The `occlusion-map` estimator: photons classify shading points; only penumbra points get shadow rays, and
-those are tested against the point's candidate blockers (`penumbra="list"`) or the whole BVH ("bvh")."""
+those are tested against the point's candidate blockers (`penumbra="list"`) or the whole BVH ("bvh").
+
+It renders through its own kernel (`kernel.shade_map`); `evaluate` is the same estimator on the staged path,
+value for value (tested), kept as the readable reference and for the staged interface."""
 import time
 import warnings
 
+import numba
 import numpy as np
 
-from ...accel import occluded_segments, visibility_from_lists
+from ...accel import CandidateGeometry, occluded_segments, visibility_from_lists
+from ...cycles import split_seconds
 from ...errors import ProbvisError
 from ...geometry import unit_normals
 from ...rng import uniforms
 from ...scene.scene import EMITTER_ENVIRONMENT
+from ...shading import ShadedBatch
 from ..base import (CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, CASE_VERIFIED, Aov, Option, Phase,
-                    VisibilityEstimator, VisibilityResult)
+                    RenderPath, VisibilityEstimator, VisibilityResult)
+from ..probabilistic.kernels import GroupedLists, TermTables
+from . import kernel as mk
 from . import verification
 from .adaptive_photons import refine
 from .components import BlockerGroups, blocker_groups, closed_orientation, components
@@ -47,6 +55,17 @@ MAP_PHASES = (
     Phase("map_build", "prepare", "connected components, kd-trees"),
     Phase("lookup", "batch", "classifying shading points from their neighbouring photons"),
 )
+# the kernel's phases: its wall time split by the cycles each took (`probvis.cycles`)
+KERNEL_PHASES = (
+    Phase("sampling", "batch", "sampling the emitters of each shading point's cases"),
+    Phase("term_choice", "batch", "drawing each penumbra segment's verification and decomposition term"),
+    Phase("candidate_tests", "batch", "testing segments against their candidate lists or groups"),
+    Phase("exact_traces", "batch", "tracing unknown (and, with penumbra=bvh, penumbra) segments against the scene"),
+    Phase("verification_traces", "batch", "tracing verified segments against the scene"),
+    Phase("film", "batch", "summing each camera sample's radiance"),
+)
+NO_GROUPS = GroupedLists(np.zeros(0, np.int32), np.zeros((1, 3), np.int64), 1, 1)
+NO_TERMS = TermTables(np.ones((1, 3)), np.zeros((1, 3, 4)), np.zeros((1, 3), np.int8), False)
 CASES_AOV = Aov("cases", "per pixel and emitter, the share of camera samples classified unknown, lit, shadowed "
                          "and penumbra", kind="cases")
 
@@ -61,8 +80,9 @@ class OcclusionMapVisibility(VisibilityEstimator):
                                               "only the candidate blockers of neighbouring shadow photons (fewer "
                                               "tests; biased where the photons missed a blocker)",
                       choices=("bvh", "list")),) + MAP_OPTIONS
-    phases = MAP_PHASES
+    phases = MAP_PHASES + KERNEL_PHASES
     aovs = (CASES_AOV,)
+    penumbra_mode = None  # how the kernel evaluates penumbra segments (a subclass may fix it)
 
     @property
     def with_lists(self):
@@ -142,6 +162,47 @@ class OcclusionMapVisibility(VisibilityEstimator):
             "culled_candidates": 0, "penumbra_shadow_rays": 0, "unknown_shadow_rays": 0,
         }
         self._list_sum = 0
+        self.candidates = CandidateGeometry(scene.triangles, self.orientation, self.fnormal)
+        self._rows = np.empty((numba.config.NUMBA_NUM_THREADS, 2, 256, 13))  # the kernel's gathered candidates
+
+    def render_path(self):
+        """Its own kernel (`kernel.shade_map`), value for value what the staged path renders."""
+        return RenderPath.OWN_KERNEL
+
+    def kernel_inputs(self):
+        """The decomposition's groups and terms for the kernel, and how it evaluates penumbra segments."""
+        return NO_GROUPS, NO_TERMS, mk.PENUMBRA_LIST if self.with_lists else mk.PENUMBRA_BVH
+
+    def shade(self, batch):
+        lk = self.lookup
+        groups, terms, penumbra = self.kernel_inputs()
+        q = self.q if self.verify is not None else np.zeros((1, 1))
+        lists = mk.PairLists(lk.rep.astype(np.int64), lk.n_rep, lk.offsets, lk.tris, q, penumbra,
+                             self.verify is not None)
+        longest = int(np.diff(lk.offsets).max()) if len(lk.offsets) > 1 else 0
+        if self._rows.shape[2] < longest:  # room for the longest list, per thread
+            self._rows = np.empty((numba.config.NUMBA_NUM_THREADS, 2, max(longest, 2 * self._rows.shape[2]), 13))
+        t0 = time.perf_counter()
+        radiance, counts, n_seg, counters, sums, cycles = mk.shade_map(
+            self.integrator.scene_arrays, self.emitters.arrays, self.bvh.arrays, batch, self.candidates, lists, groups,
+            terms, self._rows)
+        for name, sec in zip(mk.PHASE_NAMES, split_seconds(time.perf_counter() - t0, cycles)):
+            self.seconds[name] += sec
+        self.add_counters(counters)
+        for case, n, n_ver, base in ((CASE_LIT, mk.LIT_SEGMENTS, mk.LIT_VERIFIED, mk.LIT_SUMS),
+                                     (CASE_SHADOWED, mk.SHADOWED_SEGMENTS, mk.SHADOWED_VERIFIED, mk.SHADOWED_SUMS),
+                                     (CASE_PENUMBRA, mk.PENUMBRA_SEGMENTS, mk.PENUMBRA_VERIFIED, mk.PENUMBRA_SUMS)):
+            if counters[n_ver]:
+                self.tally.add_sums(case, counters[n], counters[n_ver], sums[base + mk.MISMATCH],
+                                    sums[base + mk.MISMATCH2], sums[base + mk.Q_SUM])
+        return ShadedBatch(radiance, counts, n_seg)
+
+    def add_counters(self, counters):
+        """The kernel's counters into the stats."""
+        st = self._stats
+        st["culled_candidates"] += int(counters[mk.CULLED])
+        st["penumbra_shadow_rays"] += int(counters[mk.PENUMBRA_RAYS])
+        st["unknown_shadow_rays"] += int(counters[mk.UNKNOWN_RAYS])
 
     def classify(self, points):
         with self.timed("lookup"):
@@ -207,9 +268,13 @@ class OcclusionMapVisibility(VisibilityEstimator):
         if self.with_lists:
             idx = np.flatnonzero(case == CASE_PENUMBRA)
             if len(idx):
-                value[idx], n_tri[idx] = self.evaluate_penumbra(query, idx)
+                verified = np.zeros(len(idx), bool)
                 if self.verify is not None:
-                    self._verify_lists(query, idx, value, n_node, n_tri)
+                    q = self.q[query.point[idx], query.emitter[idx]]
+                    verified = uniforms(query.key[idx], verification.SEGMENT_DIM) < q
+                value[idx], n_tri[idx] = self.evaluate_penumbra(query, idx, verified)
+                if self.verify is not None:
+                    self._verify_lists(query, idx, verified, value, n_node, n_tri)
         for c, approx in ((CASE_LIT, 1.0), (CASE_SHADOWED, 0.0)):  # verified pairs: the correction terms
             idx = np.flatnonzero(flagged == (c | CASE_VERIFIED))
             if len(idx):
@@ -219,32 +284,23 @@ class OcclusionMapVisibility(VisibilityEstimator):
                 self.tally.add_segments(c, len(idx), mismatch, q)
         return VisibilityResult(value, n_node, n_tri)
 
-    exact_list_values = True  # `evaluate_penumbra` returns V_list itself (a subclass may estimate it instead)
-
-    def _verify_lists(self, query, idx, value, n_node, n_tri):
-        """Add B (V - V_list) / q to the penumbra segments idx. A listed blocker really blocks (V <= V_list), so
-        the correction is non-zero only where the list says visible and the scene blocks: with V_list at hand
-        only open segments are traced; otherwise the scene is traced first and the list tested only where it
-        blocks."""
-        q = self.q[query.point[idx], query.emitter[idx]]
-        chosen = uniforms(query.key[idx], verification.SEGMENT_DIM) < q
-        ver, q = idx[chosen], q[chosen]
+    def _verify_lists(self, query, idx, verified, value, n_node, n_tri):
+        """Add B (V - V_list) / q to the penumbra segments idx whose draw B (`verified`) came up: their values are
+        V_list (`evaluate_penumbra` tests the whole list of a verified segment), and a listed blocker really
+        blocks (V <= V_list), so the correction is non-zero only where the list says visible: only those are
+        traced."""
+        ver = idx[verified]
+        q = self.q[query.point[ver], query.emitter[ver]]
         mismatch = np.zeros(len(ver))
-        if self.exact_list_values:
-            open_ = value[ver] == 1.0
-            if open_.any():
-                mismatch[open_] = self._trace(query, ver[open_], n_node, n_tri) - 1.0
-        elif len(ver):
-            blocked = self._trace(query, ver, n_node, n_tri) == 0.0
-            if blocked.any():
-                vis, tests = OcclusionMapVisibility.evaluate_penumbra(self, query, ver[blocked])
-                n_tri[ver[blocked]] += tests
-                mismatch[blocked] = -vis
+        open_ = value[ver] == 1.0
+        if open_.any():
+            mismatch[open_] = self._trace(query, ver[open_], n_node, n_tri) - 1.0
         value[ver] += mismatch / q
         self.tally.add_segments(CASE_PENUMBRA, len(idx), mismatch, q)
 
-    def evaluate_penumbra(self, query, idx):
-        """Visibility and triangle tests of the penumbra segments idx against their candidate lists."""
+    def evaluate_penumbra(self, query, idx, verified):
+        """Visibility and triangle tests of the penumbra segments idx against their candidate lists (a subclass
+        may estimate the lists' visibility of the segments not `verified` instead)."""
         lo, hi = self.segment_lists(query, idx)
         vis, n_tri, n_cull = visibility_from_lists(self.scene.triangles, self.orientation, self.fnormal,
                                                    query.origin[idx], query.direction[idx], query.tmax[idx], lo, hi,

@@ -93,11 +93,16 @@ class Tally:
             self.pairs[name][1] += int((flagged == (c | CASE_VERIFIED)).sum())
 
     def add_segments(self, c, n_total, mismatch, q):
+        """Case c's `n_total` segments, of which those verified measured `mismatch` with probabilities `q`."""
+        self.add_sums(c, n_total, len(mismatch), np.sum(mismatch), np.sum(mismatch * mismatch), np.sum(q))
+
+    def add_sums(self, c, n_total, n_verified, mismatch, mismatch2, q):
+        """As `add_segments`, from sums: the mismatch's and its square's over the verified segments, and q's."""
         name = self.NAMES[c]
         self.segments[name][0] += int(n_total)
-        self.segments[name][1] += len(mismatch)
-        self.mismatch[name] += (len(mismatch), float(np.sum(mismatch)), float(np.sum(mismatch * mismatch)))
-        self.q_sum[name] += float(np.sum(q))
+        self.segments[name][1] += int(n_verified)
+        self.mismatch[name] += (int(n_verified), float(mismatch), float(mismatch2))
+        self.q_sum[name] += float(q)
 
     def floors(self):
         """Per case, 2 sqrt(measured mismatch rate) once enough segments were verified (see the module)."""

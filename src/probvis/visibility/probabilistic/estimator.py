@@ -2,13 +2,16 @@
 
 Penumbra segments are evaluated by a decomposition of V = V_A V_B (see `decomposition`): one term chosen at
 random, only the groups it needs tested. Lit, shadowed and unknown points are handled as by the occlusion map
-with `penumbra="list"`, so the two converge to the same image and differ only in cost and noise.
+with `penumbra="list"`, so the two converge to the same image and differ only in cost and noise. A segment
+drawn for verification is evaluated against its whole list instead, whose exact value the correction needs
+anyway: (1 - B) X + B (V_list + (V - V_list) / q) has expectation V for any estimate X of V_list.
 """
 import numpy as np
 
 from ...errors import ProbvisError
 from ..base import CASE_PENUMBRA, Option, Phase
-from ..occlusion_map.estimator import CASES_AOV, MAP_OPTIONS, MAP_PHASES, OcclusionMapVisibility
+from ..occlusion_map.estimator import CASES_AOV, KERNEL_PHASES, MAP_OPTIONS, MAP_PHASES, OcclusionMapVisibility
+from ..occlusion_map import kernel as mk
 from ..occlusion_map import verification
 from ..occlusion_map.map import NORMAL_COS
 from . import mixture
@@ -44,10 +47,9 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
         Option("cells", int, 1, "groups along the ray whose estimates are multiplied (1: none)", minimum=1,
                maximum=8),
     ) + MAP_OPTIONS
-    phases = MAP_PHASES + (Phase("grouping", "batch", "splitting candidate lists into groups, choosing mixtures"),)
+    phases = MAP_PHASES + (Phase("grouping", "batch", "splitting candidate lists into groups, choosing mixtures"),
+                           ) + KERNEL_PHASES
     aovs = (CASES_AOV,)
-
-    exact_list_values = False  # the decomposition estimates V_list: verification tests the list where needed
 
     @property
     def with_lists(self):
@@ -80,6 +82,11 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
         super().prepare(scene, bvh, emitters, settings, integrator)
         self._stats.update(term_selections=[0, 0, 0], exact_selections=0, group_balance=None,
                            adaptive_strategies=[0] * (len(mixture.P_GRID) + 1))
+        d = self.decomposition
+        if d is not None:  # one row of term tables for every pair
+            cdf = np.cumsum(d.p)[None]
+            cdf[:, 2] = 1.0
+            self.terms = TermTables(cdf, d.coefficients()[None], d.mode[None], False)
         self._balance = np.zeros(2)
         self._batches = 0
 
@@ -93,18 +100,11 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
         lk = self.lookup
         p = self.params
         tris, bounds, balance = group_lists(self.scene.triangles, points.position[lk.first], lk.offsets, lk.tris,
-                                            lk.n_rep, GROUPINGS[p.grouping], p.levels, p.cells,
-                                            self.render_settings.seed)
-        self.grouped, self.bounds = tris, bounds
-        n_pairs = len(bounds)
-        if self.decomposition is not None:
-            d = self.decomposition
-            self.cdf = np.repeat(np.cumsum(d.p)[None], n_pairs, axis=0)
-            self.cdf[:, 2] = 1.0
-            self.coef = np.repeat(d.coefficients()[None], n_pairs, axis=0)
-            self.mode = np.repeat(d.mode[None], n_pairs, axis=0)
-        else:
-            self._choose_adaptive(lk, tris, bounds)
+                                            self.map.groups.group, lk.n_rep, GROUPINGS[p.grouping], p.levels,
+                                            p.cells, self.render_settings.seed)
+        self.groups = GroupedLists(tris, bounds, p.levels, p.cells)
+        if self.decomposition is None:
+            self.terms = self._choose_adaptive(lk, tris, bounds)
         used = balance.sum(axis=1) > 0
         self._balance += balance[used].sum(axis=0)
         self._stats["group_balance"] = {"solid_angle_share_A": self._balance[0] / max(self._balance.sum(), 1e-300)}
@@ -119,11 +119,12 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
             counts[sl] = configuration_counts(lk.neighbours[e], nrm, ph.arrays, tris, bounds[sl], n_rep, NORMAL_COS)
         size_a = bounds[:, 1] - bounds[:, 0]
         size_b = bounds[:, 2] - bounds[:, 1]
-        self.cdf, self.coef, self.mode, best = mixture.choose(counts, size_a, size_b, self._pair_q(lk))
+        cdf, coef, mode, best = mixture.choose(counts, size_a, size_b, self._pair_q(lk))
         has_list = bounds[:, -1] > bounds[:, 0]
         st = self._stats["adaptive_strategies"]
         for k, c in enumerate(np.bincount(best[has_list], minlength=len(st))):
             st[k] += int(c)
+        return TermTables(cdf, coef, mode, True)
 
     def _pair_q(self, lk):
         """Verification probability of each (emitter, look-up) pair of the penumbra, in pair order."""
@@ -134,24 +135,33 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
             return np.clip(np.maximum(q, self.tally.floors().get(CASE_PENUMBRA, 0.0)), verification.Q_MIN, 1.0)
         return np.full(lk.n_rep * self.scene.n_emitters, self.verify)
 
-    def evaluate_penumbra(self, query, idx):
-        """Stochastic terms through the decomposition kernel; pairs whose mode is exact evaluation (adaptive)
-        through the occlusion map's own list test, whose photon-frequency order finds a blocker sooner."""
+    def kernel_inputs(self):
+        return self.groups, self.terms, mk.PENUMBRA_TERMS
+
+    def add_counters(self, counters):
+        super().add_counters(counters)
+        for k in range(3):
+            self._stats["term_selections"][k] += int(counters[mk.TERM_0 + k])
+        self._stats["exact_selections"] += int(counters[mk.EXACT_SELECTIONS])
+
+    def evaluate_penumbra(self, query, idx, verified):
+        """Stochastic terms through the decomposition kernel; verified segments, and pairs whose mode is exact
+        evaluation (adaptive), through the occlusion map's own list test, whose photon-frequency order finds a
+        blocker sooner."""
         lk = self.lookup
         pair = query.emitter[idx].astype(np.int64) * lk.n_rep + lk.rep[query.point[idx]]
-        exact = self.mode[pair, 0] == MODE_EXACT
+        exact = self.terms.mode[pair if self.terms.per_pair else np.zeros_like(pair), 0] == MODE_EXACT
+        whole = exact | verified
         value = np.empty(len(idx))
         n_tri = np.empty(len(idx), dtype=np.int64)
-        if exact.any():
-            value[exact], n_tri[exact] = super().evaluate_penumbra(query, idx[exact])
-        rest = ~exact
+        if whole.any():
+            value[whole], n_tri[whole] = super().evaluate_penumbra(query, idx[whole], verified[whole])
+        rest = ~whole
         if rest.any():
-            sub, p = idx[rest], pair[rest]
+            sub = idx[rest]
             value[rest], n_tri[rest], n_cull, term = evaluate_segments(
-                self.scene.triangles, self.orientation, self.fnormal, query.origin[sub], query.direction[sub],
-                query.tmax[sub], p, query.key[sub],
-                GroupedLists(self.grouped, self.bounds, self.params.levels, self.params.cells),
-                TermTables(self.cdf, self.coef, self.mode))
+                self.candidates, query.origin[sub], query.direction[sub], query.tmax[sub], pair[rest],
+                query.key[sub], self.groups, self.terms)
             self._stats["culled_candidates"] += int(n_cull.sum())
             sel = np.bincount(term[term >= 0], minlength=3)
             for k in range(3):

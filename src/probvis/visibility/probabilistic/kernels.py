@@ -34,7 +34,7 @@ def solid_angle(triangles, t, px, py, pz):
 
 @njit(cache=True, error_model="numpy")
 def _split(order, weight, leaf, lo, hi, method, key, level):
-    """Split elements order[lo:hi] of one group in two: leaf id bit 0 for A, 1 for B."""
+    """Split units order[lo:hi] of one group in two: leaf id bit 0 for A, 1 for B."""
     n = hi - lo
     if method == GROUP_SOLID_ANGLE:  # largest first, each to the group with less solid angle so far
         w = np.empty(n)
@@ -62,9 +62,13 @@ def _split(order, weight, leaf, lo, hi, method, key, level):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def group_lists(triangles, pos, offsets, tris, n_rep, method, levels, cells, seed):
+def group_lists(triangles, pos, offsets, tris, unit, n_rep, method, levels, cells, seed):
     """Reorder each pair's candidates into leaves (see module docstring); returns the reordered triangle ids,
-    leaf boundaries (pairs, leaves + 1) as absolute positions, and each pair's solid angle in A and B."""
+    leaf boundaries (pairs, leaves + 1) as absolute positions, and each pair's solid angle in A and B.
+
+    The blockers split are the list's blocker groups (`unit[t]`: the small connected component a recorded
+    triangle stands for, or the triangle alone), which stand in the list as runs of consecutive triangles: a
+    city's box goes to A or B whole, so the volumetric culling of its faces stays regular along the group."""
     n_pairs = offsets.shape[0] - 1
     n_leaves = cells * (1 << levels)
     out = np.empty_like(tris)
@@ -75,87 +79,56 @@ def group_lists(triangles, pos, offsets, tris, n_rep, method, levels, cells, see
         n = hi - lo
         i = pr % n_rep
         px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
-        weight = np.empty(n)
+        first = np.empty(n + 1, np.int64)  # runs of one blocker group: units lo + first[u] .. lo + first[u + 1]
+        n_units = 0
         for a in range(n):
-            weight[a] = solid_angle(triangles, tris[lo + a], px, py, pz)
-        leaf = np.zeros(n, np.int64)
-        if cells > 1:  # cells: equal counts by distance from the point
-            dist = np.empty(n)
-            for a in range(n):
-                t = tris[lo + a]
+            if a == 0 or unit[tris[lo + a]] != unit[tris[lo + a - 1]]:
+                first[n_units] = a
+                n_units += 1
+        first[n_units] = n
+        weight = np.zeros(n_units)
+        for u in range(n_units):
+            for a in range(first[u], first[u + 1]):
+                weight[u] += solid_angle(triangles, tris[lo + a], px, py, pz)
+        leaf = np.zeros(n_units, np.int64)
+        if cells > 1:  # cells: equal counts of units by distance from the point (their first triangle's centroid)
+            dist = np.empty(n_units)
+            for u in range(n_units):
+                t = tris[lo + first[u]]
                 cx = (triangles[t, 0, 0] + triangles[t, 1, 0] + triangles[t, 2, 0]) / 3.0 - px
                 cy = (triangles[t, 0, 1] + triangles[t, 1, 1] + triangles[t, 2, 1]) / 3.0 - py
                 cz = (triangles[t, 0, 2] + triangles[t, 1, 2] + triangles[t, 2, 2]) / 3.0 - pz
-                dist[a] = cx * cx + cy * cy + cz * cz
+                dist[u] = cx * cx + cy * cy + cz * cz
             by_dist = np.argsort(dist, kind="mergesort")
-            for a in range(n):
-                leaf[by_dist[a]] = (a * cells) // max(n, 1)
+            for u in range(n_units):
+                leaf[by_dist[u]] = (u * cells) // max(n_units, 1)
         key = mix64(np.uint64(seed) + np.uint64(pr) * np.uint64(0x9E3779B97F4A7C15))
         for level in range(levels):
-            # elements grouped by leaf, list order inside each (one leaf, in list order, at the top of one cell)
-            order = np.arange(n) if level == 0 and cells == 1 else np.argsort(leaf, kind="mergesort")
+            # units grouped by leaf, list order inside each (one leaf, in list order, at the top of one cell)
+            order = np.arange(n_units) if level == 0 and cells == 1 else np.argsort(leaf, kind="mergesort")
             a = 0
-            while a < n:
+            while a < n_units:
                 b = a
-                while b < n and leaf[order[b]] == leaf[order[a]]:
+                while b < n_units and leaf[order[b]] == leaf[order[a]]:
                     b += 1
                 _split(order, weight, leaf, a, b, method, key, level)
                 a = b
             if level == 0:
-                for e in range(n):
-                    balance[pr, leaf[e] % 2] += weight[e]
+                for u in range(n_units):
+                    balance[pr, leaf[u] % 2] += weight[u]
         # leaves in order, the frequency order kept inside each leaf (a stable sort by leaf)
         counts = np.zeros(n_leaves + 1, np.int64)
-        for a in range(n):
-            counts[leaf[a] + 1] += 1
+        for u in range(n_units):
+            counts[leaf[u] + 1] += first[u + 1] - first[u]
         for g in range(n_leaves):
             counts[g + 1] += counts[g]
             bounds[pr, g] = lo + counts[g]
         bounds[pr, n_leaves] = hi
-        for a in range(n):
-            out[lo + counts[leaf[a]]] = tris[lo + a]
-            counts[leaf[a]] += 1
+        for u in range(n_units):
+            for a in range(first[u], first[u + 1]):
+                out[lo + counts[leaf[u]]] = tris[lo + a]
+                counts[leaf[u]] += 1
     return out, bounds, balance
-
-
-@njit(cache=True, error_model="numpy")
-def _leaf_visible(triangles, orientation, fnormal, o, d, rs, tmax, tris, lo, hi, tests):
-    """Binary visibility against one leaf group; adds its triangle tests and culled candidates to `tests`."""
-    blocked, n_tri, n_cull = first_blocker(triangles, orientation, fnormal, o, d, rs, tmax, tris, lo, hi)
-    tests[0] += n_tri
-    tests[1] += n_cull
-    return 0.0 if blocked else 1.0
-
-
-@njit(cache=True, error_model="numpy")
-def _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, pr, g0, g1, depth, cdf, coef, mode,
-              key, dim, tests, chosen):
-    """Unbiased estimate of the visibility of leaves g0..g1-1 of pair pr, a subtree of the given depth."""
-    if depth == 0:
-        return _leaf_visible(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds[pr, g0], bounds[pr, g1],
-                             tests)
-    mid = (g0 + g1) // 2
-    u = uniform(key, dim[0])
-    dim[0] += 1
-    t = 0
-    while t < 2 and u >= cdf[pr, t]:
-        t += 1
-    if chosen[0] < 0:
-        chosen[0] = t
-    m = mode[pr, t]
-    va, vb = 0.0, 0.0
-    if m == MODE_A or m == MODE_AB_BLOCKED or m == MODE_BOTH or m == MODE_EXACT:
-        va = _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, pr, g0, mid, depth - 1, cdf,
-                       coef, mode, key, dim, tests, chosen)
-    need_b = m == MODE_B or m == MODE_BOTH
-    if m == MODE_AB_BLOCKED:
-        need_b = not (depth == 1 and va == 1.0)  # A visible: the complement product is 0 whatever B is
-    if m == MODE_EXACT:
-        need_b = not (depth == 1 and va == 0.0)  # A blocks: visibility is 0 whatever B is
-    if need_b:
-        vb = _estimate(triangles, orientation, fnormal, o, d, rs, tmax, tris, bounds, pr, mid, g1, depth - 1, cdf,
-                       coef, mode, key, dim, tests, chosen)
-    return coef[pr, t, 0] + coef[pr, t, 1] * va + coef[pr, t, 2] * vb + coef[pr, t, 3] * va * vb
 
 
 class GroupedLists(NamedTuple):
@@ -168,27 +141,80 @@ class GroupedLists(NamedTuple):
 
 
 class TermTables(NamedTuple):
-    """Per pair (or one row for all, `Decomposition`'s): the cumulative term probabilities, each term's
-    coefficients of 1, V_A, V_B, V_A V_B, and the groups it tests (MODE_*)."""
+    """The cumulative term probabilities, each term's coefficients of 1, V_A, V_B, V_A V_B, and the groups it
+    tests (MODE_*): per pair (the adaptive mixture's choices) or one row for all (a fixed decomposition)."""
 
-    cdf: np.ndarray  # (pairs, 3)
-    coef: np.ndarray  # (pairs, 3, 4)
-    mode: np.ndarray  # (pairs, 3) int8
+    cdf: np.ndarray  # (pairs or 1, 3)
+    coef: np.ndarray  # (pairs or 1, 3, 4)
+    mode: np.ndarray  # (pairs or 1, 3) int8
+    per_pair: bool
+
+
+@njit(cache=True, error_model="numpy")
+def _leaf_visible(cand, o, d, rs, tmax, tris, lo, hi, tests):
+    """Binary visibility against one leaf group; adds its triangle tests and culled candidates to `tests`."""
+    blocked, n_tri, n_cull = first_blocker(cand.triangles, cand.orientation, cand.fnormal, o, d, rs, tmax, tris, lo,
+                                           hi)
+    tests[0] += n_tri
+    tests[1] += n_cull
+    return 0.0 if blocked else 1.0
+
+
+@njit(cache=True, error_model="numpy")
+def _estimate(cand, o, d, rs, tmax, groups, pr, tp, g0, g1, depth, terms, key, dim, tests, chosen):
+    """Unbiased estimate of the visibility of leaves g0..g1-1 of pair pr (term tables row tp), a subtree of the
+    given depth."""
+    bounds = groups.bounds
+    if depth == 0:
+        return _leaf_visible(cand, o, d, rs, tmax, groups.tris, bounds[pr, g0], bounds[pr, g1], tests)
+    mid = (g0 + g1) // 2
+    u = uniform(key, dim[0])
+    dim[0] += 1
+    t = 0
+    while t < 2 and u >= terms.cdf[tp, t]:
+        t += 1
+    if chosen[0] < 0:
+        chosen[0] = t
+    m = terms.mode[tp, t]
+    va, vb = 0.0, 0.0
+    if m == MODE_A or m == MODE_AB_BLOCKED or m == MODE_BOTH or m == MODE_EXACT:
+        va = _estimate(cand, o, d, rs, tmax, groups, pr, tp, g0, mid, depth - 1, terms, key, dim, tests, chosen)
+    need_b = m == MODE_B or m == MODE_BOTH
+    if m == MODE_AB_BLOCKED:
+        need_b = not (depth == 1 and va == 1.0)  # A visible: the complement product is 0 whatever B is
+    if m == MODE_EXACT:
+        need_b = not (depth == 1 and va == 0.0)  # A blocks: visibility is 0 whatever B is
+    if need_b:
+        vb = _estimate(cand, o, d, rs, tmax, groups, pr, tp, mid, g1, depth - 1, terms, key, dim, tests, chosen)
+    coef = terms.coef
+    return coef[tp, t, 0] + coef[tp, t, 1] * va + coef[tp, t, 2] * vb + coef[tp, t, 3] * va * vb
+
+
+@njit(cache=True, error_model="numpy")
+def estimate_cells(cand, groups, terms, pr, o, d, rs, tmax, key, tests, dim, chosen):
+    """Probabilistic visibility of one segment (origin o, direction d, `ray_setup` rs, rng key) over pair pr's
+    grouped candidates: the product over cells of each cell's recursive estimate. Sets tests[0:2] to its triangle
+    tests and culled candidates and chosen[0] to the first cell's top-level term (-1 if none); `dim` is
+    scratch."""
+    tp = pr if terms.per_pair else 0
+    tests[0], tests[1], dim[0], chosen[0] = 0, 0, 0, -1
+    per_cell = 1 << groups.levels
+    v = 1.0
+    for c in range(groups.cells):
+        v *= _estimate(cand, o, d, rs, tmax, groups, pr, tp, c * per_cell, (c + 1) * per_cell, groups.levels, terms,
+                       key, dim, tests, chosen)
+    return v
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def evaluate_segments(triangles, orientation, fnormal, org, dirs, tmax, pair, keys, groups, terms):
-    """Probabilistic visibility of each segment over its pair's grouped candidates (`GroupedLists`, terms from
-    `TermTables`): the product over cells of each cell's recursive estimate. Returns values, triangle tests,
-    culled candidates and the top-level term chosen (first cell)."""
-    tris, bounds, levels, cells = groups.tris, groups.bounds, groups.levels, groups.cells
-    cdf, coef, mode = terms.cdf, terms.coef, terms.mode
+def evaluate_segments(cand, org, dirs, tmax, pair, keys, groups, terms):
+    """`estimate_cells` of each segment (`CandidateGeometry`, `GroupedLists`, `TermTables`). Returns values,
+    triangle tests, culled candidates and the top-level term chosen (first cell)."""
     n = org.shape[0]
     value = np.empty(n)
     n_tri = np.zeros(n, np.int32)
     n_cull = np.zeros(n, np.int32)
     term = np.full(n, -1, np.int8)
-    per_cell = 1 << levels
     for chunk in prange((n + CHUNK - 1) // CHUNK):
         tests = np.zeros(2, np.int64)
         dim = np.zeros(1, np.int64)
@@ -196,14 +222,8 @@ def evaluate_segments(triangles, orientation, fnormal, org, dirs, tmax, pair, ke
         for s in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
             o = (org[s, 0], org[s, 1], org[s, 2])
             d = (dirs[s, 0], dirs[s, 1], dirs[s, 2])
-            rs = ray_setup(d[0], d[1], d[2])
-            tests[0], tests[1], dim[0], chosen[0] = 0, 0, 0, -1
-            pr = pair[s]
-            v = 1.0
-            for c in range(cells):
-                v *= _estimate(triangles, orientation, fnormal, o, d, rs, tmax[s], tris, bounds, pr, c * per_cell,
-                               (c + 1) * per_cell, levels, cdf, coef, mode, keys[s], dim, tests, chosen)
-            value[s] = v
+            value[s] = estimate_cells(cand, groups, terms, pair[s], o, d, ray_setup(d[0], d[1], d[2]), tmax[s],
+                                      keys[s], tests, dim, chosen)
             n_tri[s], n_cull[s], term[s] = tests[0], tests[1], chosen[0]
     return value, n_tri, n_cull, term
 

@@ -31,13 +31,14 @@ def _choose(counts, size_a, size_b, verify_q, cdf, coef, mode, best):
         total = 4 * prior
         for c in range(4):
             total += counts[pr, c]
-        # the verification's correction term B (V - V_list) / pr, the same whichever strategy evaluates V_list:
-        # non-zero when the list says visible (probability pi_11) and missed a blocker (rule of succession over
-        # the pair's photons); its variance and its cost (the list, then the whole scene) add to every strategy
+        # verification: with probability q a segment is evaluated against its whole list instead (V_list, at the
+        # exact strategy's cost) and gets the correction (V - V_list) / q, non-zero when the list says visible
+        # (probability pi_11) and missed a blocker (rule of succession over the pair's photons): its variance and
+        # its trace add to every strategy, and a strategy's own second moment and cost count with 1 - q
         vq = verify_q[pr]
         p11 = (counts[pr, 3] + prior) / total
         var_v = p11 / ((total - 4 * prior + 2.0) * vq) if vq > 0.0 else 0.0
-        cost_v = vq * p11 * (size_a[pr] + size_b[pr] + 1.0)
+        cost_v = vq * p11
         pi = np.empty(4)
         for c in range(4):
             pi[c] = (counts[pr, c] + prior) / total
@@ -60,7 +61,7 @@ def _choose(counts, size_a, size_b, verify_q, cdf, coef, mode, best):
         exact_cost = 0.0
         for c in range(4):
             exact_cost += pi[c] * cost[c, 3]
-        best_score = max((ev2 - ev * ev + var_v) * (exact_cost + cost_v), 1e-12)  # exact: the variance of V
+        best_score = max((ev2 - ev * ev + var_v) * (exact_cost + cost_v), 1e-12)  # exact: the variance of V_list
         chosen = 0
         s_best = np.zeros(n_terms)
         s = np.empty(n_terms)
@@ -74,7 +75,8 @@ def _choose(counts, size_a, size_b, verify_q, cdf, coef, mode, best):
                     dev = xs[c, k] - s[k]
                     second += pi[c] * dev * dev / p_grid[g, k]
                     cst += pi[c] * p_grid[g, k] * cost[c, k]
-            score = (max(second - ev * ev, 0.0) + var_v) * (cst + cost_v)
+            second = (1.0 - vq) * second + vq * ev2
+            score = (max(second - ev * ev, 0.0) + var_v) * ((1.0 - vq) * cst + vq * exact_cost + cost_v)
             if score < best_score * (1 - 1e-9):
                 chosen, best_score = g + 1, score
                 s_best[:] = s
