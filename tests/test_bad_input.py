@@ -63,6 +63,18 @@ CASES = [
     (["render", "quad-shadow", "--verify", "0.5"], "--verify does not apply to --visibility exact"),
     (["render", "quad-shadow", "--threads", "100000"], "threads must be between 1 and"),
     (["render", "quad-shadow", "--visibility", "nowhere:Thing"], "cannot import 'nowhere'"),
+    (["render", "quad-shadow", "--stats", "out.exr"], "--stats's output must be a .json file"),
+    (["render", "quad-shadow", "--stats", "stats"], "--stats's output must be a .json file"),
+    (["render", "quad-shadow", "-o", "a.exr", "--tests-image", "./a.exr"], "the same file as -o a.exr"),
+    (["render", "quad-shadow", "-o", "good.exr", "-o", "out.json"], "-o's output must be a .exr, .pfm, .png file"),
+    (["render", "quad-shadow", "--visibility", "occlusion-map", "--case-image", "c.json"],
+     "--case-image's output must be"),
+    (["render", "quad-shadow", "--visibility", "occlusion-map", "--visibility", "exact"],
+     "--visibility given 2 times"),
+    (["render", "/dev/zero"], "not a regular file"),
+    (["render", "quad-shadow", "--visibility", "proxy", "--ratio", "0.2", "--triangles", "100"],
+     "give ratio or triangles, not both"),
+    (["render", "quad-shadow", "-D", "res=8192"], "this render needs about"),  # under the 6 GiB RLIMIT_AS
 ]
 
 

@@ -58,7 +58,7 @@ def test_camera_rays_are_mitsuba_s(tmp_path, params, film):
     ours = probvis.load_scene(path)
     cam = ours.camera
     theirs = mi.load_file(str(path), spp=1).sensors()[0]
-    org, dirs, _, _, _ = camera_rays(camera_params(cam), 1, 3, np.arange(cam.width * cam.height))
+    org, dirs, _, _, _, _ = camera_rays(camera_params(cam), 1, 3, np.arange(cam.width * cam.height))
     for pix in range(0, cam.width * cam.height, 7):
         key = np.uint64(make_key(3, STREAM_CAMERA, pix))  # numba hands the uint64 back as a Python int
         pos = mi.Point2f(((pix % cam.width) + uniform(key, 0)) / cam.width,
@@ -73,7 +73,7 @@ def test_thin_lens_rays_meet_mitsuba_s_in_the_focal_plane(tmp_path):
     path = scene_file(tmp_path, sensor_xml("thinlens", params))
     cam = probvis.load_scene(path).camera
     theirs = mi.load_file(str(path), spp=1).sensors()[0]
-    org, dirs, _, _, _ = camera_rays(camera_params(cam), 1, 5, np.arange(cam.width * cam.height))
+    org, dirs, _, _, _, _ = camera_rays(camera_params(cam), 1, 5, np.arange(cam.width * cam.height))
     m = cam.to_world
     eye, forward = m[:3, 3], m[:3, 2]
     radii = []
@@ -116,14 +116,14 @@ def edge_scene(tmp_path, rfilter):
 @pytest.mark.parametrize("rfilter", ['<rfilter type="tent"/>', '<rfilter type="tent"><float name="radius" value="2"/>'
                                      '</rfilter>', '<rfilter type="gaussian"/>', ""])
 def test_filtered_images_converge_to_mitsuba_s(tmp_path, rfilter):
-    """Filters are importance-sampled, where Mitsuba splats each sample over its neighbours (less noise per
-    sample), so the images are compared in expectation: our error against Mitsuba's reference is what our
-    own noise and the reference's explain (measured from a second seed of each), and a box filter's is not
-    (no rfilter: Mitsuba's default, a Gaussian)."""
+    """With filter importance sampling (each sample in one pixel, drawn from the filter) the images converge to
+    Mitsuba's splatted ones: our error against Mitsuba's reference is what our own noise and the reference's
+    explain (measured from a second seed of each), and a box filter's is not (no rfilter: Mitsuba's default, a
+    Gaussian). The splatting film's comparisons at equal samples are in test_film.py."""
     path = edge_scene(tmp_path, rfilter)
     ref = mitsuba_image(path, 1024, seed=100)
     ref_noise = relmse(mitsuba_image(path, 1024, seed=7), ref) / 2
-    a, b = (probvis.render(path, spp=4096, seed=s).image for s in (1, 2))
+    a, b = (probvis.render(path, spp=4096, seed=s, filter_importance=True).image for s in (1, 2))
     explained = relmse(a, b) / 2 + ref_noise
     assert relmse(a, ref) < 2.5 * explained
     box = probvis.render(edge_scene(tmp_path, '<rfilter type="box"/>'), spp=4096, seed=1).image

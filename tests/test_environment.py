@@ -83,6 +83,14 @@ def test_environment_lit_scene_matches_mitsuba(scenes, kind):
     assert_matches_mitsuba(scenes[kind], shadow_rays=1)
 
 
+def test_environment_lit_scene_with_mitsuba_s_default_filter(scenes, tmp_path):
+    """The envmap scene without an rfilter (Mitsuba's Gaussian): splatted as Mitsuba's film, no noisier."""
+    text = scenes["envmap"].read_text().replace('<rfilter type="box"/>', "")
+    path = tmp_path / "gaussian.xml"
+    path.write_text(text.replace('value="sky.exr"', f'value="{scenes["envmap"].parent / "sky.exr"}"'))
+    assert_matches_mitsuba(path, shadow_rays=1)
+
+
 @pytest.mark.parametrize("kind, visibility, options", [
     ("envmap", "occlusion-map", {"photons": 20000}),
     ("envmap", "probvis", {"photons": 20000, "estimator": "shifted"}),

@@ -135,10 +135,22 @@ def test_stats_and_test_count_image_add_up():
     ({"spp": 0}, "spp must be"), ({"shadow_rays": -1}, "shadow_rays must be"),
     ({"resolution": (0, 4)}, "width must be"), ({"visibility": "magic"}, "unknown visibility"),
     ({"threads": 999}, "threads must be"),
+    ({"spp": "4"}, r"spp must be a whole number, got '4' \(a str\)"), ({"spp": 2.5}, "spp must be a whole number"),
+    ({"resolution": 8}, r"resolution must be \(width, height\)"),
+    ({"resolution": (8, 8, 8)}, r"resolution must be \(width, height\)"),
+    ({"defines": ["res=8"]}, "defines must be a dict"), ({"visibility_options": ["x"]}, "visibility_options must be"),
+    ({"settings": "fast"}, "settings must be a RenderSettings"),
+    ({"filter_importance": "yes"}, "filter_importance must be True or False"),
 ])
 def test_bad_render_settings(kwargs, message):
     with pytest.raises(ProbvisError, match=message):
         probvis.render("quad-shadow", **kwargs)
+
+
+@pytest.mark.parametrize("scene", [None, 42, 1.5, ["quad-shadow"]])
+def test_a_scene_of_the_wrong_type_is_named(scene):
+    with pytest.raises(ProbvisError, match="scene must be a Scene, a scene file path or a built-in name"):
+        probvis.render(scene)
 
 
 def test_shared_scenes_within_noise_floor(shared):

@@ -143,3 +143,37 @@ def test_installed_estimators_load_through_the_entry_point_group(roulette, tmp_p
 def test_bad_estimator_names_are_one_line_errors(spec, message):
     with pytest.raises(ProbvisError, match=re.escape(message)):
         estimator_class(spec)
+
+
+class _Broken(probvis.visibility.VisibilityEstimator):
+    """An estimator whose `evaluate` misbehaves as `mode` says."""
+
+    name = "broken"
+    summary = "returns what it should not"
+    mode = "nan"
+
+    def evaluate(self, query):
+        n = len(query.origin)
+        zeros = np.zeros(n, np.int64)
+        if self.mode == "tuple":
+            return (np.ones(n), zeros, zeros)
+        value = np.full(n, np.nan) if self.mode == "nan" else np.ones(max(n - 1, 0))
+        return probvis.visibility.VisibilityResult(value, zeros, zeros)
+
+
+@pytest.mark.parametrize("mode, message", [("nan", r"returned \d+ non-finite values"),
+                                           ("short", "returned value of shape"),
+                                           ("tuple", "returned a tuple, not a VisibilityResult")])
+def test_misbehaving_estimators_are_named_not_rendered(mode, message):
+    cls = type(f"Broken_{mode}", (_Broken,), {"mode": mode})
+    with pytest.raises(ProbvisError, match=rf"visibility 'broken' \(.*Broken_{mode}\): evaluate {message}"):
+        probvis.render("quad-shadow", spp=1, visibility=cls)
+
+
+def test_an_estimator_without_evaluate_is_refused():
+    class Hollow(probvis.visibility.VisibilityEstimator):
+        name = "hollow"
+        summary = "nothing"
+
+    with pytest.raises(ProbvisError, match="Hollow does not implement evaluate"):
+        probvis.render("quad-shadow", spp=1, visibility=Hollow)

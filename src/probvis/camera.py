@@ -1,9 +1,12 @@
 """Stage 1 of a render: primary rays of a Mitsuba `perspective` or `thinlens` sensor.
 
-The reconstruction filter is importance-sampled (a pixel's sample positions are drawn from the filter centred
-on it, each with weight 1), so a pixel's expected value is the filter-weighted mean of the radiance around it,
-as with Mitsuba's weighted splatting. Like Mitsuba's `hdrfilm` (without `sample_border`), only the rendered
-window is sampled: near its border the filter is cut off there. The box filter draws uniformly inside the pixel.
+As in Mitsuba, a pixel's camera samples are uniform inside it, and the film (`film`) splats each one over the
+pixels its reconstruction filter covers, at the sample's film position, which `camera_rays` returns. With
+filter importance sampling (`RenderSettings.filter_importance`) the sample positions are drawn instead from the
+filter centred on the pixel, each with weight 1 and only for that pixel: a pixel's expected value is then exactly
+the filter-weighted mean of the radiance around it, but it averages only its own samples, so it is noisier.
+Like Mitsuba's `hdrfilm` (without `sample_border`), only the rendered window is sampled: near its border the
+filter is cut off there.
 """
 import math
 from typing import NamedTuple
@@ -21,7 +24,7 @@ _LENS_SALT = np.uint64(0x4C454E53)  # the lens sample's key, apart from the came
 
 class CameraParams(NamedTuple):
     """A `scene.Camera` as the kernel takes it: half-extents of the image plane at distance 1, the crop window
-    in the film, the principal-point shift, the thin lens and the filter's table (empty for a box)."""
+    in the film, the principal-point shift, the thin lens and the filter's table (empty: uniform in the pixel)."""
 
     to_world: np.ndarray
     tan_x: float
@@ -60,11 +63,14 @@ def filter_table(kind, radius, stddev):
     return cdf / cdf[-1], float(r)
 
 
-def camera_params(cam):
-    """The kernel's `CameraParams` of a `scene.Camera`."""
+def camera_params(cam, filter_importance=False):
+    """The kernel's `CameraParams` of a `scene.Camera`; `filter_importance` draws sample positions from the
+    reconstruction filter (otherwise uniform in the pixel, for the film to splat)."""
     fw, fh = cam.film_size
     tan_x = float(np.tan(np.radians(cam.fov_x) / 2.0))
     cdf, radius = filter_table(cam.rfilter, cam.filter_radius, cam.filter_stddev)
+    if not filter_importance:
+        cdf = np.zeros(0)
     return CameraParams(np.ascontiguousarray(cam.to_world, dtype=np.float64), tan_x, tan_x * fh / fw,
                         int(cam.width), int(cam.height), float(cam.near_clip), float(cam.far_clip), int(fw), int(fh),
                         int(cam.crop_x), int(cam.crop_y), float(cam.principal_x), float(cam.principal_y),
@@ -96,7 +102,8 @@ def filter_offset(cdf, radius, u, lo, hi):
 def camera_rays(cam, spp, seed, pixels):
     """Rays for `pixels` of the image (row-major indices, an int64 array), `spp` per pixel, pixel-major order.
 
-    Returns origins, unit directions, tmin, tmax and the rng key of each camera sample.
+    Returns origins, unit directions, tmin, tmax, the rng key of each camera sample and its position on the
+    film (n, 2): x, y in pixels from the window's top-left corner (pixel (i, j) spans [j, j + 1] x [i, i + 1]).
     """
     m, tan_x, tan_y, width = cam.to_world, cam.tan_x, cam.tan_y, cam.width
     near, far, fw, fh = cam.near_clip, cam.far_clip, cam.film_width, cam.film_height
@@ -107,6 +114,7 @@ def camera_rays(cam, spp, seed, pixels):
     tmin = np.empty(n)
     tmax = np.empty(n)
     keys = np.empty(n, np.uint64)
+    film_xy = np.empty((n, 2))
     for i in prange(n):
         pix = pixels[i // spp]
         s = i % spp
@@ -114,14 +122,21 @@ def camera_rays(cam, spp, seed, pixels):
         px = cam.crop_x + pix % width
         py = cam.crop_y + pix // width
         if boxed:
-            sx = (px + uniform(key, 0)) / fw
-            sy = (py + uniform(key, 1)) / fh
+            ux, uy = uniform(key, 0), uniform(key, 1)
+            sx = (px + ux) / fw
+            sy = (py + uy) / fh
+            film_xy[i, 0] = pix % width + ux
+            film_xy[i, 1] = pix // width + uy
         else:
             cx, cy = px + 0.5, py + 0.5  # the window is [crop_x, crop_x + width] x [crop_y, crop_y + height]
-            sx = (cx + filter_offset(cam.filter_cdf, cam.filter_radius, uniform(key, 0), cam.crop_x - cx,
-                                     cam.crop_x + width - cx)) / fw
-            sy = (cy + filter_offset(cam.filter_cdf, cam.filter_radius, uniform(key, 1), cam.crop_y - cy,
-                                     cam.crop_y + cam.height - cy)) / fh
+            dx = filter_offset(cam.filter_cdf, cam.filter_radius, uniform(key, 0), cam.crop_x - cx,
+                               cam.crop_x + width - cx)
+            dy = filter_offset(cam.filter_cdf, cam.filter_radius, uniform(key, 1), cam.crop_y - cy,
+                               cam.crop_y + cam.height - cy)
+            sx = (cx + dx) / fw
+            sy = (cy + dy) / fh
+            film_xy[i, 0] = pix % width + 0.5 + dx
+            film_xy[i, 1] = pix // width + 0.5 + dy
         lx = (1.0 - 2.0 * (sx + cam.principal_x)) * tan_x
         ly = (1.0 - 2.0 * (sy + cam.principal_y)) * tan_y
         ox = oy = 0.0
@@ -148,4 +163,4 @@ def camera_rays(cam, spp, seed, pixels):
         tmin[i] = near / lz * wl
         tmax[i] = far / lz * wl
         keys[i] = key
-    return org, dirs, tmin, tmax, keys
+    return org, dirs, tmin, tmax, keys, film_xy

@@ -6,6 +6,7 @@ import os
 import shlex
 import signal
 import sys
+import threading
 import warnings
 from pathlib import Path
 
@@ -155,6 +156,9 @@ def _parser(estimator=None):
         group = r.add_argument_group(f"options of --visibility {estimator.name}")
         for opt in estimator.options:
             _add_option(group, opt)
+    r.add_argument("--filter-importance", action="store_true",
+                   help="draw camera samples from the film's reconstruction filter, one pixel each, instead of "
+                        "splatting each over the pixels the filter covers as Mitsuba does (noisier)")
     r.add_argument("--clamp-negative", action="store_true",
                    help="clamp negative pixels to zero (biased: too bright on average; the bias is reported)")
     r.add_argument("--stats", metavar="OUT.json", help="write the statistics as JSON")
@@ -195,23 +199,40 @@ def _parser(estimator=None):
     return p
 
 
+def _plan_outputs(outputs, args):
+    """Check every file a render will write before it starts: each writable, of its role's format, and no two
+    the same file."""
+    from .io import check_writable
+    from .io.image import FORMATS
+
+    planned = [(p, "-o", FORMATS) for p in outputs]
+    planned += [(p, flag, fmts) for p, flag, fmts in ((args.stats, "--stats", (".json",)),
+                                                      (args.tests_image, "--tests-image", (".exr",)),
+                                                      (args.case_image, "--case-image", FORMATS)) if p]
+    seen = {}
+    for path, flag, formats in planned:
+        check_writable(path, formats, f"{flag}'s output")
+        key = Path(path).resolve()
+        if key in seen:
+            raise ProbvisError(f"{flag} {path}: the same file as {seen[key]}; give each output its own name")
+        seen[key] = f"{flag} {path}"
+
+
 def _cmd_render(args):
     from .integrator import render
-    from .io import check_writable, summary, write_case_images, write_exr, write_image, write_stats
+    from .io import summary, write_case_images, write_exr, write_image, write_stats
 
     cls = args.estimator_class
-    outputs = args.output or [f"{Path(args.scene).stem}.exr"]
-    for path in outputs + [x for x in (args.stats, args.tests_image, args.case_image) if x]:
-        check_writable(path)
-    if args.tests_image and not args.tests_image.lower().endswith(".exr"):
-        raise ProbvisError("--tests-image must be an .exr file")
     if args.case_image and not any(a.kind == "cases" for a in cls.aovs):
         raise ProbvisError(f"--case-image needs an estimator that classifies points (e.g. occlusion-map), not "
                            f"'{cls.name}'")
+    outputs = args.output or [f"{Path(args.scene).stem}.exr"]
+    _plan_outputs(outputs, args)
     options = {o.name: getattr(args, o.name) for o in cls.options if getattr(args, o.name) is not None}
     result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed, threads=args.threads,
                     visibility=cls, visibility_options=options, defines=_defines(args.defines), strict=args.strict,
-                    clamp_negative=args.clamp_negative, progress=not args.quiet)
+                    clamp_negative=args.clamp_negative, progress=not args.quiet,
+                    filter_importance=args.filter_importance or None)
     for path in outputs:
         write_image(path, result.image, args.exposure)
     if args.tests_image:
@@ -393,12 +414,20 @@ def _warning_line(message, category, filename, lineno, file=None, line=None):
 
 def _visibility_arg(argv):
     """The value of render's --visibility in `argv`, if any (read before parsing: it decides the flags)."""
+    given = []
     for i, a in enumerate(argv):
         if a == "--visibility" and i + 1 < len(argv):
-            return argv[i + 1]
-        if a.startswith("--visibility="):
-            return a.split("=", 1)[1]
-    return "exact"
+            given.append(argv[i + 1])
+        elif a.startswith("--visibility="):
+            given.append(a.split("=", 1)[1])
+    if len(given) > 1:
+        raise ProbvisError(f"--visibility given {len(given)} times ({', '.join(given)}): give one estimator")
+    return given[0] if given else "exact"
+
+
+def _terminate(signum, frame):
+    """SIGTERM stops a command as Ctrl-C does: between batches, nothing half-written."""
+    raise KeyboardInterrupt
 
 
 def _foreign_flags(argv, cls):
@@ -438,6 +467,8 @@ def _parse(argv):
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     warnings.showwarning = _warning_line
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     try:
         args = _parse(argv)
         args.argv = argv
@@ -453,6 +484,9 @@ def main(argv=None):
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return 141
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

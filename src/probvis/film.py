@@ -1,5 +1,15 @@
-"""The last stage of a render: the film. Camera samples' radiance is averaged per pixel (box filter), with the
-second moment, per-pixel test counts, case shares and the estimator's AOVs beside it."""
+"""The last stage of a render: the film. As Mitsuba's `hdrfilm` (its `ImageBlock`), each camera sample adds w·L
+and w to every pixel of the rendered window its reconstruction filter covers, w the filter at the pixel centre's
+offset from the sample, and a pixel is Σ w·L / Σ w; the box filter keeps each sample in its own pixel (w = 1).
+Beside the image: the weighted second moment, and per pixel of the samples' origin the test counts, case shares
+and the estimator's AOVs.
+
+Splatting is a gather, so that an image depends only on the seed: each pixel sums, in a fixed order, the samples
+of the batch's pixels within the filter's reach, and batches are added in order.
+"""
+import math
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit, prange
 
@@ -25,22 +35,139 @@ def pixel_moments(radiance, spp):
     return img, m2
 
 
-class Film:
-    """Everything a render accumulates per pixel, filled batch by batch (`add`: a batch of whole pixels)."""
+FILTER_TENT, FILTER_GAUSSIAN = 1, 2
 
-    def __init__(self, width, height, spp, n_emitters, segment_aovs=()):
+
+class SplatFilter(NamedTuple):
+    """A reconstruction filter that splats (Mitsuba's `tent` and `gaussian`, radius 4 stddev, shifted down to
+    zero there), as the gather kernel takes it."""
+
+    kind: int  # FILTER_TENT or FILTER_GAUSSIAN
+    radius: float
+    alpha: float  # Gaussian: -1 / (2 stddev^2)
+    bias: float  # Gaussian: its value at the radius
+
+
+def splat_filter(camera):
+    """The `SplatFilter` of a `scene.Camera`'s reconstruction filter, or None for the box filter."""
+    if camera.rfilter == "box":
+        return None
+    radius = float(camera.filter_extent)
+    if camera.rfilter == "tent":
+        return SplatFilter(FILTER_TENT, radius, 0.0, 0.0)
+    alpha = -1.0 / (2.0 * camera.filter_stddev ** 2)
+    return SplatFilter(FILTER_GAUSSIAN, radius, alpha, math.exp(alpha * radius * radius))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _filter_row(f, d0, step, out, i):
+    """out[i, k] = the filter at offsets d0, d0 + 1, ... (pixels); a Gaussian's by the recurrence
+    exp(a(d+1)²) = exp(ad²)·exp(a(2d+1)), whose factor grows by `step` = exp(2a) each pixel: two exp calls a row."""
+    if f.kind == FILTER_TENT:
+        for k in range(out.shape[1]):
+            out[i, k] = max(0.0, 1.0 - abs(d0 + k) / f.radius)
+        return
+    e = math.exp(f.alpha * d0 * d0)
+    g = math.exp(f.alpha * (2.0 * d0 + 1.0))
+    for k in range(out.shape[1]):
+        out[i, k] = max(0.0, e - f.bias)
+        e *= g
+        g *= step
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def splat(f, film_xy, radiance, p0, spp, width, height, wsum, wl, wl2, wvar):
+    """Add the camera samples of pixels p0, p0 + 1, ... (row-major, `spp` each, film positions `film_xy`) to the
+    weight sums `wsum`, Σ w·L `wl`, Σ w·L² `wl2` and Σ w²·σ² `wvar` (σ² the variance of the samples of the
+    sample's own pixel) of every pixel their filter covers."""
+    b = max(0, int(math.ceil(f.radius - 0.5)))
+    m = radiance.shape[0]
+    n_src = m // spp
+    p1 = p0 + n_src
+    var = np.empty((n_src, 3))  # the sample variance of each pixel's own samples
+    wx = np.empty((m, 2 * b + 1))  # the filter along x and y at the pixels a sample may reach, from its
+    wy = np.empty((m, 2 * b + 1))  # pixel - b on
+    step = math.exp(2.0 * f.alpha)
+    for j in prange(n_src):
+        src = p0 + j
+        x0, y0 = src % width - b + 0.5, src // width - b + 0.5
+        for c in range(3):
+            s1 = s2 = 0.0
+            for i in range(j * spp, (j + 1) * spp):
+                x = radiance[i, c]
+                s1 += x
+                s2 += x * x
+            mu = s1 / spp
+            var[j, c] = max(s2 / spp - mu * mu, 0.0) * spp / max(spp - 1, 1)
+        for i in range(j * spp, (j + 1) * spp):
+            _filter_row(f, x0 - film_xy[i, 0], step, wx, i)
+            _filter_row(f, y0 - film_xy[i, 1], step, wy, i)
+    row0 = max(p0 // width - b, 0)
+    row1 = min((p1 - 1) // width + b, height - 1)
+    for t in prange((row1 - row0 + 1) * width):
+        ty, tx = row0 + t // width, t % width
+        w_acc = r = g = bl = r2 = g2 = b2 = vr2 = vg2 = vb2 = 0.0
+        for sy in range(max(ty - b, 0), min(ty + b, height - 1) + 1):
+            for sx in range(max(tx - b, 0), min(tx + b, width - 1) + 1):
+                src = sy * width + sx
+                if src < p0 or src >= p1:
+                    continue
+                kx, ky, j = tx - sx + b, ty - sy + b, src - p0
+                ww = 0.0
+                for i in range(j * spp, (j + 1) * spp):
+                    w = wx[i, kx] * wy[i, ky]
+                    w_acc += w
+                    ww += w * w
+                    vr, vg, vb = radiance[i, 0], radiance[i, 1], radiance[i, 2]
+                    r += w * vr
+                    g += w * vg
+                    bl += w * vb
+                    r2 += w * vr * vr
+                    g2 += w * vg * vg
+                    b2 += w * vb * vb
+                vr2 += ww * var[j, 0]
+                vg2 += ww * var[j, 1]
+                vb2 += ww * var[j, 2]
+        q = ty * width + tx
+        wsum[q] += w_acc
+        wvar[q, 0] += vr2
+        wvar[q, 1] += vg2
+        wvar[q, 2] += vb2
+        wl[q, 0] += r
+        wl[q, 1] += g
+        wl[q, 2] += bl
+        wl2[q, 0] += r2
+        wl2[q, 1] += g2
+        wl2[q, 2] += b2
+
+
+class Film:
+    """Everything a render accumulates per pixel, filled batch by batch (`add`: a batch of whole pixels, in
+    order); `rfilter` is a `SplatFilter` (None: the box filter)."""
+
+    def __init__(self, width, height, spp, n_emitters, segment_aovs=(), rfilter=None):
         n = width * height
         self.width, self.height, self.spp, self.n_emitters = width, height, spp, n_emitters
-        self.image = np.zeros((n, 3))
-        self.moment2 = np.zeros((n, 3))
+        self.rfilter = rfilter
+        self.image = np.zeros((n, 3))  # box: the pixel's mean; splatting: Σ w·L
+        self.moment2 = np.zeros((n, 3))  # box: the mean square; splatting: Σ w·L²
+        if rfilter is not None:
+            self.weight = np.zeros(n)  # Σ w
+            self.weighted_var = np.zeros((n, 3))  # Σ w²·σ², σ² of the samples of each sample's own pixel
         self.counts = np.zeros((n, N_COUNTS), np.int64)
         self.case_counts = None  # (n, emitters, N_CASES) samples per case, once an estimator classifies
         self.segment_aovs = {name: np.zeros(n) for name in segment_aovs}
 
     def add(self, batch, shaded):
-        """A `ShadedBatch` of the `ShadingBatch` `batch`: its pixels' means, second moments, counts and AOVs."""
+        """A `ShadedBatch` of the `ShadingBatch` `batch`: its samples' radiance, its pixels' counts and AOVs."""
         pix = batch.pixel
-        self.image[pix], self.moment2[pix] = pixel_moments(shaded.radiance, self.spp)
+        if self.rfilter is None:
+            self.image[pix], self.moment2[pix] = pixel_moments(shaded.radiance, self.spp)
+        else:
+            if len(pix) and pix[-1] - pix[0] + 1 != len(pix):
+                raise ValueError("a splatting film takes batches of consecutive pixels")
+            splat(self.rfilter, batch.film_xy, shaded.radiance, int(pix[0]), self.spp, self.width, self.height,
+                  self.weight, self.image, self.moment2, self.weighted_var)
         self.counts[pix] = shaded.counts
         for name, v in (shaded.aovs or {}).items():
             self.segment_aovs[name][pix] += v
@@ -63,7 +190,7 @@ class Film:
         out = {
             "triangle_tests": (self.counts[:, CAM_TRI] + self.counts[:, SH_TRI]).reshape(shape),
             "node_tests": (self.counts[:, CAM_NODE] + self.counts[:, SH_NODE]).reshape(shape),
-            "second_moment": self.moment2.reshape(shape + (3,)),
+            "second_moment": self._mean_and_square()[1].reshape(shape + (3,)),
         }
         if self.case_counts is not None:
             out["cases"] = (self.case_counts / self.spp).reshape(shape + self.case_counts.shape[1:])
@@ -71,12 +198,27 @@ class Film:
             out[name] = v.reshape(shape)
         return out
 
+    def _mean_and_square(self):
+        """Per pixel: the (weighted) mean of its samples' radiance and of its square."""
+        if self.rfilter is None:
+            return self.image, self.moment2
+        inv = np.divide(1.0, self.weight, out=np.zeros_like(self.weight), where=self.weight > 0)[:, None]
+        return self.image * inv, self.moment2 * inv
+
     def noise_relmse(self):
         """relMSE (weights 1 / (x^2 + 0.01), as ../shared/README.md defines it) of the image against its own
-        expectation, estimated from the per-pixel variance of the camera samples' radiance."""
-        var = np.maximum(self.moment2 - self.image * self.image, 0.0) / max(self.spp - 1, 1)
-        return float(np.mean(var / (self.image * self.image + 0.01)))
+        expectation, estimated from the per-pixel variance of the camera samples' radiance: for a box,
+        (m2 - mean²) / (spp - 1); splatting, Σ w²·σ² / (Σ w)², each sample's σ² that of its own pixel's samples
+        (a weighted mean of independent samples)."""
+        mean, m2 = self._mean_and_square()
+        if self.rfilter is None:
+            var = np.maximum(m2 - mean * mean, 0.0) / max(self.spp - 1, 1)
+        else:
+            w2 = self.weight ** 2
+            var = np.divide(self.weighted_var, w2[:, None], out=np.zeros_like(self.weighted_var),
+                            where=w2[:, None] > 0)
+        return float(np.mean(var / (mean * mean + 0.01)))
 
     def developed(self):
-        """The (height, width, 3) radiance image."""
-        return self.image.reshape(self.height, self.width, 3)
+        """The (height, width, 3) radiance image: each pixel's (weighted) mean, 0 where no sample reached it."""
+        return self._mean_and_square()[0].reshape(self.height, self.width, 3)

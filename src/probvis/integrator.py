@@ -27,7 +27,7 @@ from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler
 from .errors import ProbvisError
-from .film import Film
+from .film import Film, splat_filter
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
@@ -36,7 +36,8 @@ from .scene import Scene, load_scene
 from .segments import SegmentBuffers, compact, sample_emitters, sample_radiance
 from .settings import RenderSettings
 from .shading import ShadedBatch, ShadingBatch
-from .visibility import RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, estimator_class
+from .visibility import (RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult,
+                         estimator_class)
 
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
 COMPILE_TIME = "1-3 minutes"  # what the first run's kernel compilation takes on 2 cores (60-150 s measured)
@@ -64,19 +65,19 @@ class Integrator:
     (camera rays, their first hits, surface interactions). An estimator's `prepare` receives it: a kernel of its
     own takes `scene_arrays`, and a pilot renders through `shading_batch` and `shade_exact`."""
 
-    def __init__(self, scene, bvh, emitters):
+    def __init__(self, scene, bvh, emitters, filter_importance=False):
         self.scene, self.bvh, self.emitters = scene, bvh, emitters
-        self.camera = camera_params(scene.camera)
+        self.camera = camera_params(scene.camera, filter_importance)
         self.scene_arrays, self.textures = scene_arrays(scene)
 
     def shading_batch(self, pixels, spp, shadow_rays, seed):
         """The `ShadingBatch` of image pixels `pixels` (row-major, int64), every case unknown."""
-        org, dirs, tmin, tmax, keys = camera_rays(self.camera, spp, seed, pixels)
+        org, dirs, tmin, tmax, keys, film_xy = camera_rays(self.camera, spp, seed, pixels)
         prim, _, b1, b2, cam_node, cam_tri = nearest_hits(self.bvh, org, dirs, tmin, tmax)
         its = surface_interactions(self.scene_arrays, self.textures, self.emitters.arrays, prim, b1, b2, dirs)
         cases = np.full((len(prim), self.scene.n_emitters), CASE_UNKNOWN, np.int8)
         return ShadingBatch(pixels, spp, shadow_rays, prim, its.emitted, its.position, its.normal, its.material,
-                            its.albedo, cases, keys, cam_node, cam_tri)
+                            its.albedo, cases, keys, cam_node, cam_tri, film_xy)
 
     def shade_exact(self, batch):
         """The fused exact-visibility kernel's `ShadedBatch`."""
@@ -98,13 +99,29 @@ class StagedPath:
         seg = self.buffers.segments(int(offsets[-1]))
         query = ShadowQuery(origin=seg.origin, direction=seg.direction, tmax=seg.tmax, point=seg.point,
                             emitter=seg.emitter, key=seg.key, weight=seg.weight)
-        res = self.estimator.evaluate(query)
+        res = _checked(self.estimator, self.estimator.evaluate(query), len(seg.origin))
         radiance, counts, segments = sample_radiance(batch, emitted, slots, offsets, res.value, res.node_tests,
                                                      res.triangle_tests)
         pixel = query.point // batch.spp
         aovs = {name: np.bincount(pixel, weights=v, minlength=len(batch.pixel)) / batch.spp
                 for name, v in res.aovs.items()}
         return ShadedBatch(radiance, counts, segments, aovs)
+
+
+def _checked(estimator, res, n):
+    """`res` if it is a `VisibilityResult` of `n` segments with finite values; otherwise an error naming the
+    estimator's class (a plug-in's mistake must not become NaN pixels)."""
+    cls = type(estimator)
+    where = f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): evaluate"
+    if not isinstance(res, VisibilityResult):
+        raise ProbvisError(f"{where} returned a {type(res).__name__}, not a VisibilityResult")
+    for field in ("value", "node_tests", "triangle_tests"):
+        arr = np.asarray(getattr(res, field))
+        if arr.shape != (n,) or not np.issubdtype(arr.dtype, np.number):
+            raise ProbvisError(f"{where} returned {field} of shape {arr.shape} ({arr.dtype}) for {n} segments")
+    if not np.all(np.isfinite(res.value)):
+        raise ProbvisError(f"{where} returned {int((~np.isfinite(res.value)).sum())} non-finite values")
+    return res
 
 
 def make_path(integrator, estimator, path, n_slots):
@@ -137,7 +154,7 @@ def render_pass(scene, settings, estimator, progress=False):
     t0 = time.perf_counter()
     bvh = build_bvh(scene.triangles)
     emitters = build_emitter_sampler(scene)
-    integrator = Integrator(scene, bvh, emitters)
+    integrator = Integrator(scene, bvh, emitters, settings.filter_importance)
     t1 = time.perf_counter()
     estimator.prepare(scene, bvh, emitters, settings, integrator)
     t2 = time.perf_counter()
@@ -147,7 +164,8 @@ def render_pass(scene, settings, estimator, progress=False):
     chosen = estimator.render_path()
     path = make_path(integrator, estimator, chosen, per_batch * spp * n_shadow)
     film = Film(scene.camera.width, scene.camera.height, spp, scene.n_emitters,
-                [a.name for a in estimator.aovs if a.kind == "segment"])
+                [a.name for a in estimator.aovs if a.kind == "segment"],
+                None if settings.filter_importance else splat_filter(scene.camera))
     n_segments, camera_hits, case_totals = 0, 0, [0] * N_CASES
     bar = None
     if progress and sys.stderr.isatty():
@@ -234,14 +252,34 @@ def _warm_up(cls, options, progress):
     return time.perf_counter() - t0
 
 
+def _check_arguments(scene, settings, resolution, defines, options, numbers):
+    """The API's arguments of the wrong type, as one ProbvisError naming the argument (ranges are checked where
+    the values are used)."""
+    if not isinstance(scene, (Scene, str, Path)):
+        raise ProbvisError(f"scene must be a Scene, a scene file path or a built-in name, got {type(scene).__name__}")
+    if settings is not None and not isinstance(settings, RenderSettings):
+        raise ProbvisError(f"settings must be a RenderSettings, got {type(settings).__name__}")
+    if resolution is not None and not (isinstance(resolution, (tuple, list)) and len(resolution) == 2 and all(
+            isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in resolution)):
+        raise ProbvisError(f"resolution must be (width, height), two whole numbers, got {resolution!r}")
+    for name, value in (("defines", defines), ("visibility_options", options)):
+        if value is not None and not isinstance(value, dict):
+            raise ProbvisError(f"{name} must be a dict of name: value, got {type(value).__name__}")
+    for name, value in numbers.items():
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))):
+            raise ProbvisError(f"{name} must be a whole number, got {value!r} (a {type(value).__name__})")
+
+
 def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threads=None, resolution=None,
            visibility="exact", visibility_options=None, defines=None, strict=False, progress=False,
-           clamp_negative=False):
+           clamp_negative=False, filter_importance=None):
     """Render `scene` (a `Scene`, a Mitsuba XML path or a built-in name) with direct illumination.
 
     Settings start from the scene's own (`Scene.defaults`: its sampler and integrator) or `settings` (a
     `RenderSettings`); `spp`, `shadow_rays` (emitter samples per camera sample), `seed` and `threads` replace
-    single ones, and `resolution` (width, height) the film's size. `defines` are `<default>` overrides for
+    single ones, and `resolution` (width, height) the film's size. The film splats each camera sample over the
+    pixels its reconstruction filter covers, as Mitsuba's; `filter_importance=True` draws the samples from the
+    filter instead, one pixel each (noisier, but each pixel's expectation is exactly the filtered radiance). `defines` are `<default>` overrides for
     loading the scene (like Mitsuba's `-D`); `strict` makes approximated appearance an error. `visibility` is an estimator name (built-in, installed, or
     `module:Class`), class or instance, with `visibility_options` for a name or class. `clamp_negative` sets
     negative pixels (from probabilistic visibility) to zero: biased, the image gets too bright on average; the
@@ -250,6 +288,8 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     is JSON-serialisable.
     """
     t_start, cpu_start = time.perf_counter(), time.process_time()
+    _check_arguments(scene, settings, resolution, defines, visibility_options,
+                     dict(spp=spp, shadow_rays=shadow_rays, seed=seed, threads=threads))
     if not isinstance(scene, Scene):
         scene = load_scene(scene, strict, **(defines or {}))
     elif defines:
@@ -257,7 +297,8 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     load_seconds = time.perf_counter() - t_start
     if resolution is not None:
         scene = scene.with_resolution(*resolution)
-    settings = (settings or scene.defaults).replace(spp=spp, shadow_rays=shadow_rays, seed=seed, threads=threads)
+    settings = (settings or scene.defaults).replace(spp=spp, shadow_rays=shadow_rays, seed=seed, threads=threads,
+                                                    filter_importance=filter_importance)
     if settings.threads is not None and settings.threads > numba.config.NUMBA_NUM_THREADS:
         raise ProbvisError(f"threads must be between 1 and {numba.config.NUMBA_NUM_THREADS}, got {settings.threads}")
     threads = settings.threads or numba.config.NUMBA_NUM_THREADS

@@ -11,7 +11,7 @@ from contextlib import contextmanager
 
 
 @contextmanager
-def deferred_interrupts(signals=(signal.SIGINT,)):
+def deferred_interrupts(signals=(signal.SIGINT, signal.SIGTERM)):
     """Record `signals` instead of acting on them inside the block; the yielded `check()` raises
     KeyboardInterrupt if one arrived, and so does leaving the block. Off the main thread (where Python cannot
     set handlers) nothing is deferred."""

@@ -4,6 +4,7 @@
 with its BVH and the estimator's own structures (`VisibilityEstimator.memory_estimate`: photons, kd-trees, look-ups); `check`
 refuses a render that would not fit in the memory available now, naming what to lower.
 """
+import math
 import resource
 
 import psutil
@@ -16,6 +17,7 @@ SLOT_BYTES = 3 * 3 * 8 + 4 + 1  # per shadow-ray slot: origin, direction, contri
 SEGMENT_BYTES = 2 * 3 * 8 + 8 + 4 + 8 + 8 + 8 + 4 + 4  # per segment: the query, the estimate and its counts
 SAMPLE_BYTES = 400  # per camera sample of a batch: rays, hits, interactions, keys, cases
 PIXEL_BYTES = 3 * 8 * 2 + 5 * 8 + 2 * 8 + 3 * 4 * 2  # film sums, counts, the AOV images and the output image
+SPLAT_BYTES = 4 * 8  # per pixel of a splatting film: its weight sum and weighted variance
 TRIANGLE_BYTES = 72 + 72 + 24 + 4 + 4 + 72 + 8 + 2 * 128  # scene arrays, BVH-order copy, ids, nodes
 
 
@@ -24,11 +26,15 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True):
     the staged path, whose batches have shadow-ray slots and segments."""
     n_pix = scene.camera.width * scene.camera.height
     per_batch = batch_pixels * settings.spp
+    splat = not settings.filter_importance and scene.camera.rfilter != "box"
+    reach = max(0, math.ceil(scene.camera.filter_extent - 0.5))
     parts = {
         "film": n_pix * (PIXEL_BYTES + 8 * sum(a.kind == "segment" for a in estimator.aovs)
                          + (scene.n_emitters * N_CASES * (4 + 8) if any(a.kind == "cases" for a in estimator.aovs)
-                            else 0)),
-        "batch": per_batch * (SAMPLE_BYTES + settings.shadow_rays * (SLOT_BYTES + SEGMENT_BYTES if staged else 0)),
+                            else 0)
+                         + (SPLAT_BYTES if splat else 0)),
+        "batch": per_batch * (SAMPLE_BYTES + settings.shadow_rays * (SLOT_BYTES + SEGMENT_BYTES if staged else 0)
+                              + (2 * 8 * (2 * reach + 1) if splat else 0)),
         "scene": scene.n_triangles * TRIANGLE_BYTES,
         "process": psutil.Process().memory_info().rss,  # what is already resident: Python, Numba, the scene
     }
@@ -37,8 +43,13 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True):
 
 
 def available():
-    """Bytes the system can give this process now."""
-    return psutil.virtual_memory().available
+    """Bytes this process can still get now: the machine's available memory, or less under an address-space
+    limit (`ulimit -v`, RLIMIT_AS), of which the process's mappings already take their part."""
+    free = psutil.virtual_memory().available
+    limit, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if limit == resource.RLIM_INFINITY:
+        return free
+    return max(0, min(free, limit - psutil.Process().memory_info().vms))
 
 
 def peak_rss():

@@ -29,6 +29,8 @@ def render_stats(scene, settings, estimator, result, image, clamp, seconds, memo
         "shadow_rays_per_sample": settings.shadow_rays,
         "seed": settings.seed,
         "threads": numba.get_num_threads(),
+        "film": {"filter": cam.rfilter, "splatting": result.film.rfilter is not None,
+                 "filter_importance": settings.filter_importance},
         "visibility": {"name": estimator.name, **estimator.settings()},
         "render_path": result.path.value,
         "seconds": seconds,

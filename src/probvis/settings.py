@@ -16,12 +16,14 @@ MAX_SEED = (1 << 63) - 1  # the kernels take the seed as a signed 64-bit integer
 @dataclass(frozen=True)
 class RenderSettings:
     """`spp` camera samples per pixel, `shadow_rays` emitter samples per camera sample, the random `seed`
-    (the image is a pure function of it), and `threads` (None: every core)."""
+    (the image is a pure function of it), `threads` (None: every core), and `filter_importance`: draw camera
+    samples from the reconstruction filter, one pixel each, instead of splatting them as Mitsuba's film does."""
 
     spp: int = 4
     shadow_rays: int = 1
     seed: int = 0
     threads: int | None = None
+    filter_importance: bool = False
 
     def replace(self, **changes):
         """A copy with the given settings replaced; None leaves a setting as it is. Validated."""
@@ -37,4 +39,6 @@ class RenderSettings:
         if self.threads is not None and (isinstance(self.threads, bool) or int(self.threads) != self.threads
                                          or self.threads < 1):
             raise ProbvisError(f"threads must be a positive whole number, got {self.threads}")
+        if not isinstance(self.filter_importance, bool):
+            raise ProbvisError(f"filter_importance must be True or False, got {self.filter_importance!r}")
         return self

@@ -45,6 +45,7 @@ class ShadingBatch(NamedTuple):
     keys: np.ndarray  # (m,) uint64 rng key of each camera sample
     cam_node: np.ndarray  # (m,) ray-node tests of its camera ray
     cam_tri: np.ndarray  # (m,) ray-triangle tests of its camera ray
+    film_xy: np.ndarray  # (m, 2) its position on the film, in pixels from the window's corner
 
     @property
     def n_pix(self):

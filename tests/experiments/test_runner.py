@@ -113,6 +113,27 @@ def test_reference_file_of_the_wrong_size_is_named(tmp_path):
         experiment(parse_experiment(doc), tmp_path / "r", progress=False, log=lambda m: None)
 
 
+@pytest.mark.parametrize("content", [b"garbage, not an image", None], ids=["garbage", "wrong-size"])
+def test_bad_references_are_found_before_any_render(tmp_path, content):
+    from probvis.io import write_exr
+
+    if content is None:
+        write_exr(tmp_path / "ref.exr", np.zeros((5, 5, 3)))
+    else:
+        (tmp_path / "ref.exr").write_bytes(content)
+    doc = dict(TINY, scenes=[{"name": "quad", "source": "quad-shadow", "reference": str(tmp_path / "ref.exr")}])
+    with pytest.raises(ProbvisError, match="scene 'quad': reference"):
+        experiment(parse_experiment(doc), tmp_path / "r", progress=False, log=lambda m: None)
+    assert not list((tmp_path / "r").glob("**/*.json")), "no cell may be rendered first"
+
+
+def test_report_file_names_are_unique_per_scene():
+    names = ["x/y", "x_y", "x y", "é", "e"]
+    slugs = [report_module._slug(n) for n in names]
+    assert len(set(slugs)) == len(names) and report_module._slug("city-1_a") == "city-1_a"
+    assert all(s.isascii() and "/" not in s for s in slugs)
+
+
 def test_an_existing_scheduler_gives_the_same_numbers(tiny_run, tmp_path):
     from dask.distributed import LocalCluster
 

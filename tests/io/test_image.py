@@ -21,7 +21,7 @@ def test_png_tonemap():
 def test_unwritable_outputs_are_caught_early(tmp_path):
     with pytest.raises(ProbvisError, match="does not exist"):
         check_writable(tmp_path / "no" / "out.exr")
-    with pytest.raises(ProbvisError, match="unknown format"):
+    with pytest.raises(ProbvisError, match="must be a .exr, .pfm, .png file"):
         check_writable(tmp_path / "out.jpg")
     with pytest.raises(ProbvisError, match="is a folder"):
         check_writable(tmp_path / "dir.exr") if (tmp_path / "dir.exr").mkdir() is None else None

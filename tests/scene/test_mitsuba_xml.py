@@ -48,7 +48,8 @@ def test_rectangle_faces_plus_z_and_emitter_is_attached(tmp_path):
     n = np.cross(s.triangles[:, 1] - s.triangles[:, 0], s.triangles[:, 2] - s.triangles[:, 0])
     assert np.all(n[:, 2] > 0)
     assert s.n_emitters == 1 and np.all(s.tri_emitter == 0)
-    assert not s.twosided[s.tri_material[0]] and np.allclose(s.reflectance[s.tri_material[0]], 0.5)
+    # an emitter without a <bsdf> reflects nothing, as in Mitsuba (a black diffuse BSDF)
+    assert not s.twosided[s.tri_material[0]] and np.allclose(s.reflectance[s.tri_material[0]], 0.0)
 
 
 def test_mirroring_transform_keeps_rectangle_normal_like_mitsuba(tmp_path):
@@ -85,6 +86,18 @@ def test_obj_mesh_relative_path_and_twosided(tmp_path):
     ("<shape type='instance'><ref id='nothing'/></shape>", "reference to unknown id 'nothing'"),
     ("<shape type='serialized'><string name='filename' value='nope.serialized'/></shape>", "mesh file not found"),
     ("<emitter type='spot'><float name='cutoff_angle' value='120'/></emitter>", "cutoff_angle must be in (0, 90]"),
+    ("<emitter type='point'><point name='position' x='abc'/></emitter>", "attribute 'x': 'abc' is not a number"),
+    ("<emitter type='point'><point name='position' x='nan'/></emitter>", "non-finite value 'nan'"),
+    ("<shape type='rectangle'><transform name='to_world'><rotate x='1' angle='inf'/></transform></shape>",
+     "non-finite value 'inf'"),
+    ("<texture type='checkerboard' id='c'><rgb name='color0' value='-5'/></texture>", "within [0, 1]"),
+    ("<texture type='checkerboard' id='c'><rgb name='color1' value='1e30'/></texture>", "within [0, 1]"),
+    ("<emitter type='point'><rgb name='intensity' value='1e200'/></emitter>", "intensity 1e+200 is out of range"),
+    ("<emitter type='directional'><rgb name='irradiance' value='1e31'/></emitter>", "out of range"),
+    ("<shape type='rectangle'><emitter type='area'><rgb name='radiance' value='2e30'/></emitter></shape>",
+     "out of range"),
+    ("<bsdf type='diffuse' id='a'/><bsdf type='diffuse' id='a'/>", "duplicate id 'a'"),
+    ("<shape type='shapegroup' id='g'><shape type='instance'><ref id='g'/></shape></shape>", "nested instancing"),
 ])
 def test_unsupported_input_names_file_line_and_element(tmp_path, body, message):
     path = write_scene(tmp_path / "bad.xml", sensor() + LIGHT + "\n" + body)
@@ -150,3 +163,23 @@ def test_bad_camera_parameters_name_file_and_line(tmp_path, params, message):
     path = write_scene(tmp_path / "cam.xml", body)
     with pytest.raises(ProbvisError, match=rf"cam.xml:\d+: <sensor>: {message}"):
         probvis.load_scene(path)
+
+
+def test_singular_sensor_transforms_are_refused(tmp_path):
+    for op in ('<scale value="0"/>', '<scale x="1" y="0" z="1"/>',
+               '<matrix value="1 0 0 0  0 1 0 0  0 0 1 0  0 0 1 1"/>'):
+        body = sensor() + LIGHT
+        body = body.replace('<transform name="to_world">', f'<transform name="to_world">{op}', 1)
+        with pytest.raises(ProbvisError, match="to_world is singular or projective"):
+            probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+
+
+def test_deep_nesting_and_non_files_are_refused(tmp_path):
+    body = sensor() + LIGHT + "<bsdf type='mask' id='m'>" * 100 + "<bsdf type='diffuse'/>" + "</bsdf>" * 100
+    with pytest.raises(ProbvisError, match=r"s.xml:\d+: <bsdf>: elements nested more than 64 deep"):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+    with pytest.raises(ProbvisError, match="not a regular file"):
+        probvis.load_scene(tmp_path)
+    (tmp_path / "e.xml").write_text("")
+    with pytest.raises(ProbvisError, match="e.xml:1: malformed XML"):
+        probvis.load_scene(tmp_path / "e.xml")

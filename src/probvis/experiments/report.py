@@ -7,6 +7,7 @@ the viewer's script and style are copied from the package.
 """
 import base64
 import csv
+import hashlib
 import html
 import io
 import json
@@ -26,7 +27,12 @@ SECONDS_NOTE = {"total": "", "render": " and without scene loading and BVH build
 
 
 def _slug(text):
-    return "".join(c if c.isalnum() or c in "-_" else "_" for c in text)
+    """A file name for `text`: ASCII letters, digits, - and _; where anything was replaced, a short hash of the
+    original keeps names apart ('x/y' and 'x_y')."""
+    out = "".join(c if (c.isascii() and c.isalnum()) or c in "-_" else "_" for c in text)
+    if out != text:
+        out += "-" + hashlib.sha1(text.encode()).hexdigest()[:6]
+    return out
 
 
 def _write_text(path, text):

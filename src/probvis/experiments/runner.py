@@ -201,7 +201,16 @@ def plan(exp, scenes):
 
 
 def _reference_file(spec, scene):
-    img = read_exr(spec.reference)[..., :3].astype(np.float64)
+    """A scene's reference image from its file: readable, of the scene's size, finite."""
+    try:
+        img = read_exr(spec.reference)[..., :3].astype(np.float64)
+    except ProbvisError as exc:
+        raise ProbvisError(f"scene '{spec.name}': reference: {exc}") from None
+    except Exception as exc:  # a file the EXR reader cannot make sense of
+        raise ProbvisError(f"scene '{spec.name}': reference {spec.reference} is not a readable EXR image "
+                           f"({type(exc).__name__}: {exc})") from None
+    if not np.all(np.isfinite(img)):
+        raise ProbvisError(f"scene '{spec.name}': reference {spec.reference} has NaN or infinite pixels")
     want = (scene.camera.height, scene.camera.width)
     if img.shape[:2] != want:
         raise ProbvisError(f"scene '{spec.name}': reference {spec.reference} is {img.shape[1]}x{img.shape[0]}, "
@@ -217,6 +226,8 @@ def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log
     scenes = _load_scenes(exp)
     cache = Cache(cache_dir)
     refs, cells = plan(exp, scenes)
+    files = {spec.name: _reference_file(spec, scenes[spec.name]) for spec in exp.scenes
+             if spec.reference is not None}  # checked before the first render
     todo = [t for t in refs + cells if not cache.has(t.key)]
     out = RunSummary(tasks=cells, computed=len(todo), cells_cached=sum(cache.has(t.key) for t in cells))
     log(f"experiment '{exp.name}': {len(cells)} cells ({out.cells_cached} cached), {len(refs)} rendered "
@@ -225,7 +236,7 @@ def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log
         _compute(todo, scenes, cache, workers, scheduler, progress, log, exp.timing_repeats)
     for spec in exp.scenes:
         if spec.reference is not None:
-            out.reference_images[spec.name] = _reference_file(spec, scenes[spec.name])
+            out.reference_images[spec.name] = files[spec.name]
             out.reference_stats[spec.name] = None
             out.reference_noise[spec.name] = spec.reference_noise
     for t in refs:

@@ -17,11 +17,12 @@ from ..errors import ProbvisError
 FORMATS = (".exr", ".pfm", ".png")
 
 
-def check_writable(path):
-    """Fail early, before a long render, when `path` cannot be written or has an unknown format."""
+def check_writable(path, formats=FORMATS, role="an image"):
+    """Fail early, before a long render, when `path` cannot be written or its extension is not one of `formats`
+    (`role` names what it is for in the message)."""
     path = Path(path)
-    if path.suffix.lower() not in FORMATS + (".json",):
-        raise ProbvisError(f"cannot write '{path}': unknown format (use {', '.join(FORMATS)})")
+    if path.suffix.lower() not in formats:
+        raise ProbvisError(f"cannot write '{path}': {role} must be a {', '.join(formats)} file")
     parent = path.parent if str(path.parent) else Path(".")
     try:
         if not parent.is_dir():

@@ -17,8 +17,12 @@ from ..settings import RenderSettings
 from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
-from .scene import Camera, SceneBuilder
+from .scene import MAX_FILTER_RADIUS, Camera, SceneBuilder
 from .spectrum import spectrum_to_rgb
+
+MAX_NESTING = 64  # elements deep: real scenes nest a handful
+MAX_EMISSION = 1e30  # radiance, intensity or scale: beyond, power sums overflow
+MAX_SCENE_BYTES = 256 << 20  # a scene file larger than this is not a scene (meshes live in their own files)
 
 
 @dataclass
@@ -37,6 +41,8 @@ class _TreeBuilder(xml.sax.ContentHandler):
 
     def startElement(self, name, attrs):
         node = Node(name, dict(attrs), self._locator.getLineNumber())
+        if len(self.stack) >= MAX_NESTING:
+            raise ProbvisError(f"{node.line}: <{name}>: elements nested more than {MAX_NESTING} deep")
         if self.stack:
             self.stack[-1].children.append(node)
         else:
@@ -51,6 +57,11 @@ def parse_tree(path):
     path = Path(path)
     if not path.exists():
         raise ProbvisError(f"scene file not found: {path}")
+    if not path.is_file():
+        raise ProbvisError(f"{path}: not a regular file (a scene is an XML file)")
+    if path.stat().st_size > MAX_SCENE_BYTES:
+        raise ProbvisError(f"{path}: {path.stat().st_size / 2**20:.0f} MiB is larger than any scene file could be "
+                           f"(at most {MAX_SCENE_BYTES >> 20} MiB; meshes belong in OBJ, PLY or serialized files)")
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -62,6 +73,10 @@ def parse_tree(path):
         raise ProbvisError(f"{path}:{exc.getLineNumber()}: malformed XML: {exc.getMessage()}") from None
     except defusedxml.DefusedXmlException as exc:
         raise ProbvisError(f"{path}: forbidden XML construct: {exc}") from None
+    except ProbvisError as exc:
+        raise ProbvisError(f"{path}:{exc}") from None
+    if handler.root is None:
+        raise ProbvisError(f"{path}: empty XML document")
     return handler.root
 
 
@@ -71,6 +86,20 @@ _APPROXIMATED_BSDFS = {"plastic", "roughplastic", "conductor", "roughconductor",
 _PROPERTY_TAGS = {"integer", "float", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform"}
 _SAMPLERS = {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"}
 _VAR = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
+
+
+def _unique_ids(root, fail):
+    """Every `id` of the file once, as Mitsuba requires."""
+    seen, todo = {}, [root]
+    while todo:
+        node = todo.pop()
+        key = node.attrs.get("id") if node.tag != "ref" else None
+        if key is not None:
+            if key in seen:
+                first, later = sorted((seen[key], node), key=lambda n: n.line)
+                fail(later, f"duplicate id '{key}' (first defined on line {first.line})")
+            seen[key] = node
+        todo.extend(node.children)
 
 
 class _Reader:
@@ -110,6 +139,17 @@ class _Reader:
         if extra:
             self.fail(node, f"unsupported attribute(s): {', '.join(sorted(extra))}")
 
+    def number(self, node, key, default=None):
+        """A finite number from attribute `key` of `node`."""
+        raw = self.attr(node, key, default)
+        try:
+            v = float(raw)
+        except ValueError:
+            self.fail(node, f"attribute '{key}': '{raw}' is not a number")
+        if not np.isfinite(v):
+            self.fail(node, f"attribute '{key}': non-finite value '{raw}'")
+        return v
+
     def numbers(self, node, text, count=None):
         try:
             vals = [float(x) for x in re.split(r"[,\s]+", text.strip()) if x]
@@ -129,7 +169,7 @@ class _Reader:
             self.check_attrs(node, ("name", "x", "y", "z", "value"))
             if "value" in node.attrs:
                 return np.array(self.numbers(node, self.attr(node, "value"), (1, 3))) * np.ones(3)
-            return np.array([float(self.attr(node, a, "0")) for a in "xyz"])
+            return np.array([self.number(node, a, "0") for a in "xyz"])
         self.check_attrs(node, ("name", "value"))
         raw = self.attr(node, "value")
         try:
@@ -190,7 +230,7 @@ class _Reader:
             if "value" in op.attrs:
                 vals = self.numbers(op, self.attr(op, "value"), (1, 3))
                 return np.array(vals) * np.ones(3)
-            return np.array([float(self.attr(op, a, default)) for a in names])
+            return np.array([self.number(op, a, default) for a in names])
 
         if t == "translate":
             self.check_attrs(op, ("x", "y", "z", "value"))
@@ -200,7 +240,7 @@ class _Reader:
             return tf.scale(vec(default="1"))
         if t == "rotate":
             self.check_attrs(op, ("x", "y", "z", "value", "angle"))
-            return tf.rotate(vec(), float(self.attr(op, "angle")))
+            return tf.rotate(vec(), self.number(op, "angle"))
         if t == "lookat":
             self.check_attrs(op, ("origin", "target", "up"))
             o = self.numbers(op, self.attr(op, "origin"), (3,))
@@ -268,7 +308,7 @@ class _Reader:
             self.fail(node, f"unsupported bsdf type '{kind}' (supported: diffuse, twosided; approximated as diffuse: "
                             f"{', '.join(sorted(_APPROXIMATED_BSDFS))})")
         if "id" in node.attrs:
-            self.ids[node.attrs["id"]] = ("bsdf", out)
+            self.define(node, "bsdf", out)
         return out
 
     def approximate(self, node, what, how):
@@ -323,12 +363,14 @@ class _Reader:
         elif kind == "checkerboard":
             props, _ = self.params(node, {"color0": colour, "color1": colour, "to_uv": ("transform",)})
             colours = np.array([props.get("color0", 0.4) * np.ones(3), props.get("color1", 0.2) * np.ones(3)])
+            if np.any(colours < 0) or np.any(colours > 1):
+                self.fail(node, "checkerboard colours are reflectances: each must be within [0, 1]")
             out = Texture(CHECKERBOARD, self.to_uv(props), colours=colours)
         else:
             self.approximate(node, f"texture '{kind}'", "rendered as grey 0.5")
             out = None
         if "id" in node.attrs:
-            self.ids[node.attrs["id"]] = ("texture", out)
+            self.define(node, "texture", out)
         return out
 
     @staticmethod
@@ -372,6 +414,10 @@ class _Reader:
             return self.bsdf(nested[0])[0]
         return np.full(3, 0.5)
 
+    def define(self, node, kind, value):
+        """Name `value` (a `kind`) by the node's id (unique in the file: `_unique_ids`)."""
+        self.ids[node.attrs["id"]] = (kind, value)
+
     def resolve(self, node, kind):
         self.check_attrs(node, ("id", "name"))
         key = self.attr(node, "id")
@@ -390,10 +436,18 @@ class _Reader:
         props, _ = self.params(node, {"radiance": ("rgb", "spectrum", "float")})
         if "radiance" not in props:
             self.fail(node, "area emitter needs a 'radiance'")
-        rad = props["radiance"] * np.ones(3)
-        if np.any(rad < 0):
-            self.fail(node, "radiance must be non-negative")
+        rad = self.emission(node, "radiance", props["radiance"])
         return rad
+
+    def emission(self, node, name, value):
+        """An emitter's radiance, intensity or scale as RGB: non-negative and at most MAX_EMISSION."""
+        rgb = np.asarray(value, dtype=np.float64) * np.ones(3)
+        if np.any(rgb < 0):
+            self.fail(node, f"{name} must be non-negative")
+        if np.any(rgb > MAX_EMISSION):
+            self.fail(node, f"{name} {rgb.max():g} is out of range (at most {MAX_EMISSION:g}: rescale the scene's "
+                            "emitters together)")
+        return rgb
 
     def delta_emitter(self, node, builder):
         """A top-level `point` or `spot` emitter."""
@@ -411,9 +465,9 @@ class _Reader:
             if "direction" in props and "to_world" in props:
                 self.fail(node, "give either 'direction' or 'to_world', not both")
             d = props.get("direction", props.get("to_world", np.eye(4))[:3, :3] @ np.array([0.0, 0.0, 1.0]))
-            e = props.get("irradiance", np.ones(3)) * np.ones(3)
-            if np.any(e < 0) or not np.linalg.norm(d) > 0:
-                self.fail(node, "a directional emitter needs a non-negative irradiance and a non-zero direction")
+            e = self.emission(node, "irradiance", props.get("irradiance", np.ones(3)))
+            if not np.linalg.norm(d) > 0:
+                self.fail(node, "a directional emitter needs a non-zero direction")
             builder.add_directional_emitter(e, d)
             return
         allowed = {"intensity": ("rgb", "spectrum", "float"), "to_world": ("transform",)}
@@ -422,9 +476,7 @@ class _Reader:
         else:
             allowed |= {"cutoff_angle": ("float",), "beam_width": ("float",)}
         props, _ = self.params(node, allowed)
-        intensity = props.get("intensity", np.ones(3)) * np.ones(3)
-        if np.any(intensity < 0):
-            self.fail(node, "intensity must be non-negative")
+        intensity = self.emission(node, "intensity", props.get("intensity", np.ones(3)))
         m = props.get("to_world", np.eye(4))
         if kind == "point":
             if "position" in props and "to_world" in props:
@@ -444,9 +496,7 @@ class _Reader:
         """A top-level `envmap` (image file, scale, to_world) or `constant` (radiance) emitter."""
         if kind == "constant":
             props, _ = self.params(node, {"radiance": ("rgb", "spectrum", "float")})
-            rad = props.get("radiance", np.ones(3)) * np.ones(3)
-            if np.any(rad < 0):
-                self.fail(node, "radiance must be non-negative")
+            rad = self.emission(node, "radiance", props.get("radiance", np.ones(3)))
             image, m, scale = np.ones((2, 1, 3)), None, rad  # the radiance as the scale: lit points' closed form
         else:
             props, _ = self.params(node, {"filename": ("string",), "scale": ("float",), "to_world": ("transform",),
@@ -464,8 +514,7 @@ class _Reader:
             m, scale = props.get("to_world"), props.get("scale", 1.0)
             if m is not None and not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-6):
                 self.fail(node, "an envmap's to_world must be a rotation (no scale or shear)")
-            if scale < 0:
-                self.fail(node, "scale must be non-negative")
+            self.emission(node, "scale", scale)
         try:
             builder.add_environment(image, m, scale, constant=kind == "constant")
         except ProbvisError as exc:
@@ -479,7 +528,10 @@ class _Reader:
             if outer is not None or "id" not in node.attrs:
                 self.fail(node, "a shapegroup must be at the top level and have an id")
             _, objs = self.params(node, {}, ("shape",))
-            self.ids[node.attrs["id"]] = ("shapegroup", objs)
+            for ch in objs:
+                if ch.attrs.get("type") in ("instance", "shapegroup"):
+                    self.fail(ch, f"a {ch.attrs['type']} inside a shapegroup (nested instancing) is not supported")
+            self.define(node, "shapegroup", objs)
             return
         if kind == "instance":
             props, objs = self.params(node, {"to_world": ("transform",)}, ("ref",))
@@ -518,6 +570,8 @@ class _Reader:
                                                                 "cube no uv)")
                     texture = None
                 material = builder.material(refl, two, texture)
+        if material is None and radiance is not None:  # Mitsuba gives an emitter without a BSDF a black one
+            material = builder.material(np.zeros(3))
         m = props.get("to_world", np.eye(4))
         if outer is not None:
             m = outer @ m
@@ -626,7 +680,12 @@ class _Reader:
             lens = {"aperture_radius": props["aperture_radius"], "focus_distance": props.get("focus_distance", far)}
             if not (lens["aperture_radius"] >= 0 and lens["focus_distance"] > 0):
                 self.fail(node, "aperture_radius must be >= 0 and focus_distance positive")
-        cam = Camera(props.get("to_world", np.eye(4)), fov_x, near_clip=near, far_clip=far,
+        m = props.get("to_world", np.eye(4))
+        size = np.abs(m[:3, :3]).max()
+        if not size > 0 or abs(np.linalg.det(m[:3, :3] / size)) < 1e-12 or np.any(m[3] != (0, 0, 0, 1)):
+            self.fail(node, "the sensor's to_world is singular or projective: a camera needs an invertible "
+                            "rotation, scale and translation (check its scale and matrix)")
+        cam = Camera(m, fov_x, near_clip=near, far_clip=far,
                      principal_x=props.get("principal_point_offset_x", 0.0),
                      principal_y=props.get("principal_point_offset_y", 0.0), **lens, **film)
         return cam, spp, seed
@@ -706,8 +765,9 @@ class _Reader:
         name, default, field_name = known[kind]
         props, _ = self.params(node, {name: ("float",)})
         value = props.get(name, default)
-        if not 0 < value < 1e3:
-            self.fail(node, f"{kind} {name} must be positive, got {value:g}")
+        most = MAX_FILTER_RADIUS if kind == "tent" else MAX_FILTER_RADIUS / 4  # a Gaussian reaches 4 stddev
+        if not 0 < value <= most:
+            self.fail(node, f"{kind} {name} must be positive and at most {most:g} pixels, got {value:g}")
         return {"rfilter": kind, field_name: value}
 
     def integrator(self, node):
@@ -743,6 +803,7 @@ class _Reader:
         if root.tag != "scene":
             self.fail(root, "the root element must be <scene>")
         self.check_attrs(root, ("version",))
+        _unique_ids(root, self.fail)
         builder = SceneBuilder(self.path.stem, str(self.path))
         camera, spp, seed, shadow_rays = None, 4, 0, 1
         for ch in root.children:

@@ -23,6 +23,9 @@ class Environment:
     constant: bool = False
 
 
+MAX_FILTER_RADIUS = 32.0  # pixels a film's reconstruction filter may reach (splatting cost grows with its square)
+
+
 @dataclass
 class Camera:
     """A Mitsuba perspective or thin-lens sensor: `to_world` maps camera space (+z forward, +x left, +y up) to
@@ -48,6 +51,11 @@ class Camera:
     rfilter: str = "box"
     filter_radius: float = 1.0
     filter_stddev: float = 0.5
+
+    @property
+    def filter_extent(self):
+        """The reconstruction filter's radius in pixels (Mitsuba's: 0.5 for the box, 4 stddev for a Gaussian)."""
+        return {"box": 0.5, "tent": self.filter_radius}.get(self.rfilter, 4.0 * self.filter_stddev)
 
     @property
     def film_size(self):

@@ -3,6 +3,7 @@ entry-point group `probvis.visibility`, and any importable class given as `packa
 `path/to/file.py:Class`)."""
 import importlib
 import importlib.util
+import inspect
 import sys
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -63,7 +64,17 @@ def available_names():
 
 
 def estimator_class(name, what="visibility"):
-    """The estimator class for a built-in or installed name, `module:Class` or `file.py:Class` (or a class)."""
+    """The estimator class for a built-in or installed name, `module:Class` or `file.py:Class` (or a class);
+    refused unless it implements every abstract method."""
+    cls = _estimator_class(name, what)
+    if inspect.isabstract(cls):
+        missing = ", ".join(sorted(cls.__abstractmethods__))
+        raise ProbvisError(f"{what}: {cls.__module__}.{cls.__qualname__} does not implement {missing} (see "
+                           "docs/writing-an-estimator.md)")
+    return cls
+
+
+def _estimator_class(name, what):
     if isinstance(name, type):
         if not issubclass(name, VisibilityEstimator):
             raise ProbvisError(f"{what}: {name!r} is not a VisibilityEstimator subclass")

@@ -68,6 +68,16 @@ class ProxyVisibility(VisibilityEstimator):
         Phase("exact_trace", "batch", "testing the chosen segments against the scene (staged interface)"),
     )
 
+    def __init__(self, **options):
+        ratio = options.get("ratio")  # settings() hands back the default ratio beside triangles: that one is fine
+        try:
+            custom = ratio is not None and float(ratio) != self.options[0].default
+        except (TypeError, ValueError):
+            custom = False  # parse_options names the bad value
+        if custom and options.get("triangles") is not None:
+            raise ProbvisError("visibility 'proxy': give ratio or triangles, not both")
+        super().__init__(**options)
+
     def prepare(self, scene, bvh, emitters, settings, integrator):
         super().prepare(scene, bvh, emitters, settings, integrator)
         p = self.params
