@@ -75,6 +75,7 @@ CASES = [
     (["render", "quad-shadow", "--visibility", "proxy", "--ratio", "0.2", "--triangles", "100"],
      "give ratio or triangles, not both"),
     (["render", "quad-shadow", "-D", "res=8192"], "this render needs about"),  # under the 6 GiB RLIMIT_AS
+    (["render", "quad-shadow", "--exposure", "-inf"], "argument --exposure: must be a number of stops"),
 ]
 
 

@@ -447,8 +447,19 @@ def _foreign_flags(argv, cls):
     return None
 
 
+def _negative_values(argv):
+    """`--exposure -inf` as `--exposure=-inf`: argparse takes a value starting with '-' that is not a plain
+    number for a flag, and would say only "expected one argument"."""
+    out = list(argv)
+    for i in range(len(out) - 1):
+        if out[i] == "--exposure" and out[i + 1].startswith("-"):
+            out[i:i + 2] = [f"--exposure={out[i + 1]}", None]
+    return [a for a in out if a is not None]
+
+
 def _parse(argv):
     """Parse `argv`; for `render`, with the flags of the estimator its --visibility names."""
+    argv = _negative_values(argv)
     cls = None
     if argv and argv[0] == "render":
         from .visibility import estimator_class

@@ -127,6 +127,24 @@ def test_bad_references_are_found_before_any_render(tmp_path, content):
     assert not list((tmp_path / "r").glob("**/*.json")), "no cell may be rendered first"
 
 
+def test_a_report_folder_that_is_a_file_is_named(tmp_path):
+    (tmp_path / "taken").write_text("x")
+    with pytest.raises(ProbvisError, match="report folder .*taken' is a file"):
+        experiment(parse_experiment(TINY), tmp_path / "taken", progress=False, log=lambda m: None)
+
+
+def test_an_estimator_s_bug_is_named_not_blamed_on_the_cluster(tmp_path):
+    (tmp_path / "buggy.py").write_text(
+        "from probvis.visibility import VisibilityEstimator\n"
+        "class Buggy(VisibilityEstimator):\n    name = 'buggy'\n    summary = 'divides by zero'\n"
+        "    def evaluate(self, query):\n        return 1 / 0\n")
+    doc = dict(TINY, methods=[{"name": "buggy", "visibility": f"{tmp_path / 'buggy.py'}:Buggy", "baseline": True}])
+    with pytest.raises(ProbvisError) as exc:
+        experiment(parse_experiment(doc), tmp_path / "r", progress=False, log=lambda m: None)
+    text = str(exc.value)
+    assert "ZeroDivisionError" in text and "rerunning will not help" in text and "Dask" not in text
+
+
 def test_report_file_names_are_unique_per_scene():
     names = ["x/y", "x_y", "x y", "é", "e"]
     slugs = [report_module._slug(n) for n in names]

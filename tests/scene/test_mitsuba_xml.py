@@ -1,4 +1,6 @@
 """Reading Mitsuba XML: transforms as Mitsuba composes them, defaults, semantics, and clear errors."""
+import warnings
+
 import numpy as np
 import pytest
 
@@ -183,3 +185,24 @@ def test_deep_nesting_and_non_files_are_refused(tmp_path):
     (tmp_path / "e.xml").write_text("")
     with pytest.raises(ProbvisError, match="e.xml:1: malformed XML"):
         probvis.load_scene(tmp_path / "e.xml")
+
+
+def test_truncated_ply_empty_texture_and_a_plain_direct_integrator(tmp_path):
+    (tmp_path / "t.ply").write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+                                    "property float z\nelement face 2\nproperty list uchar int vertex_indices\n"
+                                    "end_header\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n")
+    body = sensor() + LIGHT + '<shape type="ply"><string name="filename" value="t.ply"/></shape>'
+    with pytest.raises(ProbvisError, match="truncated or malformed PLY .*declares 4 vertices and 2 faces"):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+    (tmp_path / "empty.png").write_bytes(b"")
+    body = sensor() + LIGHT + """<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap"
+        name="reflectance"><string name="filename" value="empty.png"/></texture></bsdf></shape>"""
+    with pytest.raises(ProbvisError, match=r"empty.png is empty \(0 bytes\)"):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+    plain = sensor().replace(
+        '<integrator type="direct"><integer name="emitter_samples" value="4"/><integer name="bsdf_samples" '
+        'value="0"/></integrator>', '<integrator type="direct"/>')
+    assert '<integrator type="direct"/>' in plain
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        probvis.load_scene(write_scene(tmp_path / "s.xml", plain + LIGHT))

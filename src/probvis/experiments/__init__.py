@@ -2,6 +2,7 @@
 reported as a browsable folder (see `config`, `runner`, `results`, `report`)."""
 from pathlib import Path
 
+from ..errors import ProbvisError
 from .config import Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment
 from .report import write_report
 from .results import measure
@@ -15,6 +16,8 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     if not isinstance(exp, Experiment):
         exp = load_experiment(exp)
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ProbvisError(f"report folder '{out}' is a file: give -o a folder (new or existing)")
     run = run_experiment(exp, Path(cache) if cache else out / "cache", workers, scheduler, progress, log)
     results = measure(exp, run)
     return results, write_report(exp, run, results, out, command), run

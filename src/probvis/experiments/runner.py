@@ -70,8 +70,14 @@ def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, rep
 
     times = []
     for _ in range(repeats):
-        r = render(scene, spp=spp, shadow_rays=shadow_rays, seed=seed, visibility=visibility,
-                   visibility_options=dict(options), threads=threads)
+        try:
+            r = render(scene, spp=spp, shadow_rays=shadow_rays, seed=seed, visibility=visibility,
+                       visibility_options=dict(options), threads=threads)
+        except (ProbvisError, MemoryError):
+            raise
+        except Exception as exc:  # a bug, not a lost worker: rerunning would fail the same way
+            raise ProbvisError(f"visibility '{visibility}' raised {type(exc).__name__}: {exc} (a bug in the "
+                               "estimator or in probvis; rerunning will not help)") from None
         times.append(r.stats["seconds"]["total"] - r.stats["seconds"]["compile"])
     r.stats["seconds"]["repeats"] = times
     return r.stats, r.image.astype(np.float32), r.aovs["triangle_tests"].astype(np.float32)

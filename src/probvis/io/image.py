@@ -15,6 +15,7 @@ import numpy as np
 from ..errors import ProbvisError
 
 FORMATS = (".exr", ".pfm", ".png")
+MAX_IMAGE_BYTES = 4 << 30  # an image file larger than this is refused before reading
 
 
 def check_writable(path, formats=FORMATS, role="an image"):
@@ -119,8 +120,16 @@ def read_linear_rgb(path, raw=False):
     dropped.
     Raises `ProbvisError` naming the file when it is missing or unreadable."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ProbvisError(f"image not found: {path}")
+    if not path.is_file():
+        raise ProbvisError(f"image {path} is not a regular file")
+    size = path.stat().st_size
+    if size == 0:
+        raise ProbvisError(f"image {path} is empty (0 bytes)")
+    if size > MAX_IMAGE_BYTES:
+        raise ProbvisError(f"image {path} is {size / 2**30:.1f} GiB, more than any texture or environment map "
+                           f"probvis reads (at most {MAX_IMAGE_BYTES >> 30} GiB)")
     ext = path.suffix.lower()
     if ext == ".exr":
         img = read_exr(path)
@@ -142,7 +151,8 @@ def read_linear_rgb(path, raw=False):
         try:
             data = iio.imread(path, plugin="pillow")
         except Exception as exc:
-            raise ProbvisError(f"cannot read image {path}: {exc}") from None
+            raise ProbvisError(f"cannot read image {path}: not a valid {ext[1:].upper()} file "
+                               f"({type(exc).__name__})") from None
         if data.dtype.kind != "u":
             raise ProbvisError(f"{path}: unsupported pixel type {data.dtype}")
         img = data.astype(np.float64) / np.iinfo(data.dtype).max

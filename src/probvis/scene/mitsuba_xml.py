@@ -790,7 +790,7 @@ class _Reader:
         if props.get("hide_emitters", False):
             self.fail(node, "hide_emitters=true is not supported")
         base = props.get("shading_samples", 1)
-        if props.get("bsdf_samples", base) != 0:
+        if props.get("bsdf_samples", 0) != 0:  # only when the file asks for them: a default is no request
             warnings.warn(f"{self.path}:{node.line}: bsdf_samples ignored: probvis samples emitters only "
                           "(same expected image)", stacklevel=2)
         sr = props.get("emitter_samples", base)

@@ -109,20 +109,59 @@ def _obj_problem(path):
     return None
 
 
+MAX_MESH_BYTES = 8 << 30  # a mesh file larger than this is refused before reading
+
+
+def _ply_elements(path):
+    """The element counts a PLY header declares ({"vertex": n, "face": m}); empty if it has none readable."""
+    counts = {}
+    try:
+        with open(path, "rb") as fh:
+            for _ in range(1000):
+                line = fh.readline(1024).decode("ascii", "replace").split()
+                if not line or line[0] == "end_header":
+                    break
+                if line[0] == "element" and len(line) == 3 and line[2].isdigit():
+                    counts[line[1]] = int(line[2])
+    except OSError:
+        return {}
+    return counts
+
+
+def _ply_truncated(path, declared, mesh):
+    """A message if the PLY file holds fewer vertices or faces than its header declares (None otherwise)."""
+    if not declared:
+        return None
+    got_v = 0 if mesh is None else len(getattr(mesh, "vertices", ()))
+    got_f = 0 if mesh is None else len(getattr(mesh, "faces", ()))
+    if got_v < declared.get("vertex", 0) or got_f < declared.get("face", 0) or mesh is None:
+        return (f"mesh {path}: truncated or malformed PLY (its header declares {declared.get('vertex', 0):,} "
+                f"vertices and {declared.get('face', 0):,} faces)")
+    return None
+
+
 def load_mesh(path, flip_tex_coords=None):
     """Read an OBJ or PLY file with trimesh as `MeshData`, order preserved. Texture coordinates are flipped
     vertically (v -> 1 - v) by default for OBJ and not for PLY, as Mitsuba's `flip_tex_coords` defaults."""
     import trimesh
 
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ProbvisError(f"mesh file not found: {path}")
+    if not path.is_file():
+        raise ProbvisError(f"mesh {path} is not a regular file")
+    if path.stat().st_size > MAX_MESH_BYTES:
+        raise ProbvisError(f"mesh {path} is {path.stat().st_size / 2**30:.0f} GiB, more than probvis reads (at most "
+                           f"{MAX_MESH_BYTES >> 30} GiB)")
+    ply = _ply_elements(path) if path.suffix.lower() == ".ply" else {}
     try:
         mesh = trimesh.load(str(path), force="mesh", process=False, maintain_order=True)
     except Exception:  # trimesh raises many types (and leaks its own dependencies' errors) for malformed files
         problem = _obj_problem(path) if path.suffix.lower() == ".obj" else None
-        raise ProbvisError(problem or f"cannot read mesh {path}: not a valid {path.suffix.lstrip('.').upper()} "
-                                      "file") from None
+        raise ProbvisError(problem or _ply_truncated(path, ply, None) or
+                           f"cannot read mesh {path}: not a valid {path.suffix.lstrip('.').upper()} file") from None
+    if ply and (problem := _ply_truncated(path, ply, mesh)):
+        raise ProbvisError(problem)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ProbvisError(f"mesh {path} contains no triangles")
     v = np.asarray(mesh.vertices, dtype=np.float64)
