@@ -85,6 +85,16 @@ def _weight(f, x):
     return max(0.0, math.exp(f.alpha * x * x) - f.bias)
 
 
+def wvar_ref_of(f, xy, var, width, height):
+    """Σ w²·σ² per pixel, sample by sample."""
+    out = np.zeros((width * height, 3))
+    for (x, y), v in zip(xy, var):
+        for ty in range(height):
+            for tx in range(width):
+                out[ty * width + tx] += (_weight(f, tx + 0.5 - x) * _weight(f, ty + 0.5 - y)) ** 2 * v
+    return out
+
+
 @pytest.mark.parametrize("f", [SplatFilter(FILTER_TENT, 1.0, 0.0, 0.0), SplatFilter(FILTER_TENT, 2.3, 0.0, 0.0),
                                SplatFilter(FILTER_GAUSSIAN, 2.0, -2.0, math.exp(-8.0))], ids=["tent", "tent-2.3",
                                                                                           "gaussian"])
@@ -100,17 +110,18 @@ def test_splat_kernel_is_the_definition_over_batches_that_split_rows(f):
     for p0, p1 in ((0, 4), (4, 16), (16, 17), (17, n)):
         sl = slice(p0 * spp, p1 * spp)
         splat(f, xy[sl], rad[sl], p0, spp, width, height, *sums)
-    w_ref, wl_ref, wl2_ref = np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3))
+    w_ref, wl_ref = np.zeros(n), np.zeros((n, 3))
     for (x, y), v in zip(xy, rad):
         for ty in range(height):
             for tx in range(width):
                 w = _weight(f, tx + 0.5 - x) * _weight(f, ty + 0.5 - y)
                 w_ref[ty * width + tx] += w
                 wl_ref[ty * width + tx] += w * v
-                wl2_ref[ty * width + tx] += w * v * v
     np.testing.assert_allclose(sums[0], w_ref, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(sums[1], wl_ref, rtol=1e-12, atol=1e-15)
-    np.testing.assert_allclose(sums[2], wl2_ref, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(sums[3], (rad ** 2).reshape(n, spp, 3).mean(1), rtol=1e-12)  # per pixel of origin
+    var = rad.reshape(n, spp, 3).var(1, ddof=1)[pix]  # each sample's own pixel's sample variance
+    np.testing.assert_allclose(sums[2], wvar_ref_of(f, xy, var, width, height), rtol=1e-12, atol=1e-15)
 
 
 def test_filter_importance_from_the_command_line(tmp_path, capsys):

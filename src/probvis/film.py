@@ -1,8 +1,8 @@
 """The last stage of a render: the film. As Mitsuba's `hdrfilm` (its `ImageBlock`), each camera sample adds w·L
 and w to every pixel of the rendered window its reconstruction filter covers, w the filter at the pixel centre's
 offset from the sample, and a pixel is Σ w·L / Σ w; the box filter keeps each sample in its own pixel (w = 1).
-Beside the image: the weighted second moment, and per pixel of the samples' origin the test counts, case shares
-and the estimator's AOVs.
+Beside the image, per pixel of the samples' origin (they describe the work and the samples there, not light):
+the second moment, the test counts, case shares and the estimator's AOVs.
 
 Splatting is a gather, so that an image depends only on the seed: each pixel sums, in a fixed order, the samples
 of the batch's pixels within the filter's reach, and batches are added in order.
@@ -36,6 +36,7 @@ def pixel_moments(radiance, spp):
 
 
 FILTER_TENT, FILTER_GAUSSIAN = 1, 2
+SPLAT_CHUNK_BYTES = 32 << 20  # the splat's per-pixel blocks of one call: batches are splatted in chunks of this
 
 
 class SplatFilter(NamedTuple):
@@ -76,22 +77,24 @@ def _filter_row(f, d0, step, out, i):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def splat(f, film_xy, radiance, p0, spp, width, height, wsum, wl, wl2, wvar):
+def splat(f, film_xy, radiance, p0, spp, width, height, wsum, wl, wvar, moment2):
     """Add the camera samples of pixels p0, p0 + 1, ... (row-major, `spp` each, film positions `film_xy`) to the
-    weight sums `wsum`, Σ w·L `wl`, Σ w·L² `wl2` and Σ w²·σ² `wvar` (σ² the variance of the samples of the
-    sample's own pixel) of every pixel their filter covers."""
+    weight sums `wsum`, Σ w·L `wl` and Σ w²·σ² `wvar` (σ² the variance of the samples of the sample's own
+    pixel) of every pixel their filter covers; set `moment2` of the batch's own pixels to the mean square of their
+    samples (an AOV: per pixel of origin).
+
+    Two passes, each without races: per source pixel, the sums over its samples for each pixel its filter may
+    reach (a block of (2b + 1)² entries); then per target pixel, the blocks of its neighbours, in a fixed order."""
     b = max(0, int(math.ceil(f.radius - 0.5)))
-    m = radiance.shape[0]
-    n_src = m // spp
+    n_k = 2 * b + 1
+    n_src = radiance.shape[0] // spp
     p1 = p0 + n_src
-    var = np.empty((n_src, 3))  # the sample variance of each pixel's own samples
-    wx = np.empty((m, 2 * b + 1))  # the filter along x and y at the pixels a sample may reach, from its
-    wy = np.empty((m, 2 * b + 1))  # pixel - b on
+    var = np.empty((n_src, 3))
+    block = np.zeros((n_src, n_k, n_k, 5))  # per source pixel and target offset: Σ w, Σ w·r, Σ w·g, Σ w·b, Σ w²
     step = math.exp(2.0 * f.alpha)
     for j in prange(n_src):
         src = p0 + j
-        x0, y0 = src % width - b + 0.5, src // width - b + 0.5
-        for c in range(3):
+        for c in range(3):  # the sample variance and mean square of the pixel's own samples
             s1 = s2 = 0.0
             for i in range(j * spp, (j + 1) * spp):
                 x = radiance[i, c]
@@ -99,46 +102,37 @@ def splat(f, film_xy, radiance, p0, spp, width, height, wsum, wl, wl2, wvar):
                 s2 += x * x
             mu = s1 / spp
             var[j, c] = max(s2 / spp - mu * mu, 0.0) * spp / max(spp - 1, 1)
+            moment2[src, c] = s2 / spp
+        wx = np.empty((1, n_k))  # the filter at the pixels a sample may reach, from its pixel - b on
+        wy = np.empty((1, n_k))
+        x0, y0 = src % width - b + 0.5, src // width - b + 0.5
         for i in range(j * spp, (j + 1) * spp):
-            _filter_row(f, x0 - film_xy[i, 0], step, wx, i)
-            _filter_row(f, y0 - film_xy[i, 1], step, wy, i)
+            _filter_row(f, x0 - film_xy[i, 0], step, wx, 0)
+            _filter_row(f, y0 - film_xy[i, 1], step, wy, 0)
+            r, g, bl = radiance[i, 0], radiance[i, 1], radiance[i, 2]
+            for ky in range(n_k):
+                for kx in range(n_k):
+                    w = wx[0, kx] * wy[0, ky]
+                    block[j, ky, kx, 0] += w
+                    block[j, ky, kx, 1] += w * r
+                    block[j, ky, kx, 2] += w * g
+                    block[j, ky, kx, 3] += w * bl
+                    block[j, ky, kx, 4] += w * w
     row0 = max(p0 // width - b, 0)
     row1 = min((p1 - 1) // width + b, height - 1)
     for t in prange((row1 - row0 + 1) * width):
         ty, tx = row0 + t // width, t % width
-        w_acc = r = g = bl = r2 = g2 = b2 = vr2 = vg2 = vb2 = 0.0
+        q = ty * width + tx
         for sy in range(max(ty - b, 0), min(ty + b, height - 1) + 1):
             for sx in range(max(tx - b, 0), min(tx + b, width - 1) + 1):
-                src = sy * width + sx
-                if src < p0 or src >= p1:
+                j = sy * width + sx - p0
+                if j < 0 or j >= n_src:
                     continue
-                kx, ky, j = tx - sx + b, ty - sy + b, src - p0
-                ww = 0.0
-                for i in range(j * spp, (j + 1) * spp):
-                    w = wx[i, kx] * wy[i, ky]
-                    w_acc += w
-                    ww += w * w
-                    vr, vg, vb = radiance[i, 0], radiance[i, 1], radiance[i, 2]
-                    r += w * vr
-                    g += w * vg
-                    bl += w * vb
-                    r2 += w * vr * vr
-                    g2 += w * vg * vg
-                    b2 += w * vb * vb
-                vr2 += ww * var[j, 0]
-                vg2 += ww * var[j, 1]
-                vb2 += ww * var[j, 2]
-        q = ty * width + tx
-        wsum[q] += w_acc
-        wvar[q, 0] += vr2
-        wvar[q, 1] += vg2
-        wvar[q, 2] += vb2
-        wl[q, 0] += r
-        wl[q, 1] += g
-        wl[q, 2] += bl
-        wl2[q, 0] += r2
-        wl2[q, 1] += g2
-        wl2[q, 2] += b2
+                ky, kx = ty - sy + b, tx - sx + b
+                wsum[q] += block[j, ky, kx, 0]
+                for c in range(3):
+                    wl[q, c] += block[j, ky, kx, 1 + c]
+                    wvar[q, c] += block[j, ky, kx, 4] * var[j, c]
 
 
 class Film:
@@ -150,7 +144,7 @@ class Film:
         self.width, self.height, self.spp, self.n_emitters = width, height, spp, n_emitters
         self.rfilter = rfilter
         self.image = np.zeros((n, 3))  # box: the pixel's mean; splatting: Σ w·L
-        self.moment2 = np.zeros((n, 3))  # box: the mean square; splatting: Σ w·L²
+        self.moment2 = np.zeros((n, 3))  # the mean square of each pixel's own samples
         if rfilter is not None:
             self.weight = np.zeros(n)  # Σ w
             self.weighted_var = np.zeros((n, 3))  # Σ w²·σ², σ² of the samples of each sample's own pixel
@@ -166,8 +160,12 @@ class Film:
         else:
             if len(pix) and pix[-1] - pix[0] + 1 != len(pix):
                 raise ValueError("a splatting film takes batches of consecutive pixels")
-            splat(self.rfilter, batch.film_xy, shaded.radiance, int(pix[0]), self.spp, self.width, self.height,
-                  self.weight, self.image, self.moment2, self.weighted_var)
+            reach = max(0, math.ceil(self.rfilter.radius - 0.5))
+            chunk = max(1, SPLAT_CHUNK_BYTES // (8 * 5 * (2 * reach + 1) ** 2))  # pixels whose blocks fit
+            for c0 in range(0, len(pix), chunk):
+                rows = slice(c0 * self.spp, min(len(pix), c0 + chunk) * self.spp)
+                splat(self.rfilter, batch.film_xy[rows], shaded.radiance[rows], int(pix[0]) + c0, self.spp,
+                      self.width, self.height, self.weight, self.image, self.weighted_var, self.moment2)
         self.counts[pix] = shaded.counts
         for name, v in (shaded.aovs or {}).items():
             self.segment_aovs[name][pix] += v
@@ -190,7 +188,7 @@ class Film:
         out = {
             "triangle_tests": (self.counts[:, CAM_TRI] + self.counts[:, SH_TRI]).reshape(shape),
             "node_tests": (self.counts[:, CAM_NODE] + self.counts[:, SH_NODE]).reshape(shape),
-            "second_moment": self._mean_and_square()[1].reshape(shape + (3,)),
+            "second_moment": self.moment2.reshape(shape + (3,)),
         }
         if self.case_counts is not None:
             out["cases"] = (self.case_counts / self.spp).reshape(shape + self.case_counts.shape[1:])
@@ -198,21 +196,21 @@ class Film:
             out[name] = v.reshape(shape)
         return out
 
-    def _mean_and_square(self):
-        """Per pixel: the (weighted) mean of its samples' radiance and of its square."""
+    def _mean(self):
+        """Per pixel: the (weighted) mean of the samples' radiance."""
         if self.rfilter is None:
-            return self.image, self.moment2
+            return self.image
         inv = np.divide(1.0, self.weight, out=np.zeros_like(self.weight), where=self.weight > 0)[:, None]
-        return self.image * inv, self.moment2 * inv
+        return self.image * inv
 
     def noise_relmse(self):
         """relMSE (weights 1 / (x^2 + 0.01), as ../shared/README.md defines it) of the image against its own
         expectation, estimated from the per-pixel variance of the camera samples' radiance: for a box,
         (m2 - mean²) / (spp - 1); splatting, Σ w²·σ² / (Σ w)², each sample's σ² that of its own pixel's samples
         (a weighted mean of independent samples)."""
-        mean, m2 = self._mean_and_square()
+        mean = self._mean()
         if self.rfilter is None:
-            var = np.maximum(m2 - mean * mean, 0.0) / max(self.spp - 1, 1)
+            var = np.maximum(self.moment2 - mean * mean, 0.0) / max(self.spp - 1, 1)
         else:
             w2 = self.weight ** 2
             var = np.divide(self.weighted_var, w2[:, None], out=np.zeros_like(self.weighted_var),
@@ -221,4 +219,4 @@ class Film:
 
     def developed(self):
         """The (height, width, 3) radiance image: each pixel's (weighted) mean, 0 where no sample reached it."""
-        return self._mean_and_square()[0].reshape(self.height, self.width, 3)
+        return self._mean().reshape(self.height, self.width, 3)

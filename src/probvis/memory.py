@@ -4,7 +4,6 @@
 with its BVH and the estimator's own structures (`VisibilityEstimator.memory_estimate`: photons, kd-trees, look-ups); `check`
 refuses a render that would not fit in the memory available now, naming what to lower.
 """
-import math
 import resource
 
 import psutil
@@ -21,21 +20,20 @@ SPLAT_BYTES = 4 * 8  # per pixel of a splatting film: its weight sum and weighte
 TRIANGLE_BYTES = 72 + 72 + 24 + 4 + 4 + 72 + 8 + 2 * 128  # scene arrays, BVH-order copy, ids, nodes
 
 
-def estimate(scene, settings, estimator, batch_pixels, staged=True):
+def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=0):
     """Bytes by part (a dict) of rendering `scene` with `settings` and `estimator`; `staged`: its render may take
-    the staged path, whose batches have shadow-ray slots and segments."""
+    the staged path, whose batches have shadow-ray slots and segments; `splat_bytes`: what a splatting film's
+    chunk of per-pixel blocks takes (0 for a box filter)."""
     n_pix = scene.camera.width * scene.camera.height
     per_batch = batch_pixels * settings.spp
-    splat = not settings.filter_importance and scene.camera.rfilter != "box"
-    reach = max(0, math.ceil(scene.camera.filter_extent - 0.5))
     parts = {
         "film": n_pix * (PIXEL_BYTES + 8 * sum(a.kind == "segment" for a in estimator.aovs)
                          + (scene.n_emitters * N_CASES * (4 + 8) if any(a.kind == "cases" for a in estimator.aovs)
                             else 0)
-                         + (SPLAT_BYTES if splat else 0)),
-        "batch": per_batch * (SAMPLE_BYTES + settings.shadow_rays * (SLOT_BYTES + SEGMENT_BYTES if staged else 0)
-                              + (2 * 8 * (2 * reach + 1) if splat else 0)),
+                         + (SPLAT_BYTES if splat_bytes else 0)),
+        "batch": per_batch * (SAMPLE_BYTES + settings.shadow_rays * (SLOT_BYTES + SEGMENT_BYTES if staged else 0)),
         "scene": scene.n_triangles * TRIANGLE_BYTES,
+        "splat": splat_bytes,
         "process": psutil.Process().memory_info().rss,  # what is already resident: Python, Numba, the scene
     }
     parts.update(estimator.memory_estimate(scene, settings, per_batch))
