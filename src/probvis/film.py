@@ -4,8 +4,8 @@ offset from the sample, and a pixel is Σ w·L / Σ w; the box filter keeps each
 Beside the image, per pixel of the samples' origin (they describe the work and the samples there, not light):
 the second moment, the test counts, case shares and the estimator's AOVs.
 
-Splatting is a gather, so that an image depends only on the seed: each pixel sums, in a fixed order, the samples
-of the batch's pixels within the filter's reach, and batches are added in order.
+Splatting runs in two passes without races, so that an image depends only on the seed (`splat`): per pixel, its
+samples' sums for each pixel they may reach; per pixel of the image, its neighbours' sums in a fixed order.
 """
 import math
 from typing import NamedTuple
@@ -41,7 +41,7 @@ SPLAT_CHUNK_BYTES = 32 << 20  # the splat's per-pixel blocks of one call: batche
 
 class SplatFilter(NamedTuple):
     """A reconstruction filter that splats (Mitsuba's `tent` and `gaussian`, radius 4 stddev, shifted down to
-    zero there), as the gather kernel takes it."""
+    zero there), as the `splat` kernel takes it."""
 
     kind: int  # FILTER_TENT or FILTER_GAUSSIAN
     radius: float
