@@ -2,6 +2,7 @@
 camera sample adds w·L and w to the pixels its reconstruction filter covers; a pixel is Σ w·L / Σ w."""
 import json
 import math
+from types import SimpleNamespace
 
 import numba
 import numpy as np
@@ -10,7 +11,9 @@ import pytest
 import probvis
 from probvis.cli import main
 from probvis.errors import ProbvisError
-from probvis.film import FILTER_GAUSSIAN, FILTER_TENT, SplatFilter, splat
+from probvis import film as film_module
+from probvis.film import FILTER_GAUSSIAN, FILTER_TENT, Film, SplatFilter
+from probvis.shading import N_COUNTS
 from tests.conftest import mitsuba_image, relmse, write_scene
 
 CROP = ('<integer name="crop_offset_x" value="5"/><integer name="crop_offset_y" value="3"/>'
@@ -98,18 +101,24 @@ def wvar_ref_of(f, xy, var, width, height):
 @pytest.mark.parametrize("f", [SplatFilter(FILTER_TENT, 1.0, 0.0, 0.0), SplatFilter(FILTER_TENT, 2.3, 0.0, 0.0),
                                SplatFilter(FILTER_GAUSSIAN, 2.0, -2.0, math.exp(-8.0))], ids=["tent", "tent-2.3",
                                                                                           "gaussian"])
-def test_splat_kernel_is_the_definition_over_batches_that_split_rows(f):
-    """The gather kernel, fed in batches that end mid-row, against every sample splatted one by one."""
+@pytest.mark.parametrize("chunk_bytes", [None, 1], ids=["whole", "pixel-chunks"])
+def test_splat_kernel_is_the_definition_over_batches_that_split_rows(f, chunk_bytes, monkeypatch):
+    """The film's splat, fed in batches that end mid-row (and in chunks of one pixel), against every sample
+    splatted one by one."""
+    if chunk_bytes is not None:
+        monkeypatch.setattr(film_module, "SPLAT_CHUNK_BYTES", chunk_bytes)
     rng = np.random.default_rng(5)
     width, height, spp = 7, 5, 3
     n = width * height
     pix = np.repeat(np.arange(n), spp)
     xy = np.stack([pix % width + rng.random(len(pix)), pix // width + rng.random(len(pix))], axis=1)
     rad = rng.random((len(pix), 3))
-    sums = [np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))]
+    film = Film(width, height, spp, 1, rfilter=f)
     for p0, p1 in ((0, 4), (4, 16), (16, 17), (17, n)):
         sl = slice(p0 * spp, p1 * spp)
-        splat(f, xy[sl], rad[sl], p0, spp, width, height, *sums)
+        film.add(SimpleNamespace(pixel=np.arange(p0, p1), film_xy=xy[sl]),
+                 SimpleNamespace(radiance=rad[sl], counts=np.zeros((p1 - p0, N_COUNTS), np.int64), aovs=None))
+    sums = [film.weight, film.image, film.weighted_var, film.moment2]
     w_ref, wl_ref = np.zeros(n), np.zeros((n, 3))
     for (x, y), v in zip(xy, rad):
         for ty in range(height):

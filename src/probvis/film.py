@@ -49,9 +49,10 @@ class SplatFilter(NamedTuple):
     bias: float  # Gaussian: its value at the radius
 
 
-def splat_filter(camera):
-    """The `SplatFilter` of a `scene.Camera`'s reconstruction filter, or None for the box filter."""
-    if camera.rfilter == "box":
+def splat_filter(camera, filter_importance=False):
+    """The `SplatFilter` of a `scene.Camera`'s reconstruction filter, or None where samples are not splatted: a
+    box filter, or samples drawn from the filter (`filter_importance`)."""
+    if camera.rfilter == "box" or filter_importance:
         return None
     radius = float(camera.filter_extent)
     if camera.rfilter == "tent":
@@ -77,11 +78,10 @@ def _filter_row(f, d0, step, out, i):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def splat(f, film_xy, radiance, p0, spp, width, height, wsum, wl, wvar, moment2):
-    """Add the camera samples of pixels p0, p0 + 1, ... (row-major, `spp` each, film positions `film_xy`) to the
-    weight sums `wsum`, Σ w·L `wl` and Σ w²·σ² `wvar` (σ² the variance of the samples of the sample's own
-    pixel) of every pixel their filter covers; set `moment2` of the batch's own pixels to the mean square of their
-    samples (an AOV: per pixel of origin).
+def splat(f, film_xy, radiance, var, p0, spp, width, height, wsum, wl, wvar):
+    """Add the camera samples of pixels p0, p0 + 1, ... (row-major, `spp` each, film positions `film_xy`; `var`
+    the sample variance of each pixel's samples) to the weight sums `wsum`, Σ w·L `wl` and Σ w²·σ² `wvar` (σ²
+    that of the sample's own pixel) of every pixel their filter covers.
 
     Two passes, each without races: per source pixel, the sums over its samples for each pixel its filter may
     reach (a block of (2b + 1)² entries); then per target pixel, the blocks of its neighbours, in a fixed order."""
@@ -89,20 +89,10 @@ def splat(f, film_xy, radiance, p0, spp, width, height, wsum, wl, wvar, moment2)
     n_k = 2 * b + 1
     n_src = radiance.shape[0] // spp
     p1 = p0 + n_src
-    var = np.empty((n_src, 3))
     block = np.zeros((n_src, n_k, n_k, 5))  # per source pixel and target offset: Σ w, Σ w·r, Σ w·g, Σ w·b, Σ w²
     step = math.exp(2.0 * f.alpha)
     for j in prange(n_src):
         src = p0 + j
-        for c in range(3):  # the sample variance and mean square of the pixel's own samples
-            s1 = s2 = 0.0
-            for i in range(j * spp, (j + 1) * spp):
-                x = radiance[i, c]
-                s1 += x
-                s2 += x * x
-            mu = s1 / spp
-            var[j, c] = max(s2 / spp - mu * mu, 0.0) * spp / max(spp - 1, 1)
-            moment2[src, c] = s2 / spp
         wx = np.empty((1, n_k))  # the filter at the pixels a sample may reach, from its pixel - b on
         wy = np.empty((1, n_k))
         x0, y0 = src % width - b + 0.5, src // width - b + 0.5
@@ -155,17 +145,20 @@ class Film:
     def add(self, batch, shaded):
         """A `ShadedBatch` of the `ShadingBatch` `batch`: its samples' radiance, its pixels' counts and AOVs."""
         pix = batch.pixel
+        mean, self.moment2[pix] = pixel_moments(shaded.radiance, self.spp)
         if self.rfilter is None:
-            self.image[pix], self.moment2[pix] = pixel_moments(shaded.radiance, self.spp)
+            self.image[pix] = mean
         else:
             if len(pix) and pix[-1] - pix[0] + 1 != len(pix):
                 raise ValueError("a splatting film takes batches of consecutive pixels")
+            var = np.maximum(self.moment2[pix] - mean * mean, 0.0) * (self.spp / max(self.spp - 1, 1))
             reach = max(0, math.ceil(self.rfilter.radius - 0.5))
             chunk = max(1, SPLAT_CHUNK_BYTES // (8 * 5 * (2 * reach + 1) ** 2))  # pixels whose blocks fit
             for c0 in range(0, len(pix), chunk):
                 rows = slice(c0 * self.spp, min(len(pix), c0 + chunk) * self.spp)
-                splat(self.rfilter, batch.film_xy[rows], shaded.radiance[rows], int(pix[0]) + c0, self.spp,
-                      self.width, self.height, self.weight, self.image, self.weighted_var, self.moment2)
+                splat(self.rfilter, batch.film_xy[rows], shaded.radiance[rows], var[c0:c0 + chunk],
+                      int(pix[0]) + c0, self.spp, self.width, self.height, self.weight, self.image,
+                      self.weighted_var)
         self.counts[pix] = shaded.counts
         for name, v in (shaded.aovs or {}).items():
             self.segment_aovs[name][pix] += v

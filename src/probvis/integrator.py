@@ -165,7 +165,7 @@ def render_pass(scene, settings, estimator, progress=False):
     path = make_path(integrator, estimator, chosen, per_batch * spp * n_shadow)
     film = Film(scene.camera.width, scene.camera.height, spp, scene.n_emitters,
                 [a.name for a in estimator.aovs if a.kind == "segment"],
-                None if settings.filter_importance else splat_filter(scene.camera))
+                splat_filter(scene.camera, settings.filter_importance))
     n_segments, camera_hits, case_totals = 0, 0, [0] * N_CASES
     bar = None
     if progress and sys.stderr.isatty():
@@ -279,8 +279,9 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     `RenderSettings`); `spp`, `shadow_rays` (emitter samples per camera sample), `seed` and `threads` replace
     single ones, and `resolution` (width, height) the film's size. The film splats each camera sample over the
     pixels its reconstruction filter covers, as Mitsuba's; `filter_importance=True` draws the samples from the
-    filter instead, one pixel each (noisier, but each pixel's expectation is exactly the filtered radiance). `defines` are `<default>` overrides for
-    loading the scene (like Mitsuba's `-D`); `strict` makes approximated appearance an error. `visibility` is an estimator name (built-in, installed, or
+    filter instead, one pixel each (noisier, but each pixel's expectation is exactly the filtered radiance).
+    `defines` are `<default>` overrides for loading the scene (like Mitsuba's `-D`); `strict` makes approximated
+    appearance an error. `visibility` is an estimator name (built-in, installed, or
     `module:Class`), class or instance, with `visibility_options` for a name or class. `clamp_negative` sets
     negative pixels (from probabilistic visibility) to zero: biased, the image gets too bright on average; the
     stats report by how much. `progress` says so on stderr when the kernels compile (with a bar on a
@@ -311,7 +312,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
         options = dict(visibility_options or {})
         estimator = estimator_class(visibility)(**options)
     staged = type(estimator).render_path is VisibilityEstimator.render_path  # may need the slot buffers
-    splatting = not settings.filter_importance and splat_filter(scene.camera) is not None
+    splatting = splat_filter(scene.camera, settings.filter_importance) is not None
     need = memory.estimate(scene, settings, estimator, batch_pixels(scene, settings), staged,
                            SPLAT_CHUNK_BYTES if splatting else 0)
     if (type(estimator), repr(sorted(options.items()))) not in _warmed:
