@@ -107,6 +107,7 @@ def test_splat_kernel_is_the_definition_over_batches_that_split_rows(f, chunk_by
     splatted one by one."""
     if chunk_bytes is not None:
         monkeypatch.setattr(film_module, "SPLAT_CHUNK_BYTES", chunk_bytes)
+        monkeypatch.setattr(film_module, "SPLAT_MIN_ROWS", 0)
     rng = np.random.default_rng(5)
     width, height, spp = 7, 5, 3
     n = width * height

@@ -36,7 +36,9 @@ def pixel_moments(radiance, spp):
 
 
 FILTER_TENT, FILTER_GAUSSIAN = 1, 2
-SPLAT_CHUNK_BYTES = 32 << 20  # the splat's per-pixel blocks of one call: batches are splatted in chunks of this
+SPLAT_CHUNK_BYTES = 1 << 20  # the per-pixel blocks of one splat call, to stay in cache: batches go in chunks
+SPLAT_MIN_ROWS = 8  # ... of at least this many times the filter's reach in rows, so that the rows a chunk
+# reaches beyond its own (the reach above and below) add at most a quarter to its second pass
 
 
 class SplatFilter(NamedTuple):
@@ -47,6 +49,15 @@ class SplatFilter(NamedTuple):
     radius: float
     alpha: float  # Gaussian: -1 / (2 stddev^2)
     bias: float  # Gaussian: its value at the radius
+
+
+def splat_chunk(rfilter, width):
+    """(pixels, bytes) of one call of `splat` for a film `width` pixels wide: its blocks within
+    SPLAT_CHUNK_BYTES, or SPLAT_MIN_ROWS times the filter's reach in rows."""
+    reach = max(0, math.ceil(rfilter.radius - 0.5))
+    per_pixel = 8 * 5 * (2 * reach + 1) ** 2
+    pixels = max(1, SPLAT_CHUNK_BYTES // per_pixel, SPLAT_MIN_ROWS * reach * width)
+    return pixels, pixels * per_pixel
 
 
 def splat_filter(camera, filter_importance=False):
@@ -61,20 +72,58 @@ def splat_filter(camera, filter_importance=False):
     return SplatFilter(FILTER_GAUSSIAN, radius, alpha, math.exp(alpha * radius * radius))
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _filter_row(f, d0, step, out, i):
-    """out[i, k] = the filter at offsets d0, d0 + 1, ... (pixels); a Gaussian's by the recurrence
-    exp(a(d+1)²) = exp(ad²)·exp(a(2d+1)), whose factor grows by `step` = exp(2a) each pixel: two exp calls a row."""
+# A Gaussian's exponent over its radius (Mitsuba's: 4 stddev) spans [-8, 0]: exp(x) = exp(x / 16)^16, the inner
+# one by its Taylor polynomial of degree 13 (remainder below 1e-15 on [-0.5, 0]), then squared four times.
+_EXP_TAYLOR = tuple(1.0 / math.factorial(n) for n in range(14))
+SPLAT_GROUP = 16  # source pixels per parallel task of the splat, which share its scratch arrays
+
+
+@njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
+def _filter_rows(f, d0, out):
+    """out[k, s] = the filter at d0[s] + k pixels from sample s, for all samples in one loop that the compiler
+    vectorises: arithmetic only, no libm call (exp as `_EXP_TAYLOR` says, within 1e-14 of it)."""
+    n_k, n = out.shape
     if f.kind == FILTER_TENT:
-        for k in range(out.shape[1]):
-            out[i, k] = max(0.0, 1.0 - abs(d0 + k) / f.radius)
+        inv = 1.0 / f.radius
+        for k in range(n_k):
+            for s in range(n):
+                out[k, s] = max(0.0, 1.0 - abs(d0[s] + k) * inv)
         return
-    e = math.exp(f.alpha * d0 * d0)
-    g = math.exp(f.alpha * (2.0 * d0 + 1.0))
-    for k in range(out.shape[1]):
-        out[i, k] = max(0.0, e - f.bias)
-        e *= g
-        g *= step
+    r2, a = f.radius * f.radius, f.alpha / 16.0
+    c = _EXP_TAYLOR
+    for k in range(n_k):
+        for s in range(n):
+            d = d0[s] + k
+            y = min(d * d, r2) * a
+            e = c[0] + y * (c[1] + y * (c[2] + y * (c[3] + y * (c[4] + y * (c[5] + y * (c[6] + y * (c[7] + y * (
+                c[8] + y * (c[9] + y * (c[10] + y * (c[11] + y * (c[12] + y * c[13]))))))))))))
+            e *= e
+            e *= e
+            e *= e
+            e *= e
+            out[k, s] = max(0.0, e - f.bias)
+
+
+@njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
+def _pixel_block(wx, wy, v, s0, s1, out):
+    """One source pixel's block from its samples s0 <= s < s1: out[ky, kx] = Σ w, Σ w·r, Σ w·g, Σ w·b, Σ w², with
+    w = wy[ky, s] wx[kx, s] and v[:, s] their radiance; each sum a vectorised reduction over the samples."""
+    n_k = wx.shape[0]
+    for ky in range(n_k):
+        for kx in range(n_k):
+            a0 = a1 = a2 = a3 = a4 = 0.0
+            for s in range(s0, s1):
+                w = wy[ky, s] * wx[kx, s]
+                a0 += w
+                a1 += w * v[0, s]
+                a2 += w * v[1, s]
+                a3 += w * v[2, s]
+                a4 += w * w
+            out[ky, kx, 0] = a0
+            out[ky, kx, 1] = a1
+            out[ky, kx, 2] = a2
+            out[ky, kx, 3] = a3
+            out[ky, kx, 4] = a4
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -89,25 +138,22 @@ def splat(f, film_xy, radiance, var, p0, spp, width, height, wsum, wl, wvar):
     n_k = 2 * b + 1
     n_src = radiance.shape[0] // spp
     p1 = p0 + n_src
-    block = np.zeros((n_src, n_k, n_k, 5))  # per source pixel and target offset: Σ w, Σ w·r, Σ w·g, Σ w·b, Σ w²
-    step = math.exp(2.0 * f.alpha)
-    for j in prange(n_src):
-        src = p0 + j
-        wx = np.empty((1, n_k))  # the filter at the pixels a sample may reach, from its pixel - b on
-        wy = np.empty((1, n_k))
-        x0, y0 = src % width - b + 0.5, src // width - b + 0.5
-        for i in range(j * spp, (j + 1) * spp):
-            _filter_row(f, x0 - film_xy[i, 0], step, wx, 0)
-            _filter_row(f, y0 - film_xy[i, 1], step, wy, 0)
-            r, g, bl = radiance[i, 0], radiance[i, 1], radiance[i, 2]
-            for ky in range(n_k):
-                for kx in range(n_k):
-                    w = wx[0, kx] * wy[0, ky]
-                    block[j, ky, kx, 0] += w
-                    block[j, ky, kx, 1] += w * r
-                    block[j, ky, kx, 2] += w * g
-                    block[j, ky, kx, 3] += w * bl
-                    block[j, ky, kx, 4] += w * w
+    block = np.empty((n_src, n_k, n_k, 5))  # per source pixel and target offset: Σ w, Σ w·r, Σ w·g, Σ w·b, Σ w²
+    for group in prange((n_src + SPLAT_GROUP - 1) // SPLAT_GROUP):
+        d = np.empty((2, spp))  # per sample: its offset from the first pixel it may reach, in x and y
+        w = np.empty((2, n_k, spp))  # the filter at the pixels it may reach, in x and y
+        v = np.empty((3, spp))
+        for j in range(group * SPLAT_GROUP, min(n_src, (group + 1) * SPLAT_GROUP)):
+            x0, y0 = (p0 + j) % width - b + 0.5, (p0 + j) // width - b + 0.5
+            for s in range(spp):
+                i = j * spp + s
+                d[0, s] = x0 - film_xy[i, 0]
+                d[1, s] = y0 - film_xy[i, 1]
+                for c in range(3):
+                    v[c, s] = radiance[i, c]
+            _filter_rows(f, d[0], w[0])
+            _filter_rows(f, d[1], w[1])
+            _pixel_block(w[0], w[1], v, 0, spp, block[j])
     row0 = max(p0 // width - b, 0)
     row1 = min((p1 - 1) // width + b, height - 1)
     for t in prange((row1 - row0 + 1) * width):
@@ -152,8 +198,7 @@ class Film:
             if len(pix) and pix[-1] - pix[0] + 1 != len(pix):
                 raise ValueError("a splatting film takes batches of consecutive pixels")
             var = np.maximum(self.moment2[pix] - mean * mean, 0.0) * (self.spp / max(self.spp - 1, 1))
-            reach = max(0, math.ceil(self.rfilter.radius - 0.5))
-            chunk = max(1, SPLAT_CHUNK_BYTES // (8 * 5 * (2 * reach + 1) ** 2))  # pixels whose blocks fit
+            chunk = splat_chunk(self.rfilter, self.width)[0]
             for c0 in range(0, len(pix), chunk):
                 rows = slice(c0 * self.spp, min(len(pix), c0 + chunk) * self.spp)
                 splat(self.rfilter, batch.film_xy[rows], shaded.radiance[rows], var[c0:c0 + chunk],

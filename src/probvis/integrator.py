@@ -27,7 +27,7 @@ from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler
 from .errors import ProbvisError
-from .film import SPLAT_CHUNK_BYTES, Film, splat_filter
+from .film import Film, splat_chunk, splat_filter
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
@@ -312,9 +312,9 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
         options = dict(visibility_options or {})
         estimator = estimator_class(visibility)(**options)
     staged = type(estimator).render_path is VisibilityEstimator.render_path  # may need the slot buffers
-    splatting = splat_filter(scene.camera, settings.filter_importance) is not None
+    rfilter = splat_filter(scene.camera, settings.filter_importance)
     need = memory.estimate(scene, settings, estimator, batch_pixels(scene, settings), staged,
-                           SPLAT_CHUNK_BYTES if splatting else 0)
+                           splat_chunk(rfilter, scene.camera.width)[1] if rfilter is not None else 0)
     if (type(estimator), repr(sorted(options.items()))) not in _warmed:
         need["kernels"] = memory.KERNEL_BYTES  # loading (or compiling) the kernels comes after the estimate
     memory.check(need, MEMORY_HINTS)
