@@ -10,7 +10,8 @@ Scenes (written to a temporary folder, from ../shared):
 For each: relMSE against Mitsuba's reference at `--ref-spp` of probvis and of Mitsuba at `--spp` (two seeds
 each, one shadow ray per camera sample, as Mitsuba's `direct` with one emitter sample), their ratio, and the image
 means' ratio. Then the cost: probvis's render phase (stats seconds.render) with the scene's filter against the
-same scene with a box filter, `--runs` runs interleaved, medians and their ratio.
+same scene with a box filter, `--runs` runs interleaved, medians and their ratio; and, steadier on a shared
+machine, the film's own seconds (stats film.seconds) in each: the box render plus the splat's extra time.
 """
 import argparse
 import re
@@ -109,14 +110,17 @@ def main():
               f"{', '.join(f'{m:.4f}' for m in means)}")
         if "box" in name:
             continue
-        secs = {"filter": [], "box": []}
+        secs = {"filter": [], "box": [], "film filter": [], "film box": []}
         for _ in range(args.runs):
             for kind, p in (("filter", path), ("box", box)):
                 r = probvis.render(p, spp=args.spp, shadow_rays=1, seed=1, defines={"res": str(args.res)})
                 secs[kind].append(r.stats["seconds"]["render"])
+                secs["film " + kind].append(r.stats["film"]["seconds"])
         med = {k: statistics.median(v) for k, v in secs.items()}
         print(f"  render phase, median of {args.runs} interleaved: splatting {med['filter']:.3f} s, box "
-              f"{med['box']:.3f} s: {med['filter'] / med['box']:.2f}x")
+              f"{med['box']:.3f} s: {med['filter'] / med['box']:.2f}x; of it the film {med['film filter']:.3f} s "
+              f"and {med['film box']:.3f} s: box + the splat's extra = "
+              f"{(med['box'] + med['film filter'] - med['film box']) / med['box']:.2f}x")
 
 
 if __name__ == "__main__":

@@ -77,6 +77,22 @@ def test_environment_sampling_integrates_the_radiance(scenes):
     assert np.all(np.abs(ratio.mean(0) - integral) < 4 * se), (ratio.mean(0), integral, se)
 
 
+def test_environment_sampling_density_is_mitsubas(scenes):
+    """Directions are sampled with Mitsuba's envmap density (its bilinear warp of luminance x sin θ): the pdf
+    of each sampled direction is what Mitsuba's `pdf_direction` gives for it."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    es = build_emitter_sampler(probvis.load_scene(scenes["envmap"])).arrays
+    emitter = mi.load_file(str(scenes["envmap"]), spp=1).emitters()[0]
+    u = np.random.default_rng(2).random((300, 3))
+    it = mi.Interaction3f()
+    for v in u:
+        d = sample_environment(es, *v)
+        ds = mi.DirectionSample3f()
+        ds.d = mi.Vector3f(*d[:3])
+        assert d[3] == pytest.approx(float(emitter.pdf_direction(it, ds)), rel=2e-3)
+
+
 @pytest.mark.parametrize("kind", ["envmap", "constant"])
 def test_environment_lit_scene_matches_mitsuba(scenes, kind):
     """Camera rays that miss see the environment; one emitter sample per camera sample, as Mitsuba's."""

@@ -37,7 +37,9 @@ class EmitterArrays(NamedTuple):
     env_image: np.ndarray  # (h, w + 1, 3) the map with its first column repeated at the end
     env_cell_prob: np.ndarray  # (w (h - 1),) alias table of the cells, row-major from the +y pole ...
     env_cell_alias: np.ndarray
-    env_cell_pdf: np.ndarray  # (w (h - 1),) solid-angle density of a direction in each cell
+    env_density: np.ndarray  # (h, w + 1) luminance x sin(theta) over its integral in (u, v): the (u, v) pdf at the
+    # pixel centres, bilinear between them; (1, 1) where the cells are sampled uniformly in solid angle instead
+    env_cell_pdf: np.ndarray  # (w (h - 1),) solid-angle density in each cell where sampled uniformly in it
     env_to_world: np.ndarray  # (3, 3) map frame -> world
     env_to_local: np.ndarray  # (3, 3) its inverse
     env_shift: float  # half a texel in u: pixel column j is centred at u = (j + 0.5) / w

@@ -8,6 +8,7 @@ Splatting runs in two passes without races, so that an image depends only on the
 samples' sums for each pixel they may reach; per pixel of the image, its neighbours' sums in a fixed order.
 """
 import math
+import time
 from typing import NamedTuple
 
 import numpy as np
@@ -187,9 +188,15 @@ class Film:
         self.counts = np.zeros((n, N_COUNTS), np.int64)
         self.case_counts = None  # (n, emitters, N_CASES) samples per case, once an estimator classifies
         self.segment_aovs = {name: np.zeros(n) for name in segment_aovs}
+        self.seconds = 0.0  # spent in `add`: the film's share of the render
 
     def add(self, batch, shaded):
         """A `ShadedBatch` of the `ShadingBatch` `batch`: its samples' radiance, its pixels' counts and AOVs."""
+        t0 = time.perf_counter()
+        self._add(batch, shaded)
+        self.seconds += time.perf_counter() - t0
+
+    def _add(self, batch, shaded):
         pix = batch.pixel
         mean, self.moment2[pix] = pixel_moments(shaded.radiance, self.spp)
         if self.rfilter is None:

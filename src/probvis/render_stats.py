@@ -30,7 +30,7 @@ def render_stats(scene, settings, estimator, result, image, clamp, seconds, memo
         "seed": settings.seed,
         "threads": numba.get_num_threads(),
         "film": {"filter": cam.rfilter, "splatting": result.film.rfilter is not None,
-                 "filter_importance": settings.filter_importance},
+                 "filter_importance": settings.filter_importance, "seconds": result.film.seconds},
         "visibility": {"name": estimator.name, **estimator.settings()},
         "render_path": result.path.value,
         "seconds": seconds,
