@@ -42,7 +42,7 @@ def test_first_run_renders_everything_and_writes_the_report(tiny_run):
     assert index == out / "index.html"
     for name in ("results.csv", "results.json", "results.md", "viewer.js", "report.css", "data/quad.js",
                  "images/quad/reference.png", "images/quad/shifted-4.png", "plots/quad-convergence.png",
-                 "plots/quad-tests-1.png"):
+                 "plots/quad-cost.png", "plots/quad-tests-1.png"):
         assert (out / name).stat().st_size > 0, name
     doc = json.loads((out / "results.json").read_text())
     assert len(doc["cells"]) == 6 and doc["experiment"]["baseline"] == "om-list"

@@ -15,8 +15,10 @@ CONFIGS = {
     "om-bvh": ("occlusion-map", {}),
     "om-list": ("occlusion-map", {"penumbra": "list"}),
     "om-list-q": ("occlusion-map", {"penumbra": "list", "verify": "0.5"}),
+    "om-list-q1": ("occlusion-map", {"penumbra": "list", "verify": "1"}),
     "standard": ("probvis", {}),
     "shifted-q": ("probvis", {"estimator": "shifted", "verify": "0.3"}),
+    "shifted-q1": ("probvis", {"estimator": "shifted", "verify": "1"}),
     "adaptive": ("probvis", {"estimator": "adaptive"}),
     "power-off": ("probvis", {"estimator": "power", "verify": "off"}),
     "levels": ("probvis", {"levels": 2, "grouping": "random"}),
@@ -51,7 +53,8 @@ def test_kernel_renders_what_the_staged_path_renders(scene, label):
         assert got.get(key) == want.get(key), key
     for case in ("lit", "shadowed", "penumbra"):
         a, b = got["verification"][case], want["verification"][case]
-        assert (a["segments"], a["verified_segments"]) == (b["segments"], b["verified_segments"]), case
+        assert ((a["segments"], a["verified_segments"], a["measured_segments"]) ==
+                (b["segments"], b["verified_segments"], b["measured_segments"])), case
         for k in ("mismatch_mean", "mismatch_variance", "mean_q"):
             assert a[k] == pytest.approx(b[k], rel=1e-9, abs=1e-12), (case, k)
     assert fused.stats["shadow_rays"] > 0 and got["penumbra_shadow_rays"] > 0

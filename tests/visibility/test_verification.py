@@ -85,6 +85,22 @@ def test_verification_is_reported_per_case(scene):
     assert off.stats["estimator"]["verification"]["lit"]["verified_segments"] == 0
 
 
+@pytest.mark.parametrize("visibility", ["occlusion-map", "probvis"])
+def test_segments_verified_with_certainty_are_traced_alone(scene, visibility):
+    """With q = 1 a penumbra segment's value V_list + (V - V_list) / q is V: it is traced, its list untested
+    (no candidate culled or tested), and it counts as verified but not as measured."""
+    opts = {"photons": 3000, "neighbours": 16, "verify": "1", **({"penumbra": "list"} if visibility ==
+                                                                  "occlusion-map" else {})}
+    r = probvis.render(scene, seed=1, visibility=visibility, visibility_options=opts)
+    est = r.stats["estimator"]
+    pen = est["verification"]["penumbra"]
+    assert pen["segments"] > 0 and pen["verified_segments"] == pen["segments"] and pen["measured_segments"] == 0
+    assert pen["mean_q"] == 1.0 and est["culled_candidates"] == 0
+    assert sum(est.get("term_selections", [0])) == 0
+    half = probvis.render(scene, seed=1, visibility=visibility, visibility_options={**opts, "verify": "0.999"})
+    assert half.stats["estimator"]["verification"]["penumbra"]["measured_segments"] > 0
+
+
 @pytest.mark.parametrize("value", ["0", "1.5", "nan", "-0.2", "sometimes"])
 def test_bad_verify_values_are_named(value):
     with pytest.raises(ProbvisError, match="verify must be auto, off or a probability in"):

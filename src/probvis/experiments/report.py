@@ -136,6 +136,7 @@ class Report:
             self._viewer_data(spec.name)
             self._heat_maps(spec.name)
             self._convergence_plot(spec.name)
+            self._cost_plot(spec.name)
             self._strip_figure(spec.name)
         self._csv()
         self._json()
@@ -216,6 +217,25 @@ class Report:
                      fontsize=9)
         fig.tight_layout()
         self._savefig(fig, self.folder / "plots" / f"{_slug(scene)}-convergence.png")
+
+    def _cost_plot(self, scene):
+        """Seconds per camera sample against shadow rays per sample, one line per method: where a method's
+        savings in tests outweigh what it costs per segment, the lines cross."""
+        fig, ax = _pyplot().subplots(figsize=(5, 3.6))
+        samples = self.images[(scene, self.exp.methods[0].name, self.exp.shadow_rays[0])].image.shape[:2]
+        samples = samples[0] * samples[1] * self.exp.spp
+        for m in self.exp.methods:
+            rows = sorted((r for r in self.results.summary if r["scene"] == scene and r["method"] == m.name),
+                          key=lambda r: r["shadow_rays"])
+            ax.loglog([r["shadow_rays"] for r in rows], [1e6 * r["seconds"] / samples for r in rows], marker="o",
+                      ms=3, label=m.name)
+        ax.set_xlabel("shadow rays per camera sample")
+        ax.set_ylabel("µs per camera sample")
+        ax.grid(True, which="both", lw=0.3)
+        ax.legend(fontsize=7)
+        ax.set_title(f"{scene}: cost per camera sample ({self.exp.spp} spp)", fontsize=9)
+        fig.tight_layout()
+        self._savefig(fig, self.folder / "plots" / f"{_slug(scene)}-cost.png")
 
     def _strip_figure(self, scene):
         """The image strips as one labelled PNG (methods x shadow rays, reference first), for papers and READMEs."""
@@ -389,6 +409,7 @@ class Report:
                 f"<p>As one figure: <a href='plots/{slug}-strip.png'>plots/{slug}-strip.png</a></p>"
                 f"<h3>All settings</h3>{self._detail_table(s)}{self._target_table(s)}"
                 f"<h3>Convergence</h3><img class=plot src='plots/{slug}-convergence.png' alt='convergence'>"
+                f"<h3>Cost per camera sample</h3><img class=plot src='plots/{slug}-cost.png' alt='cost'>"
                 f"<h3>Ray–triangle tests per pixel</h3><details><summary>heat maps</summary>{heat}</details>"
                 f"</section>")
         methods = "".join(f"<li><b>{e(m.name)}</b>: {e(m.visibility)} {e(json.dumps(m.options, default=list))}"

@@ -194,7 +194,8 @@ class OcclusionMapVisibility(VisibilityEstimator):
                                      (CASE_PENUMBRA, mk.PENUMBRA_SEGMENTS, mk.PENUMBRA_VERIFIED, mk.PENUMBRA_SUMS)):
             if counters[n_ver]:
                 self.tally.add_sums(case, counters[n], counters[n_ver], sums[base + mk.MISMATCH],
-                                    sums[base + mk.MISMATCH2], sums[base + mk.Q_SUM])
+                                    sums[base + mk.MISMATCH2], sums[base + mk.Q_SUM],
+                                    counters[mk.PENUMBRA_MEASURED] if case == CASE_PENUMBRA else None)
         return ShadedBatch(radiance, counts, n_seg)
 
     def add_counters(self, counters):
@@ -268,13 +269,19 @@ class OcclusionMapVisibility(VisibilityEstimator):
         if self.with_lists:
             idx = np.flatnonzero(case == CASE_PENUMBRA)
             if len(idx):
-                verified = np.zeros(len(idx), bool)
+                verified = traced = np.zeros(len(idx), bool)
                 if self.verify is not None:
                     q = self.q[query.point[idx], query.emitter[idx]]
                     verified = uniforms(query.key[idx], verification.SEGMENT_DIM) < q
-                value[idx], n_tri[idx] = self.evaluate_penumbra(query, idx, verified)
+                    traced = verified & (q >= 1.0)  # V_list + (V - V_list) / 1 = V: the trace alone
+                listed = idx[~traced]
+                if len(listed):
+                    value[listed], n_tri[listed] = self.evaluate_penumbra(query, listed, verified[~traced])
+                if traced.any():
+                    value[idx[traced]] = self._trace(query, idx[traced], n_node, n_tri)
                 if self.verify is not None:
-                    self._verify_lists(query, idx, verified, value, n_node, n_tri)
+                    self._verify_lists(query, listed, verified[~traced], value, n_node, n_tri, len(idx),
+                                       float(q[traced].sum()), int(traced.sum()))
         for c, approx in ((CASE_LIT, 1.0), (CASE_SHADOWED, 0.0)):  # verified pairs: the correction terms
             idx = np.flatnonzero(flagged == (c | CASE_VERIFIED))
             if len(idx):
@@ -284,11 +291,12 @@ class OcclusionMapVisibility(VisibilityEstimator):
                 self.tally.add_segments(c, len(idx), mismatch, q)
         return VisibilityResult(value, n_node, n_tri)
 
-    def _verify_lists(self, query, idx, verified, value, n_node, n_tri):
+    def _verify_lists(self, query, idx, verified, value, n_node, n_tri, n_total, q_traced, n_traced):
         """Add B (V - V_list) / q to the penumbra segments idx whose draw B (`verified`) came up: their values are
         V_list (`evaluate_penumbra` tests the whole list of a verified segment), and a listed blocker really
         blocks (V <= V_list), so the correction is non-zero only where the list says visible: only those are
-        traced."""
+        traced. Of the case's `n_total` segments, `n_traced` more (q = 1, q summing to `q_traced`) were traced
+        alone."""
         ver = idx[verified]
         q = self.q[query.point[ver], query.emitter[ver]]
         mismatch = np.zeros(len(ver))
@@ -296,7 +304,7 @@ class OcclusionMapVisibility(VisibilityEstimator):
         if open_.any():
             mismatch[open_] = self._trace(query, ver[open_], n_node, n_tri) - 1.0
         value[ver] += mismatch / q
-        self.tally.add_segments(CASE_PENUMBRA, len(idx), mismatch, q)
+        self.tally.add_segments(CASE_PENUMBRA, n_total, mismatch, q, n_traced, q_traced)
 
     def evaluate_penumbra(self, query, idx, verified):
         """Visibility and triangle tests of the penumbra segments idx against their candidate lists (a subclass

@@ -10,7 +10,8 @@ then, per emitter, the pair's segments are evaluated together:
   term of the decomposition, and the segments that need group A stream A, then those that need B stream B
   (`accel.stream_blockers`);
 - verified segments (lit, shadowed, and penumbra ones whose list says visible) against the scene's BVH in
-  packets, their correction terms added.
+  packets, their correction terms added; a penumbra segment verified with q = 1, whose value V_list + (V -
+  V_list) / q is V itself, is traced alone, its list untested.
 
 Values, tests and random draws are those of the staged path (`OcclusionMapVisibility.evaluate`) bit for bit,
 so both render the same image; only the traffic between them differs. The kernel also returns the estimator's
@@ -36,9 +37,9 @@ from .verification import SEGMENT_DIM
 PIXELS_PER_BLOCK = 4
 PENUMBRA_BVH, PENUMBRA_LIST, PENUMBRA_TERMS = 0, 1, 2  # how penumbra segments are evaluated
 # counters (summed over the batch)
-N_COUNTERS = 13
+N_COUNTERS = 14
 (PENUMBRA_RAYS, UNKNOWN_RAYS, CULLED, TERM_0, TERM_1, TERM_2, EXACT_SELECTIONS, LIT_SEGMENTS, SHADOWED_SEGMENTS,
- PENUMBRA_SEGMENTS, LIT_VERIFIED, SHADOWED_VERIFIED, PENUMBRA_VERIFIED) = range(N_COUNTERS)
+ PENUMBRA_SEGMENTS, LIT_VERIFIED, SHADOWED_VERIFIED, PENUMBRA_VERIFIED, PENUMBRA_MEASURED) = range(N_COUNTERS)
 # per verified case (lit, shadowed, penumbra): Σ mismatch, Σ mismatch², Σ q
 N_SUMS = 9
 MISMATCH, MISMATCH2, Q_SUM = 0, 1, 2  # offsets within a case's three slots
@@ -107,11 +108,12 @@ def shade_map(geom, es, bvh, batch, cand, lists, groups, terms, rows):
         sh_node, sh_tri, n_cull = np.empty(n_shadow, np.int64), np.empty(n_shadow, np.int64), np.empty(n_shadow,
                                                                                                          np.int64)
         value = np.empty(n_shadow)
-        verified = np.empty(n_shadow, np.bool_)
+        verified, alone = np.empty(n_shadow, np.bool_), np.empty(n_shadow, np.bool_)
         by_whole, by_general = np.empty(n_shadow, np.int64), np.empty(n_shadow, np.int64)
         by_term, n_term = np.empty((3, n_shadow), np.int64), np.zeros(3, np.int64)
         exact_idx, lit_idx, shd_idx, ver_idx = (np.empty(n_shadow, np.int64), np.empty(n_shadow, np.int64),
                                                 np.empty(n_shadow, np.int64), np.empty(n_shadow, np.int64))
+        alone_idx = np.empty(n_shadow, np.int64)
         tests, dim, chosen = np.zeros(2, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64)
         scratch = rows[numba.get_thread_id()]
         list_rows, list_cull = scratch[0, :, :9], scratch[0, :, 9:]
@@ -126,12 +128,12 @@ def shade_map(geom, es, bvh, batch, cand, lists, groups, terms, rows):
                 a0, a1, a2, m = point_samples(i, geom, es, batch, 0, org, dirs, contrib, s_emit, active, slot, True)
                 t1 = cycles()
                 phase[blk, SAMPLING] += t1 - t0
-                n_exact = n_lit = n_shd = n_ver = 0
+                n_exact = n_lit = n_shd = n_ver = n_alone = 0
                 for k in range(m):
                     key[k] = mix64(batch.keys[i] + np.uint64(slot[k] + 1))
                     value[k] = 1.0
                     sh_node[k] = sh_tri[k] = n_cull[k] = 0
-                    verified[k] = False
+                    verified[k] = alone[k] = False
                     flagged = batch.cases[i, s_emit[k]]
                     case = flagged & CASE_MASK
                     if case == CASE_UNKNOWN:
@@ -167,7 +169,11 @@ def shade_map(geom, es, bvh, batch, cand, lists, groups, terms, rows):
                             continue
                         counters[blk, PENUMBRA_SEGMENTS] += 1
                         verified[k] = lists.verify and uniform(key[k], SEGMENT_DIM) < q
-                        if whole or verified[k]:
+                        alone[k] = verified[k] and q >= 1.0
+                        if alone[k]:  # its value is V: the trace alone, no list
+                            alone_idx[n_alone] = k
+                            n_alone += 1
+                        elif whole or verified[k]:
                             by_whole[n_whole] = k
                             n_whole += 1
                         elif general:
@@ -240,7 +246,7 @@ def shade_map(geom, es, bvh, batch, cand, lists, groups, terms, rows):
                             value[k] = _term_value(terms, tp, t, va, vb)
                     phase[blk, CANDIDATE_TESTS] += cycles() - t3
                 for k in range(m):  # verified penumbra segments whose list says visible are traced, in slot order
-                    if verified[k] and value[k] == 1.0:
+                    if verified[k] and not alone[k] and value[k] == 1.0:
                         ver_idx[n_ver] = k
                         n_ver += 1
                 t4 = cycles()
@@ -262,7 +268,13 @@ def shade_map(geom, es, bvh, batch, cand, lists, groups, terms, rows):
                     for k in range(m):
                         if verified[k] and batch.cases[i, s_emit[k]] & CASE_MASK == CASE_PENUMBRA:
                             counters[blk, PENUMBRA_VERIFIED] += 1
+                            if not alone[k]:
+                                counters[blk, PENUMBRA_MEASURED] += 1
                             sums[blk, PENUMBRA_SUMS + Q_SUM] += lists.q[i, s_emit[k]]
+                    _trace(bvh, root, org, dirs, tmin, tmax, alone_idx, n_alone, org2, dirs2, work, occ, node_j,
+                           tri_j, sh_node, sh_tri)
+                    for j in range(n_alone):
+                        value[alone_idx[j]] = 1.0 - np.float64(occ[j])
                     _verify(bvh, root, org, dirs, tmin, tmax, ver_idx, n_ver, 1.0, lists.q[i], s_emit, org2, dirs2,
                             work, occ, node_j, tri_j, sh_node, sh_tri, value, sums[blk], PENUMBRA_SUMS)
                 t6 = cycles()

@@ -92,16 +92,21 @@ class Tally:
             self.pairs[name][0] += int((case == c).sum())
             self.pairs[name][1] += int((flagged == (c | CASE_VERIFIED)).sum())
 
-    def add_segments(self, c, n_total, mismatch, q):
-        """Case c's `n_total` segments, of which those verified measured `mismatch` with probabilities `q`."""
-        self.add_sums(c, n_total, len(mismatch), np.sum(mismatch), np.sum(mismatch * mismatch), np.sum(q))
+    def add_segments(self, c, n_total, mismatch, q, n_unmeasured=0, q_unmeasured=0.0):
+        """Case c's `n_total` segments, of which those verified measured `mismatch` with probabilities `q`;
+        `n_unmeasured` more were verified with q = 1 (summing to `q_unmeasured`) by a trace alone, their value
+        V itself, so their shortcut's value and their mismatch are not known."""
+        self.add_sums(c, n_total, len(mismatch) + n_unmeasured, np.sum(mismatch), np.sum(mismatch * mismatch),
+                      np.sum(q) + q_unmeasured, len(mismatch))
 
-    def add_sums(self, c, n_total, n_verified, mismatch, mismatch2, q):
-        """As `add_segments`, from sums: the mismatch's and its square's over the verified segments, and q's."""
+    def add_sums(self, c, n_total, n_verified, mismatch, mismatch2, q, n_measured=None):
+        """As `add_segments`, from sums: the mismatch's and its square's over the `n_measured` verified segments
+        that measured it (all `n_verified` unless said), and q's over all verified ones."""
         name = self.NAMES[c]
         self.segments[name][0] += int(n_total)
         self.segments[name][1] += int(n_verified)
-        self.mismatch[name] += (int(n_verified), float(mismatch), float(mismatch2))
+        self.mismatch[name] += (int(n_verified if n_measured is None else n_measured), float(mismatch),
+                                float(mismatch2))
         self.q_sum[name] += float(q)
 
     def floors(self):
@@ -118,9 +123,10 @@ class Tally:
         for name in self.NAMES.values():
             n, s, s2 = self.mismatch[name]
             mean = s / n if n else None
-            entry = {"segments": self.segments[name][0], "verified_segments": self.segments[name][1],
-                     "verified_segment_share": self.segments[name][1] / max(1, self.segments[name][0]),
-                     "mean_q": self.q_sum[name] / n if n else None,
+            n_ver = self.segments[name][1]
+            entry = {"segments": self.segments[name][0], "verified_segments": n_ver,
+                     "verified_segment_share": n_ver / max(1, self.segments[name][0]),
+                     "mean_q": self.q_sum[name] / n_ver if n_ver else None, "measured_segments": int(n),
                      "mismatch_mean": mean, "mismatch_variance": s2 / n - mean * mean if n else None}
             if name in self.pairs:
                 entry["pairs"], entry["verified_pairs"] = self.pairs[name]
