@@ -115,6 +115,11 @@ def test_solid_angle_grouping_balances_the_accumulated_solid_angle():
     np.testing.assert_allclose(balance[0], [w[a].sum(), w[b].sum()])
     _, cb, _ = group_lists(tris, np.zeros((1, 3)), np.array([0, 60]), ids, ids, 1, GROUP_COUNT, 1, 1, 0)
     assert cb[0, 1] - cb[0, 0] == 30
+    # a pair marked to skip (verified with certainty, its groups unused) keeps its list whole, unsplit
+    kept, kb, kbal = group_lists(tris, np.zeros((1, 3)), np.array([0, 30, 60]), ids, ids, 1, GROUP_SOLID_ANGLE,
+                                 1, 1, 0, np.array([False, True]))
+    assert kb[1].tolist() == [30, 60, 60] and kept[30:].tolist() == list(range(30, 60)) and kbal[1].sum() == 0
+    assert kb[0, 0] == 0 and 0 < kb[0, 1] < 30 and kbal[0].sum() > 0
 
 
 def test_blocker_groups_go_to_one_side_whole():

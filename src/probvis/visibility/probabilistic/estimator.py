@@ -99,9 +99,10 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
     def _group(self, points):
         lk = self.lookup
         p = self.params
+        q = self._pair_q(lk)  # pairs whose segments are all verified with q = 1 never use their groups
         tris, bounds, balance = group_lists(self.scene.triangles, points.position[lk.first], lk.offsets, lk.tris,
                                             self.map.groups.group, lk.n_rep, GROUPINGS[p.grouping], p.levels,
-                                            p.cells, self.render_settings.seed)
+                                            p.cells, self.render_settings.seed, None if q is None else q >= 1.0)
         self.groups = GroupedLists(tris, bounds, p.levels, p.cells)
         if self.decomposition is None:
             self.terms = self._choose_adaptive(lk, tris, bounds)

@@ -62,9 +62,11 @@ def _split(order, weight, leaf, lo, hi, method, key, level):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def group_lists(triangles, pos, offsets, tris, unit, n_rep, method, levels, cells, seed):
+def group_lists(triangles, pos, offsets, tris, unit, n_rep, method, levels, cells, seed, skip=None):
     """Reorder each pair's candidates into leaves (see module docstring); returns the reordered triangle ids,
-    leaf boundaries (pairs, leaves + 1) as absolute positions, and each pair's solid angle in A and B.
+    leaf boundaries (pairs, leaves + 1) as absolute positions, and each pair's solid angle in A and B. Pairs
+    `skip` marks (none are used split: all their segments are verified with certainty) keep their list whole,
+    in the first leaf.
 
     The blockers split are the list's blocker groups (`unit[t]`: the small connected component a recorded
     triangle stands for, or the triangle alone), which stand in the list as runs of consecutive triangles: a
@@ -77,6 +79,13 @@ def group_lists(triangles, pos, offsets, tris, unit, n_rep, method, levels, cell
     for pr in prange(n_pairs):
         lo, hi = offsets[pr], offsets[pr + 1]
         n = hi - lo
+        if skip is not None and skip[pr]:
+            for a in range(lo, hi):
+                out[a] = tris[a]
+            bounds[pr, 0] = lo
+            for g in range(1, n_leaves + 1):
+                bounds[pr, g] = hi
+            continue
         i = pr % n_rep
         px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
         first = np.empty(n + 1, np.int64)  # runs of one blocker group: units lo + first[u] .. lo + first[u + 1]
