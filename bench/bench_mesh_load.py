@@ -3,10 +3,14 @@
 Writes a binary PLY of a subdivided icosphere (8 subdivisions: 1,310,720 triangles) to a temporary folder and
 times, alternately in this process, probvis's reader (`probvis.scene.shapes.load_mesh`: trimesh) and the whole
 scene load of an XML file around it (reader + transform + normals + validation), next to Mitsuba 3 loading the
-same file (`scalar_rgb`, `mi.load_dict`). Medians of `--runs`.
+same file (`scalar_rgb`, `mi.load_dict`). Medians of `--runs`. Then, where ../shared is beside the project, the
+city's OBJ (30k triangles in 329 material groups) the same way, and the peak memory (max RSS) of a fresh process
+that imports probvis and loads the city scene.
 """
 import argparse
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -62,6 +66,24 @@ def main():
                 print(f"{what}: median {statistics.median(ts):.3f} s (min {min(ts):.3f}, max {max(ts):.3f}, "
                       f"{len(ts)} runs)")
         assert np.array_equal(load_mesh(folder / "heavy.ply").faces, mesh.faces)
+    city = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "city.xml"
+    if city.exists():
+        obj = city.parent.parent / "data" / "meshes" / "microcity.obj"
+        times = {"city OBJ: probvis load_mesh": [], "city: probvis load_scene (XML)": [],
+                 "city: Mitsuba 3 load_file": []}
+        for _ in range(args.runs):
+            times["city OBJ: probvis load_mesh"].append(timed(lambda: load_mesh(obj)))
+            times["city: probvis load_scene (XML)"].append(timed(lambda: probvis.load_scene(city)))
+            if mi is not None:
+                times["city: Mitsuba 3 load_file"].append(timed(lambda: mi.load_file(str(city))))
+        for what, ts in times.items():
+            if ts:
+                print(f"{what}: median {statistics.median(ts):.3f} s (min {min(ts):.3f}, max {max(ts):.3f}, "
+                      f"{len(ts)} runs)")
+        code = (f"import probvis; probvis.load_scene({str(city)!r}); "
+                "print(open('/proc/self/status').read().split('VmHWM:')[1].split()[0])")
+        peak = int(subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout)
+        print(f"city: peak memory of a process that loads it: {peak / 1024:.0f} MiB")
 
 
 if __name__ == "__main__":

@@ -72,6 +72,23 @@ def test_obj_mesh_relative_path_and_twosided(tmp_path):
     assert s.twosided[s.tri_material[-1]]
 
 
+def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
+    """An OBJ's usemtl, mtllib, g and o lines do not split the mesh: faces stay in file order, uv are the
+    file's (flipped in v, as Mitsuba's default), and the .mtl it names need not exist."""
+    from probvis.scene.shapes import load_mesh
+
+    (tmp_path / "m.obj").write_text(
+        "mtllib missing.mtl\no thing\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n"
+        "vt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\ng a\nusemtl red\nf 1/1 2/2 4/4\nusemtl blue\nf 1/1 3/3 2/2\n"
+        "usemtl red\nf 2/2 4/4 3/3\n")
+    mesh = load_mesh(tmp_path / "m.obj")
+    corners = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], float)
+    np.testing.assert_array_equal(mesh.vertices[mesh.faces][:, :, :2], corners[[[0, 1, 3], [0, 2, 1], [1, 3, 2]]])
+    np.testing.assert_array_equal(mesh.uv[mesh.faces], (corners * [1, -1] + [0, 1])[[[0, 1, 3], [0, 2, 1],
+                                                                                         [1, 3, 2]]])
+    assert len(mesh.vertices) == 4
+
+
 @pytest.mark.parametrize("body, message", [
     ("<shape type='rectangle'><emitter type='point'/></shape>", "unsupported emitter type 'point'"),
     ("<shape type='hyperboloid'/>", "unsupported shape type 'hyperboloid'"),

@@ -1,4 +1,6 @@
 """Triangle meshes for the shapes probvis knows: Mitsuba's rectangle and cube, a tessellated sphere, mesh files."""
+import io
+import re
 from pathlib import Path
 from typing import NamedTuple
 
@@ -110,6 +112,9 @@ def _obj_problem(path):
 
 
 MAX_MESH_BYTES = 8 << 30  # a mesh file larger than this is refused before reading
+# OBJ statements that group faces or name materials, which Mitsuba's reader ignores; given them, trimesh splits
+# the mesh per material (a copy of every vertex per group), reorders faces by group and packs the uv into an atlas
+_OBJ_GROUPING = re.compile(rb"(?m)^[ \t]*(?:usemtl|mtllib|g|o)\b[^\r\n]*")
 
 
 def _ply_elements(path):
@@ -155,7 +160,11 @@ def load_mesh(path, flip_tex_coords=None):
                            f"{MAX_MESH_BYTES >> 30} GiB)")
     ply = _ply_elements(path) if path.suffix.lower() == ".ply" else {}
     try:
-        mesh = trimesh.load(str(path), force="mesh", process=False, maintain_order=True)
+        if path.suffix.lower() == ".obj":  # as Mitsuba: one mesh in file order, the file's own uv
+            mesh = trimesh.load(io.BytesIO(_OBJ_GROUPING.sub(b"", path.read_bytes())), file_type="obj",
+                                force="mesh", process=False, maintain_order=True)
+        else:
+            mesh = trimesh.load(str(path), force="mesh", process=False, maintain_order=True)
     except Exception:  # trimesh raises many types (and leaks its own dependencies' errors) for malformed files
         problem = _obj_problem(path) if path.suffix.lower() == ".obj" else None
         raise ProbvisError(problem or _ply_truncated(path, ply, None) or
