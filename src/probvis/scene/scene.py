@@ -1,8 +1,10 @@
 """The scene as flat arrays: triangles, materials, emitters and a camera (with its film's resolution)."""
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from ..errors import ProbvisError
 from ..settings import RenderSettings
@@ -334,15 +336,23 @@ class SceneBuilder:
         return scene
 
 
+@njit(cache=True, error_model="numpy")
 def _angle_weighted_normals(v, f, fn):
-    """Vertex normals as the corner-angle-weighted mean of the adjacent face normals."""
-    tris = v[f]
+    """Vertex normals as the corner-angle-weighted mean of the adjacent face normals (unit; zero where a
+    vertex has no face). One pass over the corners, each added to its vertex: no per-corner temporaries."""
     out = np.zeros_like(v)
     for k in range(3):
-        e1 = tris[:, (k + 1) % 3] - tris[:, k]
-        e2 = tris[:, (k + 2) % 3] - tris[:, k]
-        cosang = np.einsum("ij,ij->i", e1, e2) / (np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1))
-        ang = np.arccos(np.clip(cosang, -1.0, 1.0))
-        np.add.at(out, f[:, k], fn * ang[:, None])
-    norm = np.linalg.norm(out, axis=1, keepdims=True)
-    return np.where(norm > 0, out / np.maximum(norm, 1e-300), 0.0)
+        for i in range(f.shape[0]):
+            a, b, c = f[i, k], f[i, (k + 1) % 3], f[i, (k + 2) % 3]
+            e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+            e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+            cosang = (e1x * e2x + e1y * e2y + e1z * e2z) / (math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z) *
+                                                             math.sqrt(e2x * e2x + e2y * e2y + e2z * e2z))
+            ang = math.acos(min(max(cosang, -1.0), 1.0))
+            for d in range(3):
+                out[a, d] += fn[i, d] * ang
+    for j in range(out.shape[0]):
+        norm = math.sqrt(out[j, 0] * out[j, 0] + out[j, 1] * out[j, 1] + out[j, 2] * out[j, 2])
+        for d in range(3):
+            out[j, d] = out[j, d] / norm if norm > 0 else 0.0
+    return out
