@@ -29,9 +29,10 @@ def environment_arrays(env, scale):
     def cells(x):  # the four corners of each cell, (4, h - 1, w)
         return np.stack([x[:-1, :-1], x[:-1, 1:], x[1:, :-1], x[1:, 1:]])
 
-    cos_t = np.cos(np.linspace(0.0, np.pi, h))
+    theta = np.linspace(0.0, np.pi, h)  # of the pixel rows
+    cos_t = np.cos(theta)
     solid = (2.0 * np.pi / w) * (cos_t[:-1] - cos_t[1:])[:, None] * np.ones((1, w))
-    density = lum * np.sin(np.linspace(0.0, np.pi, h))[:, None]
+    density = lum * np.sin(theta)[:, None]
     mass = cells(density).mean(axis=0)  # each cell's integral of the bilinear density, times w (h - 1)
     total = mass.sum() / (w * (h - 1))
     if env is not None and not env.constant and total > 0:

@@ -106,14 +106,14 @@ def _filter_rows(f, d0, out):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
-def _pixel_block(wx, wy, v, s0, s1, out):
-    """One source pixel's block from its samples s0 <= s < s1: out[ky, kx] = Σ w, Σ w·r, Σ w·g, Σ w·b, Σ w², with
+def _pixel_block(wx, wy, v, out):
+    """One source pixel's block from its samples s: out[ky, kx] = Σ w, Σ w·r, Σ w·g, Σ w·b, Σ w², with
     w = wy[ky, s] wx[kx, s] and v[:, s] their radiance; each sum a vectorised reduction over the samples."""
-    n_k = wx.shape[0]
+    n_k, n = wx.shape
     for ky in range(n_k):
         for kx in range(n_k):
             a0 = a1 = a2 = a3 = a4 = 0.0
-            for s in range(s0, s1):
+            for s in range(n):
                 w = wy[ky, s] * wx[kx, s]
                 a0 += w
                 a1 += w * v[0, s]
@@ -154,7 +154,7 @@ def splat(f, film_xy, radiance, var, p0, spp, width, height, wsum, wl, wvar):
                     v[c, s] = radiance[i, c]
             _filter_rows(f, d[0], w[0])
             _filter_rows(f, d[1], w[1])
-            _pixel_block(w[0], w[1], v, 0, spp, block[j])
+            _pixel_block(w[0], w[1], v, block[j])
     row0 = max(p0 // width - b, 0)
     row1 = min((p1 - 1) // width + b, height - 1)
     for t in prange((row1 - row0 + 1) * width):

@@ -222,8 +222,8 @@ class Report:
         """Seconds per camera sample against shadow rays per sample, one line per method: where a method's
         savings in tests outweigh what it costs per segment, the lines cross."""
         fig, ax = _pyplot().subplots(figsize=(5, 3.6))
-        samples = self.images[(scene, self.exp.methods[0].name, self.exp.shadow_rays[0])].image.shape[:2]
-        samples = samples[0] * samples[1] * self.exp.spp
+        height, width = self.images[(scene, self.exp.methods[0].name, self.exp.shadow_rays[0])].image.shape[:2]
+        samples = height * width * self.exp.spp
         for m in self.exp.methods:
             rows = sorted((r for r in self.results.summary if r["scene"] == scene and r["method"] == m.name),
                           key=lambda r: r["shadow_rays"])
