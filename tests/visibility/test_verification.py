@@ -66,6 +66,7 @@ def test_without_verification_the_shortcuts_are_biased(scene, exact):
     ("probvis", {"estimator": "shifted"}),
     ("probvis", {"estimator": "adaptive"}),
     ("probvis", {"estimator": "power", "power": 4, "verify": "0.5"}),
+    ("probvis", {"estimator": "shifted", "verify": "1"}),
     ("probvis", {"estimator": "standard", "levels": 2}),
     ("probvis", {"estimator": "shifted", "cells": 2, "grouping": "random", "volumetric": False}),
 ])
