@@ -63,7 +63,7 @@ class RenderResult:
 class Integrator:
     """Mitsuba's `direct` integrator on one scene: the structures of one render and the front end of a batch
     (camera rays, their first hits, surface interactions). An estimator's `prepare` receives it: a kernel of its
-    own takes `scene_arrays`, and a pilot renders through `shading_batch` and `shade_exact`."""
+    own takes `scene_arrays`, and a pilot renders through `shading_batch` and `shade_exact`, or traces the segments `shadow_query` makes."""
 
     def __init__(self, scene, bvh, emitters, filter_importance=False):
         self.scene, self.bvh, self.emitters = scene, bvh, emitters
@@ -83,6 +83,23 @@ class Integrator:
         """The fused exact-visibility kernel's `ShadedBatch`."""
         return ShadedBatch(*shade_exact(self.scene_arrays, self.emitters.arrays, self.bvh.arrays, batch))
 
+    def shadow_query(self, batch):
+        """The `ShadowQuery` of a `ShadingBatch`'s shadow segments, exactly as the staged path makes them: what a
+        pilot traces to learn visibility (fresh buffers; the render's own are reused by its `StagedPath`)."""
+        n_slots = len(batch.keys) * batch.shadow_rays
+        return self.segments(batch, SegmentBuffers(n_slots))[0]
+
+    def segments(self, batch, buffers):
+        """The batch's shadow segments in `buffers`: (`ShadowQuery`, emitted and analytic radiance per camera
+        sample, the `ShadowSlots`, the dense offsets of each camera sample's segments)."""
+        slots = buffers.slots(len(batch.keys) * batch.shadow_rays)
+        emitted = batch.emitted + sample_emitters(self.scene_arrays, self.emitters.arrays, batch, slots)
+        offsets = compact(batch, slots, buffers.dense)
+        seg = buffers.segments(int(offsets[-1]))
+        query = ShadowQuery(origin=seg.origin, direction=seg.direction, tmax=seg.tmax, point=seg.point,
+                            emitter=seg.emitter, key=seg.key, weight=seg.weight)
+        return query, emitted, slots, offsets
+
 
 class StagedPath:
     """The batch's shadow segments (`segments`), the estimator's `evaluate` on them, each sample's radiance."""
@@ -92,14 +109,8 @@ class StagedPath:
         self.buffers = SegmentBuffers(n_slots)
 
     def __call__(self, batch):
-        it = self.integrator
-        slots = self.buffers.slots(len(batch.keys) * batch.shadow_rays)
-        emitted = batch.emitted + sample_emitters(it.scene_arrays, it.emitters.arrays, batch, slots)
-        offsets = compact(batch, slots, self.buffers.dense)
-        seg = self.buffers.segments(int(offsets[-1]))
-        query = ShadowQuery(origin=seg.origin, direction=seg.direction, tmax=seg.tmax, point=seg.point,
-                            emitter=seg.emitter, key=seg.key, weight=seg.weight)
-        res = _checked(self.estimator, self.estimator.evaluate(query), len(seg.origin))
+        query, emitted, slots, offsets = self.integrator.segments(batch, self.buffers)
+        res = _checked(self.estimator, self.estimator.evaluate(query), len(query.tmax))
         radiance, counts, segments = sample_radiance(batch, emitted, slots, offsets, res.value, res.node_tests,
                                                      res.triangle_tests)
         pixel = query.point // batch.spp
@@ -180,7 +191,8 @@ def render_pass(scene, settings, estimator, progress=False):
                                                  settings.seed)
                 shaded = batch.material >= 0
                 cases = estimator.classify(ShadingPoints(batch.position, batch.normal,
-                                                         np.where(shaded, batch.triangle, -1), batch.keys))
+                                                         np.where(shaded, batch.triangle, -1), batch.keys,
+                                                         batch.albedo))
                 if cases is not None:
                     batch = batch._replace(cases=cases)
                     film.add_cases(batch)

@@ -43,10 +43,12 @@ def phases(stats, visibility):
 
 
 def biased_by_choice(stats):
-    """Whether a render took a shortcut that is biased by construction (verification off, negative pixels
-    clamped): such methods are labelled biased in reports."""
-    verification = (stats.get("estimator") or {}).get("verification") or {}
-    return bool(verification.get("biased")) or bool(stats["negative_pixels"].get("clamped"))
+    """Whether a render is biased by construction (a consistent estimator such as `ratio`, verification off,
+    negative pixels clamped): such methods are labelled biased in reports."""
+    estimator = stats.get("estimator") or {}
+    verification = estimator.get("verification") or {}
+    return (bool(estimator.get("biased")) or bool(verification.get("biased"))
+            or bool(stats["negative_pixels"].get("clamped")))
 
 
 def tests_by_geometry(stats):

@@ -18,6 +18,9 @@ BUILTIN = {
     "occlusion-map": "probvis.visibility.occlusion_map:OcclusionMapVisibility",
     "probvis": "probvis.visibility.probabilistic:ProbabilisticVisibility",
     "proxy": "probvis.visibility.proxy:ProxyVisibility",
+    "nee++": "probvis.visibility.nee:NEEPlusPlusVisibility",
+    "cache-cv": "probvis.visibility.cache_cv:CacheControlVariateVisibility",
+    "ratio": "probvis.visibility.ratio:RatioVisibility",
 }
 
 

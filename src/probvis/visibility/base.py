@@ -154,6 +154,7 @@ class ShadingPoints:
     normal: np.ndarray  # (m, 3)
     triangle: np.ndarray  # (m,) scene triangle id, -1 where nothing is shaded (a miss, a one-sided back face)
     key: np.ndarray  # (m,) uint64 rng key of the camera sample, for per-point random choices (see `probvis.rng`)
+    albedo: np.ndarray = None  # (m, 3) diffuse reflectance (the renderer's surfaces are Lambertian)
 
 
 @dataclass
@@ -202,6 +203,7 @@ class VisibilityEstimator(abc.ABC):
     options: ClassVar[tuple] = ()
     phases: ClassVar[tuple] = ()
     aovs: ClassVar[tuple] = ()
+    unbiased: ClassVar[bool] = True  # False for a consistent estimator: its stats and reports say "biased"
 
     def __init__(self, **options):
         self.params = SimpleNamespace(**self.parse_options(options))
@@ -279,4 +281,5 @@ class VisibilityEstimator(abc.ABC):
     def stats(self):
         """Measurements accumulated over the render: at least the seconds of each declared phase and the
         bytes of the estimator's own structures."""
-        return {"seconds": dict(self.seconds), "memory_bytes": self.memory_bytes()}
+        out = {"seconds": dict(self.seconds), "memory_bytes": self.memory_bytes()}
+        return out if self.unbiased else {**out, "biased": True}

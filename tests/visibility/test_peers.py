@@ -1,0 +1,164 @@
+"""The published alternatives: NEE++'s Russian roulette on a visibility cache, the cache as a control variate,
+and Heitz et al.'s ratio estimator.
+
+Renders with the same seed share their camera samples and shadow segments, so the per-seed difference of a
+method's image from exact visibility's has expectation zero exactly when the method is unbiased: its mean over
+seeds is compared with its standard error (fixed seeds, 4 SE), in the whole image and in the pole's shadow.
+"""
+import numpy as np
+import pytest
+
+import probvis
+from probvis.cli import main
+from probvis.errors import ProbvisError
+from probvis.visibility import RenderPath, VisibilityResult, estimator_class, make_estimator
+from probvis.visibility.nee import NEEPlusPlusVisibility
+from tests.visibility.test_verification import pole_scene
+
+SEEDS = range(24)
+COARSE = {"resolution": 4, "pilot": 0.05}  # voxel pairs that straddle the shadow's edge: the cache is often wrong
+
+
+class WeightlessNEE(NEEPlusPlusVisibility):
+    """NEE++ without its 1/p weight: biased (E = p V), to show that the test below sees a bias of this kind."""
+
+    name = "weightless-nee"
+
+    def render_path(self):
+        return RenderPath.STAGED
+
+    def evaluate(self, query):
+        res = super().evaluate(query)
+        _, p = self.cache.plans(self.plan(), query.origin, query.direction)
+        return VisibilityResult(res.value * p, res.node_tests, res.triangle_tests, res.aovs)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return pole_scene()
+
+
+@pytest.fixture(scope="module")
+def exact(scene):
+    return np.array([probvis.render(scene, seed=s).image for s in SEEDS])
+
+
+def deviations(scene, exact, visibility, seeds=SEEDS, **render):
+    """(mean over seeds of the method's image minus exact's, in its standard error) over the whole image and
+    over the pixels exact visibility shows in shadow; and the last render."""
+    images, last = [], None
+    for s in seeds:
+        last = probvis.render(scene, seed=s, visibility=visibility, **render)
+        images.append(last.image)
+    diff = np.array(images) - exact[:len(images)]
+    shadow = exact.mean(axis=(0, 3)) < 0.5 * np.median(exact.mean(axis=(0, 3)))
+    out = []
+    for d in (diff.mean(axis=(1, 2, 3)), diff[:, shadow].mean(axis=(1, 2))):
+        out.append(d.mean() / (np.std(d, ddof=1) / np.sqrt(len(d)) + 1e-300))
+    return out, last
+
+
+@pytest.mark.parametrize("visibility, options", [
+    ("nee++", {}),
+    ("nee++", {**COARSE, "min_probability": 0.05}),
+    ("cache-cv", {}),
+    ("cache-cv", COARSE),
+    ("cache-cv", {**COARSE, "q": 0.3}),
+])
+def test_cached_estimators_are_unbiased(scene, exact, visibility, options):
+    (whole, shadow), r = deviations(scene, exact, visibility, visibility_options=options)
+    assert abs(whole) < 4 and abs(shadow) < 4
+    assert 0.05 < r.stats["estimator"]["traced_share"] < 1  # the cache decided: some segments were skipped
+
+
+def test_the_unbiasedness_test_sees_a_missing_weight():
+    bias, se = quad_shadow_bias(WeightlessNEE, 8, 2, range(12))
+    assert bias < -4 * se
+
+
+def test_nee_skips_shadowed_segments_not_lit_ones(scene):
+    r = probvis.render(scene, seed=3, visibility="nee++")
+    traced = r.aovs["traced"].mean(axis=-1) if r.aovs["traced"].ndim == 3 else r.aovs["traced"]
+    shadow = r.image.mean(axis=2) < 0.5 * np.median(r.image.mean(axis=2))
+    assert traced[shadow].mean() < 0.5 * traced[~shadow].mean()
+    cache = r.stats["estimator"]["cache"]
+    assert cache["pilot_segments"] > 0 and cache["pairs"] > 0
+
+
+def quad_shadow_bias(visibility, shadow_rays, spp, seeds):
+    """Mean over seeds of the method's image mean minus exact visibility's (same samples), and its standard error,
+    on the built-in quad-shadow (a large blocker's penumbra)."""
+    kw = dict(spp=spp, shadow_rays=shadow_rays, resolution=(20, 20))
+    d = np.array([probvis.render("quad-shadow", seed=s, visibility=visibility, **kw).image.mean()
+                  - probvis.render("quad-shadow", seed=s, **kw).image.mean() for s in seeds])
+    return d.mean(), np.std(d, ddof=1) / np.sqrt(len(d))
+
+
+def test_ratio_is_consistent_and_biased_at_few_samples():
+    """With one shadow ray the ratio is V × L_analytic, biased in penumbra by the covariance of V and the
+    sample's weight; with 64 the bias has fallen below a fifth of that (it falls as 1/N)."""
+    one, se = quad_shadow_bias("ratio", 1, 8, range(24))
+    assert abs(one) > 4 * se
+    many, _ = quad_shadow_bias("ratio", 64, 2, range(12))
+    assert abs(many) < 0.2 * abs(one)
+    r = probvis.render("quad-shadow", spp=1, shadow_rays=2, resolution=(8, 8), visibility="ratio")
+    assert r.stats["estimator"]["biased"]
+
+
+def test_ratio_gives_lit_pairs_their_analytic_light():
+    """Where every segment of a pair is unoccluded the estimate is the analytic light whatever the emitter
+    samples: with the same camera samples, 4 and 16 shadow rays give the same lit pixels (exact visibility's
+    differ by their noise)."""
+    def image(visibility, rays):
+        return probvis.render("quad-shadow", spp=1, shadow_rays=rays, resolution=(20, 20), seed=5,
+                              visibility=visibility).image
+
+    exact = image("exact", 16)
+    lit = exact.mean(axis=-1) > np.median(exact)
+    for visibility, share in (("ratio", (0.5, 1.0)), ("exact", (0.0, 0.01))):
+        a, b = image(visibility, 4), image(visibility, 16)
+        same = np.abs(a - b).max(axis=-1) <= 1e-12 * np.abs(b).max()
+        assert share[0] <= same[lit].mean() <= share[1], visibility
+
+
+@pytest.mark.parametrize("visibility, option, value, message", [
+    ("nee++", "min_probability", "0", "min_probability must be from 0.001 to 1"),
+    ("nee++", "resolution", "2", "resolution must be from 4 to 256"),
+    ("cache-cv", "q", "1.5", "q must be from 0.001 to 1"),
+    ("cache-cv", "pilot", "nan", "pilot expects number"),
+    ("ratio", "q", "0.5", "visibility 'ratio' has no option 'q'"),
+])
+def test_bad_options_are_named(visibility, option, value, message):
+    with pytest.raises(ProbvisError, match=message):
+        make_estimator(visibility, **{option: value})
+
+
+def test_bad_option_on_the_command_line(tmp_path, capsys):
+    assert main(["render", "quad-shadow", "--visibility", "nee++", "--min-probability", "-1",
+                 "-o", str(tmp_path / "x.exr")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("probvis: error:") and "min_probability" in err and "\n" not in err
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_listed_with_their_options(capsys):
+    assert main(["estimators"]) == 0
+    out = capsys.readouterr().out
+    for name in ("nee++", "cache-cv", "ratio"):
+        assert name in out
+
+
+@pytest.mark.parametrize("visibility, options", [("nee++", COARSE), ("cache-cv", COARSE), ("cache-cv", {"q": 0.4}),
+                                                 ("ratio", {})])
+def test_the_kernel_renders_what_the_staged_path_renders(scene, visibility, options):
+    """The estimators render through kernels of their own; `evaluate` (the staged interface) gives the same
+    values for the same segments, so the images and test counts agree bit for bit."""
+    cls = estimator_class(visibility)
+    staged = type("Staged" + cls.__name__, (cls,), {"render_path": lambda self: RenderPath.STAGED})
+    a = probvis.render(scene, seed=2, visibility=visibility, visibility_options=options)
+    b = probvis.render(scene, seed=2, visibility=staged, visibility_options=options)
+    assert a.stats["render_path"] != b.stats["render_path"]
+    assert np.array_equal(a.image, b.image)
+    assert np.array_equal(a.aovs["triangle_tests"], b.aovs["triangle_tests"])
+    for name in a.aovs:
+        assert np.array_equal(a.aovs[name], b.aovs[name]), name
