@@ -53,6 +53,23 @@ def test_first_run_renders_everything_and_writes_the_report(tiny_run):
     assert (out / "results.csv").read_text().count("\n") == 7
 
 
+def test_results_rank_the_methods_by_efficiency(tiny_run):
+    """results.md ranks the methods by the geometric mean of their efficiency against the baseline over every
+    cell (the baseline's is 1), then gives each scene's seconds to a target error in the same order."""
+    out, results, _, _ = tiny_run
+    ranking = (out / "results.md").read_text().split("## Ranking", 1)[1]
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in ranking.splitlines()
+            if line[:4] in ("| 1 ", "| 2 ", "| 3 ")]
+    assert [r[0] for r in rows] == ["1", "2", "3"]
+    gmean = {r[1]: float(r[2]) for r in rows}
+    assert gmean["om-list"] == 1.0 and set(gmean) == {"exact", "om-list", "shifted"}
+    assert [float(r[2]) for r in rows] == sorted((float(r[2]) for r in rows), reverse=True)
+    for name in ("exact", "shifted"):
+        eff = [r["efficiency_vs_baseline"] for r in results.summary if r["method"] == name]
+        assert abs(gmean[name] - float(np.exp(np.mean(np.log(eff))))) < 0.05 * gmean[name]
+    assert "Seconds to reach each scene's target relMSE" in ranking
+
+
 def test_resume_recomputes_nothing_then_only_what_is_missing(tiny_run, tmp_path):
     out, results, _, run = tiny_run
     again, _, run2 = experiment(parse_experiment(TINY), out, progress=False, log=lambda m: None)

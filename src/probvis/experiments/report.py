@@ -300,7 +300,49 @@ class Report:
             for m in exp.methods:
                 r = self.results.summary_row(spec.name, m.name, rays)
                 lines.append(f"| {spec.name} | {m.name} | {' | '.join(_geometry_cells(r))} |")
+        lines += ["", "## Ranking", ""] + self._ranking()
         return "\n".join(lines) + "\n"
+
+    def _ranking(self):
+        """Markdown lines ranking the methods by the geometric mean, over every scene and shadow-ray count, of
+        their efficiency as a multiple of the baseline's; per cell that multiple (best in bold), the cells where
+        the method is the most efficient, its worst block-bias ratio; then each scene's seconds to a target
+        relMSE."""
+        exp = self.exp
+        cells = [(spec.name, sr) for spec in exp.scenes for sr in exp.shadow_rays]
+        best = {c: max((self.results.summary_row(*c[:1], m.name, c[1])["efficiency_vs_baseline"] or 0.0)
+                       for m in exp.methods) for c in cells}
+        ranked = []
+        for m in exp.methods:
+            rows = [self.results.summary_row(s, m.name, sr) for s, sr in cells]
+            eff = [r["efficiency_vs_baseline"] for r in rows]
+            logs = [math.log(x) for x in eff if x is not None and x > 0 and math.isfinite(x)]
+            gmean = math.exp(sum(logs) / len(logs)) if len(logs) == len(cells) else None
+            wins = sum(1 for c, x in zip(cells, eff) if x is not None and x == best[c])
+            biases = [r["bias_ratio"] for r in rows if r["bias_ratio"] is not None]
+            worst = (_fmt(max(biases), 2) if biases else "–") + (" (biased)" if any(r["biased"] for r in rows) else "")
+            shown = [("**" + _fmt(x, 2) + "**" if x == best[c] else _fmt(x, 2)) if x is not None else "–"
+                     for c, x in zip(cells, eff)]
+            ranked.append((-(gmean or 0.0), m.name, gmean, wins, shown, worst))
+        ranked.sort()
+        head = ["rank", "method", "geo. mean"] + [f"{s} ×{sr}" for s, sr in cells] + ["best in", "worst bias"]
+        lines = [f"Efficiency 1/(relMSE × seconds) as a multiple of {exp.baseline}'s, at {exp.spp} spp × the shadow "
+                 f"rays shown; methods ranked by its geometric mean over these {len(cells)} cells; best per cell in "
+                 f"bold; 'best in' counts those cells; worst bias = the largest block-bias ratio (about 1: "
+                 f"converges; 'biased': biased by construction).", "",
+                 "| " + " | ".join(head) + " |", "|" + "---|" * 2 + "---:|" * (len(head) - 2)]
+        for k, (_, name, gmean, wins, shown, worst) in enumerate(ranked, 1):
+            lines.append(f"| {k} | {name} | {_fmt(gmean, 2) if gmean else '–'} | {' | '.join(shown)} | {wins} | "
+                         f"{worst} |")
+        scenes = [spec.name for spec in exp.scenes]
+        lines += ["", "Seconds to reach each scene's target relMSE (log–log interpolation between the shadow-ray "
+                  "counts; – = not reached), in the same order:", "",
+                  "| method | " + " | ".join(f"{s} ({self.results.targets[s]['target_relmse']:.3g})" for s in scenes)
+                  + " |", "|---|" + "---:|" * len(scenes)]
+        for _, name, *_ in ranked:
+            lines.append(f"| {name} | " + " | ".join(_fmt(self.results.targets[s]["methods"][name]["seconds"])
+                                                  for s in scenes) + " |")
+        return lines
 
     # --- page --------------------------------------------------------------------------------------------
     def _reference_note(self, scene):
