@@ -13,6 +13,7 @@ from probvis.cli import main
 from probvis.errors import ProbvisError
 from probvis.visibility import RenderPath, VisibilityResult, estimator_class, make_estimator
 from probvis.visibility.nee import NEEPlusPlusVisibility
+from tests.conftest import sensor, write_scene
 from tests.visibility.test_verification import pole_scene
 
 SEEDS = range(24)
@@ -105,8 +106,8 @@ def test_ratio_is_consistent_and_biased_at_few_samples():
     assert r.stats["estimator"]["biased"]
 
 
-def test_ratio_gives_lit_pairs_their_analytic_light():
-    """Where every segment of a pair is unoccluded the estimate is the analytic light whatever the emitter
+def test_ratio_gives_lit_points_their_analytic_light():
+    """Where every segment of a camera sample is unoccluded the estimate is the analytic light whatever the emitter
     samples: with the same camera samples, 4 and 16 shadow rays give the same lit pixels (exact visibility's
     differ by their noise)."""
     def image(visibility, rays):
@@ -119,6 +120,29 @@ def test_ratio_gives_lit_pairs_their_analytic_light():
         a, b = image(visibility, 4), image(visibility, 16)
         same = np.abs(a - b).max(axis=-1) <= 1e-12 * np.abs(b).max()
         assert share[0] <= same[lit].mean() <= share[1], visibility
+
+
+def test_ratio_keeps_every_emitter_when_emitters_are_chosen_per_sample(tmp_path):
+    """Four emitters (a constant environment, a point, a directional and an area light) chosen by power per
+    sample: the ratio is formed per shading point over all of them, so an emitter a camera sample did not choose
+    is not lost. At 32 rays the image is within 0.5% of exact visibility's (a ratio per emitter lost 7%); its
+    bias grows as the rays fall."""
+    path = write_scene(tmp_path / "four.xml", sensor("0, -4, 2", "0, 0, 0", "0, 0, 1", w=16, h=16) + """
+        <shape type="rectangle"><transform name="to_world"><scale value="3"/></transform></shape>
+        <shape type="sphere"><point name="center" x="0" y="0" z="0.6"/><float name="radius" value="0.5"/></shape>
+        <emitter type="constant"><rgb name="radiance" value="0.5"/></emitter>
+        <emitter type="point"><point name="position" x="1" y="-1" z="3"/><rgb name="intensity" value="10"/></emitter>
+        <emitter type="directional"><vector name="direction" x="0.3" y="0.2" z="-1"/>
+            <rgb name="irradiance" value="1"/></emitter>
+        <shape type="rectangle"><transform name="to_world"><scale value="0.3"/><rotate x="1" angle="180"/>
+            <translate z="2.5"/></transform><emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>""")
+
+    def bias(rays):
+        exact = probvis.render(path, spp=16, shadow_rays=rays, seed=1).image.mean()
+        return probvis.render(path, spp=16, shadow_rays=rays, seed=1, visibility="ratio").image.mean() / exact - 1
+
+    assert abs(bias(32)) < 0.005
+    assert abs(bias(2)) > 2 * abs(bias(32))
 
 
 @pytest.mark.parametrize("visibility, option, value, message", [

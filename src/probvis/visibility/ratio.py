@@ -1,13 +1,16 @@
 """The ratio estimator (Heitz, Hill and McGuire, "Combining Analytic Direct Illumination and Stochastic Shadows",
-I3D 2018): per shading point and emitter, the analytic unshadowed radiance times the ratio of the stochastic
-shadowed and unshadowed estimates from the same samples,
+I3D 2018): per shading point, the analytic unshadowed radiance times the ratio of the stochastic shadowed and
+unshadowed estimates from the same samples,
 
     L = L_analytic · Σ_i w_i V_i / Σ_i w_i    (w_i a segment's unoccluded contribution),
 
-so each segment's value is V_i · L_analytic / Σ_i w_i. A fully lit pair gets L_analytic exactly, without noise;
-a fully shadowed one 0. Consistent, not unbiased: the ratio of two estimates is biased at finite samples (the
-bias falls as the pair's samples grow). L_analytic is Lambert's polygon formula the renderer's lit pairs use
-(its surfaces are Lambertian); an environment emitter has none, and its segments keep V."""
+so each segment's value is V_i · L_analytic / Σ_i w_i. A fully lit point gets L_analytic exactly, without
+noise; a fully shadowed one 0. Consistent, not unbiased: the ratio of two estimates is biased at finite samples
+(the bias falls as the samples grow). L_analytic is Lambert's polygon formula the renderer's lit pairs use (its
+surfaces are Lambertian), summed over the emitters: the integrator chooses an emitter per sample, and a ratio per
+emitter would lose every emitter a camera sample happened not to choose. An environment has no analytic light
+here: its part of L_analytic is its samples' own estimate Σ_env w_i, so that it cancels where everything is
+visible and the other emitters' light is kept even when only the environment was sampled."""
 import math
 from typing import NamedTuple
 
@@ -23,7 +26,6 @@ from ..shading import (CAM_NODE, CAM_TRI, SH_NODE, SH_TRI, SHADOW_EPSILON, Shade
                        shaded_arrays)
 from .base import Phase, RenderPath, VisibilityEstimator, VisibilityResult
 
-RUNS_PER_BLOCK = 256  # shading points per parallel work item of the staged interface
 PIXELS_PER_BLOCK = 4  # pixels per parallel work item of the kernel
 
 
@@ -37,47 +39,44 @@ class _Points(NamedTuple):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def pair_factor(e, total, es, triangles, radiance, position, normal, albedo, i):
-    """L_analytic / Σ w of shading point i and emitter e, whose segments' unoccluded luminance sums to `total`:
-    1 for an environment (no analytic light here) and where the sum is 0."""
-    if total <= 0.0 or es.kind[e] == EMITTER_ENVIRONMENT:
+def point_factor(total, env, es, triangles, radiance, position, normal, albedo, i):
+    """L_analytic / Σ w of shading point i, whose segments' unoccluded luminance sums to `total`, `env` of it
+    from environments (which stands for their analytic light): 1 where the sum is 0."""
+    if total <= 0.0:
         return 1.0
-    f = emitter_irradiance(e, es, triangles, position[i, 0], position[i, 1], position[i, 2], normal[i, 0],
-                           normal[i, 1], normal[i, 2]) / math.pi
-    return f * luminance(albedo[i, 0] * radiance[e, 0], albedo[i, 1] * radiance[e, 1],
-                         albedo[i, 2] * radiance[e, 2]) / total
+    light = env
+    for e in range(es.kind.shape[0]):
+        if es.kind[e] != EMITTER_ENVIRONMENT:
+            f = emitter_irradiance(e, es, triangles, position[i, 0], position[i, 1], position[i, 2], normal[i, 0],
+                                   normal[i, 1], normal[i, 2]) / math.pi
+            light += f * luminance(albedo[i, 0] * radiance[e, 0], albedo[i, 1] * radiance[e, 1],
+                                   albedo[i, 2] * radiance[e, 2])
+    return light / total
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def ratio_factors(runs, emitter, weight, points, es, triangles, radiance):
-    """Per segment its pair's `pair_factor`; `runs` are the offsets of each shading point's segments."""
+    """Per segment its shading point's `point_factor`; `runs` are the offsets of each shading point's segments."""
     n_runs = runs.shape[0] - 1
     out = np.ones(weight.shape[0])
-    n_blocks = (n_runs + RUNS_PER_BLOCK - 1) // RUNS_PER_BLOCK
-    for it in prange(n_blocks):
-        blk = spread(it, n_blocks)
-        total = np.zeros(es.kind.shape[0])
-        factor = np.full(es.kind.shape[0], -1.0)  # the pair's factor once computed; -1: not yet
-        for r in range(blk * RUNS_PER_BLOCK, min(n_runs, (blk + 1) * RUNS_PER_BLOCK)):
-            a, b = runs[r], runs[r + 1]
-            for k in range(a, b):
-                total[emitter[k]] += weight[k]
-            for k in range(a, b):
-                e = emitter[k]
-                if factor[e] < 0.0:
-                    factor[e] = pair_factor(e, total[e], es, triangles, radiance, points.position, points.normal,
-                                            points.albedo, points.point[a])
-                out[k] = factor[e]
-            for k in range(a, b):
-                total[emitter[k]] = 0.0
-                factor[emitter[k]] = -1.0
+    for r in prange(n_runs):
+        a, b = runs[r], runs[r + 1]
+        total = env = 0.0
+        for k in range(a, b):
+            total += weight[k]
+            if es.kind[emitter[k]] == EMITTER_ENVIRONMENT:
+                env += weight[k]
+        f = point_factor(total, env, es, triangles, radiance, points.position, points.normal, points.albedo,
+                         points.point[a])
+        for k in range(a, b):
+            out[k] = f
     return out
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def shade_ratio(geom, es, bvh, batch):
     """`ShadedBatch` arrays of a `ShadingBatch` with the ratio estimator: every segment traced, its visibility
-    times its pair's `pair_factor` — value for value `ratio_factors` on the staged path."""
+    times its point's `point_factor` — value for value `ratio_factors` on the staged path."""
     root2 = root_record(bvh.root)
     spp, n_shadow = batch.spp, batch.shadow_rays
     radiance, counts, n_seg = shaded_arrays(batch)
@@ -94,8 +93,6 @@ def shade_ratio(geom, es, bvh, batch):
         sh_node = np.empty(n_shadow, np.int32)
         sh_tri = np.empty(n_shadow, np.int32)
         work = packet_work(bvh.stack_depth)
-        total = np.zeros(es.kind.shape[0])
-        factor = np.full(es.kind.shape[0], -1.0)
         for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
             for s in range(spp):
                 i = px * spp + s
@@ -105,23 +102,22 @@ def shade_ratio(geom, es, bvh, batch):
                 for lo in range(0, m, SHADOW_PACKET):
                     occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, min(SHADOW_PACKET, m - lo), work, occ,
                                     sh_node, sh_tri)
+                total = env = 0.0
                 for k in range(m):
-                    total[s_emit[k]] += luminance(contrib[k, 0], contrib[k, 1], contrib[k, 2])
+                    w = luminance(contrib[k, 0], contrib[k, 1], contrib[k, 2])
+                    total += w
+                    if es.kind[s_emit[k]] == EMITTER_ENVIRONMENT:
+                        env += w
+                f = point_factor(total, env, es, geom.triangles, geom.emitter_radiance, batch.position, batch.normal,
+                                 batch.albedo, i) if m > 0 else 1.0
                 l0, l1, l2 = batch.emitted[i, 0] + a0, batch.emitted[i, 1] + a1, batch.emitted[i, 2] + a2
                 for k in range(m):
-                    e = s_emit[k]
-                    if factor[e] < 0.0:
-                        factor[e] = pair_factor(e, total[e], es, geom.triangles, geom.emitter_radiance,
-                                                batch.position, batch.normal, batch.albedo, i)
-                    v = (1.0 - np.float64(occ[k])) * factor[e]
+                    v = (1.0 - np.float64(occ[k])) * f
                     l0 += contrib[k, 0] * v
                     l1 += contrib[k, 1] * v
                     l2 += contrib[k, 2] * v
                     counts[px, SH_TRI] += sh_tri[k]
                     counts[px, SH_NODE] += sh_node[k]
-                for k in range(m):
-                    total[s_emit[k]] = 0.0
-                    factor[s_emit[k]] = -1.0
                 n_seg[px] += m
                 radiance[i, 0], radiance[i, 1], radiance[i, 2] = l0, l1, l2
     return radiance, counts, n_seg
@@ -130,8 +126,8 @@ def shade_ratio(geom, es, bvh, batch):
 class RatioVisibility(VisibilityEstimator):
     name = "ratio"
     summary = ("Heitz et al.'s ratio estimator: analytic unshadowed light times shadowed / unshadowed estimates "
-               "of each pair (consistent, biased)")
-    phases = (Phase("render_kernel", "batch", "sampling, every segment traced, each pair's analytic light and "
+               "of each shading point (consistent, biased)")
+    phases = (Phase("render_kernel", "batch", "sampling, every segment traced, each point's analytic light and "
                     "ratio, the samples' radiance, fused"),)
     unbiased = False
 
@@ -149,7 +145,7 @@ class RatioVisibility(VisibilityEstimator):
         return None
 
     def evaluate(self, query):
-        """The staged interface: every segment traced, times its pair's factor."""
+        """The staged interface: every segment traced, times its point's factor."""
         occluded, n_node, n_tri = occluded_segments(self.bvh, query.origin, query.direction, query.tmax, query.point)
         geom = self.integrator.scene_arrays
         factor = ratio_factors(packet_starts(query.point, len(query.point) + 1), query.emitter, query.weight,
