@@ -186,3 +186,13 @@ def test_the_kernel_renders_what_the_staged_path_renders(scene, visibility, opti
     assert np.array_equal(a.aovs["triangle_tests"], b.aovs["triangle_tests"])
     for name in a.aovs:
         assert np.array_equal(a.aovs[name], b.aovs[name]), name
+
+
+def test_the_cache_is_in_the_memory_estimate():
+    """A fine grid's rows are counted before they are allocated, and the built cache stays within the estimate."""
+    r = probvis.render("quad-shadow", spp=1, shadow_rays=2, resolution=(8, 8), visibility="nee++",
+                       visibility_options={"resolution": 200})
+    est = make_estimator("nee++", resolution=200).memory_estimate(probvis.load_scene("quad-shadow"),
+                                                                  probvis.RenderSettings(spp=1, shadow_rays=2), 64)
+    assert est["cache"] >= 8 * 202 ** 3
+    assert r.stats["estimator"]["memory_bytes"]["cache"] <= est["cache"]

@@ -149,9 +149,10 @@ class CachedVisibility(VisibilityEstimator):
         return VisibilityResult(c, node_tests, triangle_tests, aovs={"traced": traced})
 
     def memory_estimate(self, scene, settings, batch_samples):
-        """The pilot's segments of one batch and, at most, a pair entry per pilot segment."""
+        """The pilot's segments of one batch, at most a pair entry per pilot segment, and the rows of the grid's
+        voxels (at most resolution + 2 along every axis)."""
         n = len(pilot_pixels(scene.camera.width * scene.camera.height, settings.spp, self.params.pilot))
-        return {"cache": n * settings.shadow_rays * 24,
+        return {"cache": n * settings.shadow_rays * 24 + 8 * (self.params.resolution + 2) ** 3,
                 "pilot": min(n * settings.shadow_rays, PILOT_PIXELS_PER_BATCH) * 160}
 
     def memory_bytes(self):
