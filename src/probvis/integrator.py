@@ -63,7 +63,8 @@ class RenderResult:
 class Integrator:
     """Mitsuba's `direct` integrator on one scene: the structures of one render and the front end of a batch
     (camera rays, their first hits, surface interactions). An estimator's `prepare` receives it: a kernel of its
-    own takes `scene_arrays`, and a pilot renders through `shading_batch` and `shade_exact`, or traces the segments `shadow_query` makes."""
+    own takes `scene_arrays`, and a pilot renders through `shading_batch` and `shade_exact`, or traces the
+    segments `shadow_query` makes."""
 
     def __init__(self, scene, bvh, emitters, filter_importance=False):
         self.scene, self.bvh, self.emitters = scene, bvh, emitters

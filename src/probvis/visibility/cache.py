@@ -10,7 +10,6 @@ value c and a probability p from the cache, the estimate c + B (V − c) / p wit
 E = c + p (V − c) / p = V, whatever the cache holds: it only steers how often they trace and what they subtract.
 """
 import abc
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,7 +33,6 @@ class VisibilityCache:
     segments: int = 0  # pilot segments traced
     node_tests: int = 0
     triangle_tests: int = 0
-    seconds: float = 0.0
 
     def pair_keys(self, origin, direction):
         return pair_keys(self.arrays, np.ascontiguousarray(origin), np.ascontiguousarray(direction))
@@ -62,7 +60,6 @@ def pilot_pixels(n_pixels, spp, share):
 def build_cache(scene, bvh, integrator, settings, resolution, share):
     """The cache of a pilot of `share` of the render's camera samples (with its shadow rays each) over a grid of
     `resolution` voxels along the scene's longest side."""
-    t0 = time.perf_counter()
     lo, hi = bvh.bounds[0, :3], bvh.bounds[0, 3:]  # the root's box: the scene's
     corner, pitch, dims = grid_placement(lo, hi, resolution)
     n_voxels = int(np.prod(dims))
@@ -88,7 +85,6 @@ def build_cache(scene, bvh, integrator, settings, resolution, share):
         cache.arrays = grid._replace(row=row, emitter_voxel=k % n_voxels,
                                      visible=np.bincount(inv, weights=np.concatenate(visible), minlength=len(k)),
                                      total=np.bincount(inv, minlength=len(k)).astype(np.int64))
-    cache.seconds = time.perf_counter() - t0
     return cache
 
 

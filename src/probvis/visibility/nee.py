@@ -11,7 +11,8 @@ from .cache_kernel import RULE_SHARE, CachePlan
 
 class NEEPlusPlusVisibility(CachedVisibility):
     name = "nee++"
-    summary = "NEE++: each segment traced with the probability a voxel-pair visibility cache gives, weighted 1/p (unbiased)"
+    summary = ("NEE++: each segment traced with the probability a voxel-pair visibility cache gives, weighted 1/p "
+               "(unbiased)")
     options = CACHE_OPTIONS + (
         Option("min_probability", float, 0.1, "the smallest probability of tracing a segment (bounds its weight 1/p)",
                minimum=0.001, maximum=1.0),
