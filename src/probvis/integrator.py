@@ -39,16 +39,23 @@ from .shading import ShadedBatch, ShadingBatch
 from .visibility import (RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult,
                          estimator_class)
 
-TARGET_SLOTS = 1 << 18  # shadow-ray slots per batch (bounds memory, keeps progress and Ctrl-C prompt)
+TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keeps progress and Ctrl-C prompt)
+TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
 COMPILE_TIME = "1-3 minutes"  # what the first run's kernel compilation takes on 2 cores (60-150 s measured)
 MEMORY_HINTS = {"film": "the resolution (-D res, resolution=)", "photons": "--photons",
                 "lookups": "--neighbours or --shadow-rays", "batch": "--spp or --shadow-rays"}
 
 
-def batch_pixels(scene, settings):
-    """Whole pixels per batch: about TARGET_SLOTS shadow-ray slots."""
+def batch_pixels(scene, settings, staged=True):
+    """Whole pixels per batch. The staged path holds every shadow-ray slot of its batch: about TARGET_SLOTS of
+    them. A kernel path (`staged=False`) holds per camera sample only its interaction and, per emitter, its
+    look-up: at least TARGET_LOOKUPS of those, so that what a batch costs once (a kd-tree query's threads, a
+    kernel's launch) spreads over many points and nearby points share more look-ups."""
     n_pix = scene.camera.width * scene.camera.height
-    return max(1, min(n_pix, TARGET_SLOTS // (settings.spp * settings.shadow_rays)))
+    samples = TARGET_SLOTS // settings.shadow_rays
+    if not staged:
+        samples = max(samples, TARGET_LOOKUPS // max(1, scene.n_emitters))
+    return max(1, min(n_pix, samples // settings.spp))
 
 
 @dataclass
@@ -172,8 +179,8 @@ def render_pass(scene, settings, estimator, progress=False):
     t2 = time.perf_counter()
     n_pix_total = scene.camera.width * scene.camera.height
     spp, n_shadow = settings.spp, settings.shadow_rays
-    per_batch = batch_pixels(scene, settings)
     chosen = estimator.render_path()
+    per_batch = batch_pixels(scene, settings, chosen == RenderPath.STAGED)
     path = make_path(integrator, estimator, chosen, per_batch * spp * n_shadow)
     film = Film(scene.camera.width, scene.camera.height, spp, scene.n_emitters,
                 [a.name for a in estimator.aovs if a.kind == "segment"],
@@ -326,7 +333,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
         estimator = estimator_class(visibility)(**options)
     staged = type(estimator).render_path is VisibilityEstimator.render_path  # may need the slot buffers
     rfilter = splat_filter(scene.camera, settings.filter_importance)
-    need = memory.estimate(scene, settings, estimator, batch_pixels(scene, settings), staged,
+    need = memory.estimate(scene, settings, estimator, batch_pixels(scene, settings, staged), staged,
                            splat_chunk(rfilter, scene.camera.width)[1] if rfilter is not None else 0)
     if (type(estimator), repr(sorted(options.items()))) not in _warmed:
         need["kernels"] = memory.KERNEL_BYTES  # loading (or compiling) the kernels comes after the estimate
