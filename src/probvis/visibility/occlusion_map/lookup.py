@@ -68,6 +68,9 @@ def classify_points(nbr, nrm, photons, groups, normal_cos, min_photons, max_hits
     counts = np.zeros((m, 2), np.int32)
     unseen = np.zeros(m)
     length = np.zeros(m + 1, np.int64)
+    # each penumbra point's distinct blocker groups, most frequent first (pages are touched only where written)
+    found = np.empty((m if with_lists else 0, k * max_hits), np.int32)
+    n_found = np.zeros(m, np.int64)
     for c in prange((m + 63) // 64):
         buf = np.empty(k * max_hits, np.int32)
         for i in range(c * 64, min(m, c * 64 + 64)):
@@ -86,25 +89,22 @@ def classify_points(nbr, nrm, photons, groups, normal_cos, min_photons, max_hits
                 case[i] = CASE_PENUMBRA
                 if not with_lists:
                     continue
-                groups, freq = _unique_by_frequency(buf, g)
-                for gr in groups:
-                    length[i + 1] += group_off[gr + 1] - group_off[gr]
+                uniq, freq = _unique_by_frequency(buf, g)
+                n_found[i] = len(uniq)
                 singles = 0
-                for f in freq:
-                    singles += f == 1
+                for a in range(len(uniq)):
+                    gr = uniq[a]
+                    found[i, a] = gr
+                    length[i + 1] += group_off[gr + 1] - group_off[gr]
+                    singles += freq[a] == 1
                 unseen[i] = singles / max(g, 1)
     offsets = np.cumsum(length)
     tris = np.empty(offsets[m], np.int32)
     for c in prange((m + 63) // 64 if with_lists else 0):
-        buf = np.empty(k * max_hits, np.int32)
         for i in range(c * 64, min(m, c * 64 + 64)):
-            if case[i] != CASE_PENUMBRA:
-                continue
-            _, _, g = _gather(nbr, i, pn, nb, start, ray_tris, group, nrm[i, 0], nrm[i, 1], nrm[i, 2], normal_cos,
-                              buf)
-            groups, _ = _unique_by_frequency(buf, g)
             w = offsets[i]
-            for gr in groups:
+            for a in range(n_found[i]):
+                gr = found[i, a]
                 for h in range(group_off[gr], group_off[gr + 1]):
                     tris[w] = group_tris[h]
                     w += 1
