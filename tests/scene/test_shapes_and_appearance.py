@@ -175,3 +175,31 @@ def test_vertex_normals_weigh_faces_by_their_angle_at_the_vertex():
     np.testing.assert_allclose(n[0], want / np.linalg.norm(want), rtol=1e-12)
     np.testing.assert_allclose(n[1], fn[0], rtol=1e-12)
     np.testing.assert_array_equal(n[4], 0.0)
+
+
+TILTED = [0.5, 0.0, 1.0]  # a shading normal 27 degrees from the floor's geometric one
+FLOOR_OBJ = ("v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\n" + "vn {} {} {}\n".format(*TILTED) * 4
+             + "f 1//1 2//2 3//3\nf 1//1 3//3 4//4\n")
+FLOOR_PLY = ("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+             "property float nx\nproperty float ny\nproperty float nz\nelement face 2\n"
+             "property list uchar int vertex_indices\nend_header\n"
+             + "".join(f"{x} {y} 0 {TILTED[0]} {TILTED[1]} {TILTED[2]}\n"
+                       for x, y in ((-1, -1), (1, -1), (1, 1), (-1, 1)))
+             + "3 0 1 2\n3 0 2 3\n")
+
+
+@pytest.mark.parametrize("kind, text", [("obj", FLOOR_OBJ), ("ply", FLOOR_PLY)])
+def test_a_mesh_files_vertex_normals_shade_it_as_in_mitsuba(tmp_path, kind, text):
+    """Normals stored in an OBJ (`vn`) or PLY (`nx ny nz`) file are the mesh's shading normals, as Mitsuba's: a
+    floor whose stored normals lean away from its geometric normal is shaded by them (computed normals would
+    give the flat floor's image, a third brighter here)."""
+    (tmp_path / f"floor.{kind}").write_text(text)
+    light = """<shape type="rectangle"><transform name="to_world"><scale value="0.5"/><rotate x="1" angle="180"/>
+        <translate x="-1" z="2"/></transform><emitter type="area"><rgb name="radiance" value="8"/></emitter></shape>"""
+    path = write_scene(tmp_path / "s.xml", sensor(origin="0, 0, 3", spp="$spp") + light +
+                       f'<shape type="{kind}"><string name="filename" value="floor.{kind}"/></shape>',
+                       '<default name="spp" value="16"/>')
+    mesh = probvis.load_scene(path)
+    np.testing.assert_allclose(mesh.vertex_normals[-2:].reshape(-1, 3),
+                               np.tile(np.array(TILTED) / np.linalg.norm(TILTED), (6, 1)), rtol=1e-6)
+    assert_matches_mitsuba(path)

@@ -220,13 +220,12 @@ class SceneBuilder:
         wv = tf.apply_points(m, v)
         if flip_normals:
             f = f[:, ::-1]
-        tris = wv[f]
-        cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-        area2 = np.linalg.norm(cross, axis=1)
+        tris, cross, area2 = _triangles(wv, f)
         scale = max(float(np.abs(wv).max()), 1e-300) if len(wv) else 1.0
         keep = area2 > 1e-14 * scale * scale
         self.dropped += int((~keep).sum())
-        tris, f, cross, area2 = tris[keep], f[keep], cross[keep], area2[keep]
+        if not keep.all():
+            tris, f, cross, area2 = tris[keep], f[keep], cross[keep], area2[keep]
         if uv is None:  # the corners' barycentric coordinates, in the file's vertex order
             corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
             self._uv.append(np.broadcast_to(corners[::-1] if flip_normals else corners, (len(f), 3, 2)))
@@ -313,10 +312,10 @@ class SceneBuilder:
         mats = sorted(self._materials.items(), key=lambda kv: kv[1])
         material_texture = np.array([k[2] for k, _ in mats], np.int32)
         scene = Scene(
-            triangles=np.ascontiguousarray(np.concatenate(self._tris)),
-            vertex_normals=np.ascontiguousarray(np.concatenate(self._normals)),
-            tri_material=np.concatenate(self._mat),
-            tri_emitter=np.concatenate(self._emit),
+            triangles=_joined(self._tris),
+            vertex_normals=_joined(self._normals),
+            tri_material=_joined(self._mat),
+            tri_emitter=_joined(self._emit),
             reflectance=np.array([k[0] for k, _ in mats], dtype=np.float64).reshape(-1, 3),
             twosided=np.array([k[1] for k, _ in mats], dtype=np.bool_),
             emitter_radiance=np.array(self.emitter_radiance, dtype=np.float64).reshape(-1, 3),
@@ -324,7 +323,7 @@ class SceneBuilder:
             environment=self.environment,
             textures=self.textures,
             material_texture=material_texture,
-            tri_uv=np.ascontiguousarray(np.concatenate(self._uv)) if self.textures else None,
+            tri_uv=_joined(self._uv) if self.textures else None,
             camera=camera,
             defaults=defaults.validate(),
             name=self.name,
@@ -334,6 +333,29 @@ class SceneBuilder:
         )
         scene.validate_camera()
         return scene
+
+
+@njit(cache=True, error_model="numpy")
+def _triangles(wv, f):
+    """Each face's corners (n, 3, 3), the cross product of its edges from the first corner and that product's
+    length (twice its area): one pass, no temporaries (numpy's `wv[f]`, `np.cross` and `norm` made five)."""
+    n = f.shape[0]
+    tris, cross, area2 = np.empty((n, 3, 3)), np.empty((n, 3)), np.empty(n)
+    for i in range(n):
+        for c in range(3):
+            for d in range(3):
+                tris[i, c, d] = wv[f[i, c], d]
+        ax, ay, az = tris[i, 1, 0] - tris[i, 0, 0], tris[i, 1, 1] - tris[i, 0, 1], tris[i, 1, 2] - tris[i, 0, 2]
+        bx, by, bz = tris[i, 2, 0] - tris[i, 0, 0], tris[i, 2, 1] - tris[i, 0, 1], tris[i, 2, 2] - tris[i, 0, 2]
+        cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        cross[i, 0], cross[i, 1], cross[i, 2] = cx, cy, cz
+        area2[i] = math.sqrt(cx * cx + cy * cy + cz * cz)
+    return tris, cross, area2
+
+
+def _joined(parts):
+    """The shapes' arrays as one contiguous array (a single shape's own array, not a copy)."""
+    return np.ascontiguousarray(parts[0] if len(parts) == 1 else np.concatenate(parts))
 
 
 @njit(cache=True, error_model="numpy")

@@ -145,6 +145,30 @@ def _ply_truncated(path, declared, mesh):
     return None
 
 
+def _read(path):
+    """trimesh's reader of the file's type, straight into one mesh: (Trimesh, the file's vertex normals or None).
+    An OBJ is read as Mitsuba does, one mesh in file order (grouping statements dropped); the readers' arrays go
+    into the mesh directly (trimesh.load's scene round trip took five times longer on a large PLY and dropped
+    the file's normals)."""
+    import trimesh
+
+    if path.suffix.lower() == ".obj":
+        from trimesh.exchange.obj import load_obj
+
+        kwargs = load_obj(io.BytesIO(_OBJ_GROUPING.sub(b"", path.read_bytes())), maintain_order=True)
+        parts = list(kwargs["geometry"].values()) if "geometry" in kwargs else [kwargs]
+        if len(parts) != 1:
+            return None, None
+        kwargs = parts[0]
+    else:
+        from trimesh.exchange.ply import load_ply
+
+        with open(path, "rb") as fh:
+            kwargs = load_ply(fh)
+    normals = kwargs.pop("vertex_normals", None)
+    return trimesh.Trimesh(**kwargs, process=False, maintain_order=True), normals
+
+
 def load_mesh(path, flip_tex_coords=None):
     """Read an OBJ or PLY file with trimesh as `MeshData`, order preserved. Texture coordinates are flipped
     vertically (v -> 1 - v) by default for OBJ and not for PLY, as Mitsuba's `flip_tex_coords` defaults."""
@@ -160,11 +184,7 @@ def load_mesh(path, flip_tex_coords=None):
                            f"{MAX_MESH_BYTES >> 30} GiB)")
     ply = _ply_elements(path) if path.suffix.lower() == ".ply" else {}
     try:
-        if path.suffix.lower() == ".obj":  # as Mitsuba: one mesh in file order, the file's own uv
-            mesh = trimesh.load(io.BytesIO(_OBJ_GROUPING.sub(b"", path.read_bytes())), file_type="obj",
-                                force="mesh", process=False, maintain_order=True)
-        else:
-            mesh = trimesh.load(str(path), force="mesh", process=False, maintain_order=True)
+        mesh, n = _read(path)
     except Exception:  # trimesh raises many types (and leaks its own dependencies' errors) for malformed files
         problem = _obj_problem(path) if path.suffix.lower() == ".obj" else None
         raise ProbvisError(problem or _ply_truncated(path, ply, None) or
@@ -175,9 +195,9 @@ def load_mesh(path, flip_tex_coords=None):
         raise ProbvisError(f"mesh {path} contains no triangles")
     v = np.asarray(mesh.vertices, dtype=np.float64)
     f = np.asarray(mesh.faces, dtype=np.int64)
-    n = None
-    if "vertex_normals" in mesh._cache.cache:  # normals stored in the file
-        n = np.asarray(mesh.vertex_normals, dtype=np.float64)
+    n = None if n is None or np.shape(n) != v.shape else np.asarray(n, dtype=np.float64)  # else from the faces
+    if n is not None and not (np.all(np.isfinite(n)) and np.all(np.einsum("ij,ij->i", n, n) > 0.0)):
+        raise ProbvisError(f"mesh {path} has NaN, infinite or zero vertex normals")
     uv = getattr(mesh.visual, "uv", None)
     if uv is not None and len(uv) == len(v):
         uv = np.asarray(uv, dtype=np.float64).copy()
