@@ -203,3 +203,12 @@ def test_a_mesh_files_vertex_normals_shade_it_as_in_mitsuba(tmp_path, kind, text
     np.testing.assert_allclose(mesh.vertex_normals[-2:].reshape(-1, 3),
                                np.tile(np.array(TILTED) / np.linalg.norm(TILTED), (6, 1)), rtol=1e-6)
     assert_matches_mitsuba(path)
+
+
+def test_zero_or_nan_vertex_normals_in_a_file_are_an_error_naming_it(tmp_path):
+    from probvis.scene.shapes import load_mesh
+
+    for name, bad in (("zero.obj", "0 0 0"), ("nan.obj", "nan 0 1")):
+        (tmp_path / name).write_text(FLOOR_OBJ.replace("0.5 0.0 1.0", bad, 1))
+        with pytest.raises(ProbvisError, match=f"{name} has NaN, infinite or zero vertex normals"):
+            load_mesh(tmp_path / name)
