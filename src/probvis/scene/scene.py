@@ -4,7 +4,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from ..errors import ProbvisError
 from ..settings import RenderSettings
@@ -358,21 +358,33 @@ def _joined(parts):
     return np.ascontiguousarray(parts[0] if len(parts) == 1 else np.concatenate(parts))
 
 
-@njit(cache=True, error_model="numpy")
-def _angle_weighted_normals(v, f, fn):
-    """Vertex normals as the corner-angle-weighted mean of the adjacent face normals (unit; zero where a
-    vertex has no face). One pass over the corners, each added to its vertex: no per-corner temporaries."""
-    out = np.zeros_like(v)
-    for k in range(3):
-        for i in range(f.shape[0]):
+@njit(cache=True, parallel=True, error_model="numpy")
+def _corner_angles(v, f):
+    """Each face corner's angle (faces, 3), the faces split over the threads."""
+    ang = np.empty((f.shape[0], 3))
+    for i in prange(f.shape[0]):
+        for k in range(3):
             a, b, c = f[i, k], f[i, (k + 1) % 3], f[i, (k + 2) % 3]
             e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
             e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
             cosang = (e1x * e2x + e1y * e2y + e1z * e2z) / (math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z) *
                                                              math.sqrt(e2x * e2x + e2y * e2y + e2z * e2z))
-            ang = math.acos(min(max(cosang, -1.0), 1.0))
+            ang[i, k] = math.acos(min(max(cosang, -1.0), 1.0))
+    return ang
+
+
+@njit(cache=True, error_model="numpy")
+def _angle_weighted_normals(v, f, fn):
+    """Vertex normals as the corner-angle-weighted mean of the adjacent face normals (unit; zero where a
+    vertex has no face). The corners' angles in parallel, then each corner added to its vertex in a fixed
+    order (corner 0 of every face, then 1, then 2), so the sums do not depend on the thread count."""
+    ang = _corner_angles(v, f)
+    out = np.zeros_like(v)
+    for k in range(3):
+        for i in range(f.shape[0]):
+            a = f[i, k]
             for d in range(3):
-                out[a, d] += fn[i, d] * ang
+                out[a, d] += fn[i, d] * ang[i, k]
     for j in range(out.shape[0]):
         norm = math.sqrt(out[j, 0] * out[j, 0] + out[j, 1] * out[j, 1] + out[j, 2] * out[j, 2])
         for d in range(3):
