@@ -32,35 +32,15 @@ def solid_angle(triangles, t, px, py, pz):
     return 2.0 * abs(math.atan2(num, den))
 
 
-PAIRS_PER_CHUNK = 64  # pairs grouped by one thread with the same scratch arrays
-INSERTION_SORT = 32  # groups of at most this many units are sorted in place, longer ones by argsort
-
-
 @njit(cache=True, error_model="numpy")
-def _by_weight(order, weight, lo, n, srt):
-    """srt[:n]: positions 0..n-1 of units order[lo:lo + n] by decreasing weight, ties in list order (a stable
-    sort: the same order as argsort(-weight, kind="mergesort"))."""
-    if n > INSERTION_SORT:
+def _split(order, weight, leaf, lo, hi, method, key, level):
+    """Split units order[lo:hi] of one group in two: leaf id bit 0 for A, 1 for B."""
+    n = hi - lo
+    if method == GROUP_SOLID_ANGLE:  # largest first, each to the group with less solid angle so far
         w = np.empty(n)
         for a in range(n):
             w[a] = -weight[order[lo + a]]
-        srt[:n] = np.argsort(w, kind="mergesort")
-        return
-    for a in range(n):
-        wa = weight[order[lo + a]]
-        b = a
-        while b > 0 and weight[order[lo + srt[b - 1]]] < wa:
-            srt[b] = srt[b - 1]
-            b -= 1
-        srt[b] = a
-
-
-@njit(cache=True, error_model="numpy")
-def _split(order, weight, leaf, lo, hi, method, key, level, srt):
-    """Split units order[lo:hi] of one group in two: leaf id bit 0 for A, 1 for B (`srt` is scratch)."""
-    n = hi - lo
-    if method == GROUP_SOLID_ANGLE:  # largest first, each to the group with less solid angle so far
-        _by_weight(order, weight, lo, n, srt)
+        srt = np.argsort(w, kind="mergesort")
         sa, sb = 0.0, 0.0
         for a in range(n):
             e = order[lo + srt[a]]
@@ -90,98 +70,74 @@ def group_lists(triangles, pos, offsets, tris, unit, n_rep, method, levels, cell
 
     The blockers split are the list's blocker groups (`unit[t]`: the small connected component a recorded
     triangle stands for, or the triangle alone), which stand in the list as runs of consecutive triangles: a
-    city's box goes to A or B whole, so the volumetric culling of its faces stays regular along the group.
-    Each thread takes PAIRS_PER_CHUNK pairs at a time with scratch arrays for the longest list: no allocation
-    per pair."""
+    city's box goes to A or B whole, so the volumetric culling of its faces stays regular along the group."""
     n_pairs = offsets.shape[0] - 1
     n_leaves = cells * (1 << levels)
     out = np.empty_like(tris)
     bounds = np.empty((n_pairs, n_leaves + 1), np.int64)
     balance = np.zeros((n_pairs, 2))
-    longest = 0
-    for pr in range(n_pairs):
-        longest = max(longest, offsets[pr + 1] - offsets[pr])
-    for ch in prange((n_pairs + PAIRS_PER_CHUNK - 1) // PAIRS_PER_CHUNK):
-        first = np.empty(longest + 1, np.int64)  # runs of one blocker group: units lo + first[u] .. first[u + 1]
-        weight = np.empty(longest)
-        leaf = np.empty(longest, np.int64)
-        order = np.empty(longest, np.int64)
-        srt = np.empty(longest, np.int64)
-        counts = np.empty(n_leaves + 1, np.int64)
-        for pr in range(ch * PAIRS_PER_CHUNK, min(n_pairs, (ch + 1) * PAIRS_PER_CHUNK)):
-            lo, hi = offsets[pr], offsets[pr + 1]
-            if hi == lo or (skip is not None and skip[pr]):  # the list whole, in the first leaf
-                for a in range(lo, hi):
-                    out[a] = tris[a]
-                bounds[pr, 0] = lo
-                for g in range(1, n_leaves + 1):
-                    bounds[pr, g] = hi
-                continue
-            _group_pair(triangles, pos[pr % n_rep], tris, unit, lo, hi, method, levels, cells,
-                        mix64(np.uint64(seed) + np.uint64(pr) * np.uint64(0x9E3779B97F4A7C15)), out, bounds[pr],
-                        balance[pr], first, weight, leaf, order, srt, counts)
+    for pr in prange(n_pairs):
+        lo, hi = offsets[pr], offsets[pr + 1]
+        n = hi - lo
+        if skip is not None and skip[pr]:
+            for a in range(lo, hi):
+                out[a] = tris[a]
+            bounds[pr, 0] = lo
+            for g in range(1, n_leaves + 1):
+                bounds[pr, g] = hi
+            continue
+        i = pr % n_rep
+        px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
+        first = np.empty(n + 1, np.int64)  # runs of one blocker group: units lo + first[u] .. lo + first[u + 1]
+        n_units = 0
+        for a in range(n):
+            if a == 0 or unit[tris[lo + a]] != unit[tris[lo + a - 1]]:
+                first[n_units] = a
+                n_units += 1
+        first[n_units] = n
+        weight = np.zeros(n_units)
+        for u in range(n_units):
+            for a in range(first[u], first[u + 1]):
+                weight[u] += solid_angle(triangles, tris[lo + a], px, py, pz)
+        leaf = np.zeros(n_units, np.int64)
+        if cells > 1:  # cells: equal counts of units by distance from the point (their first triangle's centroid)
+            dist = np.empty(n_units)
+            for u in range(n_units):
+                t = tris[lo + first[u]]
+                cx = (triangles[t, 0, 0] + triangles[t, 1, 0] + triangles[t, 2, 0]) / 3.0 - px
+                cy = (triangles[t, 0, 1] + triangles[t, 1, 1] + triangles[t, 2, 1]) / 3.0 - py
+                cz = (triangles[t, 0, 2] + triangles[t, 1, 2] + triangles[t, 2, 2]) / 3.0 - pz
+                dist[u] = cx * cx + cy * cy + cz * cz
+            by_dist = np.argsort(dist, kind="mergesort")
+            for u in range(n_units):
+                leaf[by_dist[u]] = (u * cells) // max(n_units, 1)
+        key = mix64(np.uint64(seed) + np.uint64(pr) * np.uint64(0x9E3779B97F4A7C15))
+        for level in range(levels):
+            # units grouped by leaf, list order inside each (one leaf, in list order, at the top of one cell)
+            order = np.arange(n_units) if level == 0 and cells == 1 else np.argsort(leaf, kind="mergesort")
+            a = 0
+            while a < n_units:
+                b = a
+                while b < n_units and leaf[order[b]] == leaf[order[a]]:
+                    b += 1
+                _split(order, weight, leaf, a, b, method, key, level)
+                a = b
+            if level == 0:
+                for u in range(n_units):
+                    balance[pr, leaf[u] % 2] += weight[u]
+        # leaves in order, the frequency order kept inside each leaf (a stable sort by leaf)
+        counts = np.zeros(n_leaves + 1, np.int64)
+        for u in range(n_units):
+            counts[leaf[u] + 1] += first[u + 1] - first[u]
+        for g in range(n_leaves):
+            counts[g + 1] += counts[g]
+            bounds[pr, g] = lo + counts[g]
+        bounds[pr, n_leaves] = hi
+        for u in range(n_units):
+            for a in range(first[u], first[u + 1]):
+                out[lo + counts[leaf[u]]] = tris[lo + a]
+                counts[leaf[u]] += 1
     return out, bounds, balance
-
-
-@njit(cache=True, error_model="numpy")
-def _group_pair(triangles, p, tris, unit, lo, hi, method, levels, cells, key, out, bounds, balance, first, weight,
-                leaf, order, srt, counts):
-    """One pair's list tris[lo:hi] (a shading point at p) into its leaves: out[lo:hi], bounds and balance (the
-    pair's rows); first, weight, leaf, order, srt and counts are scratch."""
-    n = hi - lo
-    n_leaves = cells * (1 << levels)
-    px, py, pz = p[0], p[1], p[2]
-    n_units = 0
-    for a in range(n):
-        if a == 0 or unit[tris[lo + a]] != unit[tris[lo + a - 1]]:
-            first[n_units] = a
-            n_units += 1
-    first[n_units] = n
-    for u in range(n_units):
-        weight[u] = 0.0
-        for a in range(first[u], first[u + 1]):
-            weight[u] += solid_angle(triangles, tris[lo + a], px, py, pz)
-        leaf[u] = 0
-    if cells > 1:  # cells: equal counts of units by distance from the point (their first triangle's centroid)
-        dist = np.empty(n_units)
-        for u in range(n_units):
-            t = tris[lo + first[u]]
-            cx = (triangles[t, 0, 0] + triangles[t, 1, 0] + triangles[t, 2, 0]) / 3.0 - px
-            cy = (triangles[t, 0, 1] + triangles[t, 1, 1] + triangles[t, 2, 1]) / 3.0 - py
-            cz = (triangles[t, 0, 2] + triangles[t, 1, 2] + triangles[t, 2, 2]) / 3.0 - pz
-            dist[u] = cx * cx + cy * cy + cz * cz
-        by_dist = np.argsort(dist, kind="mergesort")
-        for u in range(n_units):
-            leaf[by_dist[u]] = (u * cells) // max(n_units, 1)
-    for level in range(levels):
-        # units grouped by leaf, list order inside each (one leaf, in list order, at the top of one cell)
-        if level == 0 and cells == 1:
-            for u in range(n_units):
-                order[u] = u
-        else:
-            order[:n_units] = np.argsort(leaf[:n_units], kind="mergesort")
-        a = 0
-        while a < n_units:
-            b = a
-            while b < n_units and leaf[order[b]] == leaf[order[a]]:
-                b += 1
-            _split(order, weight, leaf, a, b, method, key, level, srt)
-            a = b
-        if level == 0:
-            for u in range(n_units):
-                balance[leaf[u] % 2] += weight[u]
-    # leaves in order, the frequency order kept inside each leaf (a stable sort by leaf)
-    counts[:] = 0
-    for u in range(n_units):
-        counts[leaf[u] + 1] += first[u + 1] - first[u]
-    for g in range(n_leaves):
-        counts[g + 1] += counts[g]
-        bounds[g] = lo + counts[g]
-    bounds[n_leaves] = hi
-    for u in range(n_units):
-        for a in range(first[u], first[u + 1]):
-            out[lo + counts[leaf[u]]] = tris[lo + a]
-            counts[leaf[u]] += 1
 
 
 class GroupedLists(NamedTuple):
