@@ -17,7 +17,7 @@ import numpy as np
 import probvis
 from probvis.accel import build_bvh, occluded_segments
 from probvis.proxies import build_proxies
-from probvis.shells import FREE, SOLID, build_shells, classify_segments
+from probvis.shells import FREE, SOLID, build_shells, classify_segments, heavy_meshes
 
 
 def surface_points(tris, weights, n, rng):
@@ -68,7 +68,7 @@ def main():
     print(f"  exact test      {t_exact:6.3f} s   {n_node.mean():5.1f} nodes/segment, occluded {occ.mean():.3f}")
     with tempfile.TemporaryDirectory() as cache:
         for res in args.resolutions:
-            sh = build_shells(scene, bvh, 100_000, resolution=res, use_cache=False)
+            sh = build_shells(scene, bvh, heavy_meshes(scene, 100_000), resolution=res, use_cache=False)
             t_walk, (state, steps, _) = fastest(args.runs, lambda: classify_segments(sh.grid, sh.lo, sh.pitch, org, d,
                                                                                      tmax))
             wrong = int(((state == SOLID) & ~occ).sum() + ((state == FREE) & occ).sum())
@@ -81,7 +81,7 @@ def main():
             t0 = time.perf_counter()
             build_proxies(scene)
             t_proxy = time.perf_counter() - t0
-            sh = build_shells(scene, bvh, 100_000)
+            sh = build_shells(scene, bvh, heavy_meshes(scene, 100_000))
             print(f"  {label:17s}: proxies {t_proxy:.2f} s, shells {sh.seconds:.2f} s")
     return 0
 

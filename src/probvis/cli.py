@@ -13,6 +13,7 @@ from pathlib import Path
 from . import __version__
 from .errors import ProbvisError
 from .settings import MAX_SEED
+from .visibility.base import Switch
 from .visibility.probabilistic.estimator import MAX_POWER
 
 
@@ -104,6 +105,11 @@ def _add_option(group, opt):
     if opt.type is bool:
         group.add_argument(opt.flag, dest=opt.name, action=argparse.BooleanOptionalAction, default=None,
                            help=help_text)
+    elif opt.type is Switch:  # --shells (on), --shells auto|on|off, --no-shells (off)
+        group.add_argument(opt.flag, dest=opt.name, nargs="?", const="on", type=_option_type(opt),
+                           metavar="|".join(Switch.CHOICES), help=help_text)
+        group.add_argument("--no-" + opt.flag[2:], dest=opt.name, action="store_const", const="off",
+                           help=f"{opt.flag} off")
     else:
         group.add_argument(opt.flag, dest=opt.name, type=_option_type(opt), metavar=opt.metavar or
                            (None if opt.choices else opt.name.upper()), choices=None, help=help_text)
@@ -434,7 +440,7 @@ def _foreign_flags(argv, cls):
     """Estimator flags in `argv` that `cls` does not declare: (flag, names of the estimators that do)."""
     from .visibility import available_names, estimator_class
 
-    own = {o.flag for o in cls.options} | {"--no-" + o.flag[2:] for o in cls.options if o.type is bool}
+    own = {o.flag for o in cls.options} | {"--no-" + o.flag[2:] for o in cls.options if o.type in (bool, Switch)}
     owners = {}
     for name in available_names():
         for o in estimator_class(name).options:

@@ -27,7 +27,6 @@ from numba import njit, prange
 from scipy import ndimage
 
 from .disk_cache import content_key, load_or_build
-from .proxies import weld
 from .scene.scene import EMITTER_POINT, EMITTER_SPOT
 from .voxels import grid_placement, walk_start, walk_step
 
@@ -123,11 +122,62 @@ def classify_segments(grid, lo, pitch, org, dirs, tmax):
 
 def is_closed(tris):
     """Whether a triangle soup, its equal corners welded, is watertight: every edge shared by exactly two
-    triangles."""
-    vertices, faces = weld(tris)
-    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(edges[:, 0] * len(vertices) + edges[:, 1], return_counts=True)
-    return bool(len(faces)) and bool(np.all(counts == 2))
+    triangles. Hash tables in one pass (`_closed`): a tenth of a second for a million triangles, where welding
+    by sorting takes seconds."""
+    corners = np.ascontiguousarray(tris, dtype=np.float64).reshape(-1, 3)
+    return bool(len(corners)) and _closed(corners.view(np.uint64))
+
+
+@njit(cache=True)
+def _slot(h, mask):
+    """A hash table slot from a 64-bit hash (its high bits mixed in)."""
+    return np.int64((h ^ (h >> np.uint64(29))) & mask)
+
+
+@njit(cache=True)
+def _closed(bits):
+    """`is_closed` of the corners' coordinates as bit patterns ((3n, 3) uint64): corners welded by exact equality
+    (open addressing), then each undirected edge (lower, higher vertex) counted; closed when every count is 2."""
+    n = bits.shape[0]
+    size = 1
+    while size < 2 * n:
+        size *= 2
+    mask = np.uint64(size - 1)
+    slot_vertex = np.full(size, -1, np.int64)
+    vertex_corner = np.empty(n, np.int64)  # a corner of each welded vertex, for comparisons
+    vid = np.empty(n, np.int64)
+    m1, m2, m3 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xC2B2AE3D27D4EB4F), np.uint64(0x165667B19E3779F9)
+    nv = 0
+    for c in range(n):
+        s = _slot(bits[c, 0] * m1 ^ bits[c, 1] * m2 ^ bits[c, 2] * m3, mask)
+        while True:
+            v = slot_vertex[s]
+            if v < 0:
+                slot_vertex[s], vertex_corner[nv], vid[c] = nv, c, nv
+                nv += 1
+                break
+            o = vertex_corner[v]
+            if bits[o, 0] == bits[c, 0] and bits[o, 1] == bits[c, 1] and bits[o, 2] == bits[c, 2]:
+                vid[c] = v
+                break
+            s = (s + 1) & (size - 1)
+    slot_edge = np.full(size, -1, np.int64)  # n edges in 2n slots
+    count = np.zeros(size, np.int64)
+    for t in range(n // 3):
+        for k in range(3):
+            a, b = vid[3 * t + k], vid[3 * t + (k + 1) % 3]
+            key = min(a, b) * nv + max(a, b)
+            s = _slot(np.uint64(key) * m1, mask)
+            while slot_edge[s] >= 0 and slot_edge[s] != key:
+                s = (s + 1) & (size - 1)
+            slot_edge[s] = key
+            count[s] += 1
+            if count[s] > 2:
+                return False
+    for s in range(size):
+        if slot_edge[s] >= 0 and count[s] != 2:
+            return False
+    return True
 
 
 def _inside_regions(labels, n_labels, lo, pitch, bvh, first, count):
@@ -159,19 +209,36 @@ def _inside_regions(labels, n_labels, lo, pitch, bvh, first, count):
     return candidates[inside[candidates]]
 
 
-def build_shells(scene, bvh, min_triangles, resolution=RESOLUTION, use_cache=True):
-    """`Shells` of the scene's shapes of at least `min_triangles` triangles (not emitters), or None when there
-    are none."""
-    t0 = time.perf_counter()
+def heavy_meshes(scene, min_triangles, closed_only=False):
+    """The scene's shapes of at least `min_triangles` triangles that are not emitters; with `closed_only`, only
+    those that can get an inner shell (watertight, no emitter in their bounds): shells pay where they block
+    segments early, and an open mesh's outer shell alone costs a walk for little (an open scan, foliage)."""
     heavy = [s for s in scene.shapes if s.n_triangles >= min_triangles and s.emitter < 0]
+    if closed_only:
+        boxes = _emitter_boxes(scene)
+        heavy = [s for s in heavy if not _emitter_within(boxes, _span(scene, s)) and is_closed(_span(scene, s))]
+    return heavy
+
+
+def _span(scene, shape):
+    return scene.triangles[shape.first_triangle:shape.first_triangle + shape.n_triangles]
+
+
+def _emitter_boxes(scene):
+    """Bounds of the emitting shapes and of the point and spot lights (as empty boxes), (n, 2, 3)."""
+    boxes = np.array([[_span(scene, s).min((0, 1)), _span(scene, s).max((0, 1))]
+                      for s in scene.shapes if s.emitter >= 0]).reshape(-1, 2, 3)
+    points = scene.emitter_position[np.isin(scene.emitter_kind, (EMITTER_POINT, EMITTER_SPOT))]
+    return np.concatenate([boxes, np.stack([points, points], axis=1)])
+
+
+def build_shells(scene, bvh, heavy, resolution=RESOLUTION, use_cache=True):
+    """`Shells` of the scene's shapes `heavy` (`heavy_meshes`), or None when there are none."""
+    t0 = time.perf_counter()
     if not heavy:
         return None
-    spans = [scene.triangles[s.first_triangle:s.first_triangle + s.n_triangles] for s in heavy]
-    emitter_boxes = np.array([[scene.triangles[s.first_triangle:s.first_triangle + s.n_triangles].min((0, 1)),
-                               scene.triangles[s.first_triangle:s.first_triangle + s.n_triangles].max((0, 1))]
-                              for s in scene.shapes if s.emitter >= 0]).reshape(-1, 2, 3)
-    points = scene.emitter_position[np.isin(scene.emitter_kind, (EMITTER_POINT, EMITTER_SPOT))]
-    emitter_boxes = np.concatenate([emitter_boxes, np.stack([points, points], axis=1)])
+    spans = [_span(scene, s) for s in heavy]
+    emitter_boxes = _emitter_boxes(scene)
     key = content_key(f"shells v{CACHE_VERSION} resolution {resolution}", emitter_boxes, *spans)
 
     def build():
@@ -261,17 +328,18 @@ def shell_memory(scene, min_triangles):
             "shells: voxel grid (RESOLUTION)": RESOLUTION ** 3}
 
 
-def shell_tests(scene, bvh, min_triangles, use_cache=True):
-    """`ShellTests` for the scene's heavy meshes (`build_shells`), or `ShellTests.none` when it has none."""
+def shell_tests(scene, bvh, min_triangles, use_cache=True, closed_only=False):
+    """`ShellTests` for the scene's heavy meshes (`heavy_meshes`; with `closed_only`, the closed ones), or
+    `ShellTests.none` when there are none."""
     from .accel import build_bvh
 
-    shells = build_shells(scene, bvh, min_triangles, use_cache=use_cache)
+    heavy = heavy_meshes(scene, min_triangles, closed_only)
+    shells = build_shells(scene, bvh, heavy, use_cache=use_cache)
     if shells is None:
         return ShellTests.none(bvh)
     keep = np.ones(scene.n_triangles, bool)
-    for s in scene.shapes:
-        if s.n_triangles >= min_triangles and s.emitter < 0:
-            keep[s.first_triangle:s.first_triangle + s.n_triangles] = False
+    for s in heavy:
+        keep[s.first_triangle:s.first_triangle + s.n_triangles] = False
     # a BVH needs a triangle: a scene of heavy meshes alone gets a degenerate one, which nothing hits
     rest = scene.triangles[keep] if keep.any() else np.repeat(shells.lo[None, None], 3, axis=1)
     return ShellTests(True, build_bvh(rest), shells.grid, shells.lo, shells.pitch, shells)

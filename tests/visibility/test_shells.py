@@ -11,7 +11,8 @@ from probvis.scene import shapes as shp
 from probvis.scene import transform as tf
 from probvis.scene.scene import Camera
 from probvis.settings import RenderSettings
-from probvis.shells import FREE, PAD, SOLID, SURFACE, build_shells, classify_segments, is_closed, shell_tests
+from probvis.shells import (FREE, PAD, SOLID, SURFACE, build_shells, classify_segments, heavy_meshes, is_closed,
+                            shell_tests)
 
 
 @pytest.fixture(autouse=True)
@@ -51,7 +52,7 @@ def test_shell_decisions_agree_with_the_sphere():
     sphere (it is blocked), every one the outer shell rules out passes outside it, and the shells decide most
     segments that pass well inside or well outside."""
     scene = sphere_scene()
-    sh = build_shells(scene, build_bvh(scene.triangles), 1000)
+    sh = build_shells(scene, build_bvh(scene.triangles), heavy_meshes(scene, 1000))
     assert sh.shapes == [{"name": "sphere", "triangles": 5120, "closed": True}]
     rng = np.random.default_rng(0)
     n = 40000
@@ -81,6 +82,27 @@ def test_shells_never_change_an_exact_image():
     # their memory: a byte a voxel, and the BVH of the rest of the scene (the floor, the light); none without
     assert e["memory_bytes"]["shells"] == e["shells"]["bytes"] > np.prod(e["shells"]["grid"])
     assert plain.stats["estimator"]["memory_bytes"] == {}
+    # the default, shells auto: the closed sphere gets them, the open leaves do not
+    auto = probvis.render(scene, spp=2, shadow_rays=8, seed=3, visibility_options={"min_triangles": 1000})
+    np.testing.assert_array_equal(plain.image, auto.image)
+    assert [m["name"] for m in auto.stats["estimator"]["shells"]["meshes"]] == ["sphere"]
+    assert auto.stats["estimator"]["tests"]["scene"]["node"] < plain.stats["intersection_tests"]["shadow"]["node"]
+
+
+def test_open_meshes_get_no_shells_by_default():
+    """`shells auto` skips a scene whose heavy meshes are all open: exact visibility's own kernel, no shells
+    built, no stats of theirs; `--no-shells` and `off` likewise, `on` builds them."""
+    scene = sphere_scene(leaves=1500)
+    leaves_only = dict(min_triangles=6000)  # of the sphere's 5,120 triangles and 8,000 leaves: only the leaves
+    assert [s.name for s in heavy_meshes(scene, 1000, closed_only=True)] == ["sphere"]
+    assert heavy_meshes(scene, 1000, closed_only=True) != heavy_meshes(scene, 1000)
+    open_scene = sphere_scene(leaves=8000)
+    assert [s.name for s in heavy_meshes(open_scene, **leaves_only, closed_only=True)] == []
+    for setting in ("auto", "off", False):
+        r = probvis.render(open_scene, spp=1, shadow_rays=2, visibility_options=dict(leaves_only, shells=setting))
+        assert "shells" not in r.stats["estimator"] and r.stats["estimator"]["memory_bytes"] == {}
+    r = probvis.render(open_scene, spp=1, shadow_rays=2, visibility_options=dict(leaves_only, shells="on"))
+    assert [m["name"] for m in r.stats["estimator"]["shells"]["meshes"]] == ["leaves"]
 
 
 def test_open_and_broken_meshes_get_no_inner_shell():
@@ -90,7 +112,7 @@ def test_open_and_broken_meshes_get_no_inner_shell():
     assert not is_closed(tris[1:])  # a hole
     assert not is_closed(np.concatenate([tris, tris[:1]]))  # a face three times over one edge: non-manifold
     scene = sphere_scene(light_z=0.5)  # the light inside the sphere's bounds: its inner shell could lie
-    sh = build_shells(scene, build_bvh(scene.triangles), 1000)
+    sh = build_shells(scene, build_bvh(scene.triangles), heavy_meshes(scene, 1000))
     assert sh.shapes[0]["closed"] is False and sh.solid_voxels == 0 and sh.surface_voxels > 0
 
 
@@ -131,8 +153,20 @@ def test_the_walk_visits_the_voxels_a_segment_crosses():
 def test_shells_are_cached(cache):
     scene = sphere_scene()
     bvh = build_bvh(scene.triangles)
-    first, again = build_shells(scene, bvh, 1000), build_shells(scene, bvh, 1000)
+    first, again = (build_shells(scene, bvh, heavy_meshes(scene, 1000)) for _ in range(2))
     assert not first.cached and again.cached
     np.testing.assert_array_equal(first.grid, again.grid)
     assert len(list(cache.glob("shells/*.npz"))) == 1
     assert not shell_tests(scene, bvh, 10 ** 6).active  # no mesh that heavy: no shells
+
+
+def test_the_heavy_builtins_open_and_closed():
+    """heavy-scan and heavy-small are closed, heavy-open-scan is not (holes): `auto` gives shells to the first
+    two only. Small subdivisions stand in for the built-ins' 1.3M triangles."""
+    from probvis.scene.builtin import heavy_open_scan, heavy_scan, heavy_small
+
+    for make, closed in ((heavy_scan, True), (heavy_small, True), (heavy_open_scan, False)):
+        scene = make(res=8, subdivisions=3)
+        scan = next(s for s in scene.shapes if s.name == "scan")
+        assert is_closed(scene.triangles[scan.first_triangle:scan.first_triangle + scan.n_triangles]) == closed
+        assert [s.name for s in heavy_meshes(scene, 1000, closed_only=True)] == (["scan"] if closed else [])

@@ -109,25 +109,55 @@ def box_city(res=256, spp=16, shadow_rays=16, seed=0, blocks=24, layout_seed=7):
     return b.build(cam, RenderSettings(spp, shadow_rays, seed))
 
 
-def heavy_scan(res=256, spp=16, shadow_rays=16, seed=0, subdivisions=8):
-    """A scanned-like occluder of 1.3M triangles (an icosphere subdivided 8 times, its radius displaced by
-    smooth bumps and fine noise) on a floor under a large square light: geometry whose BVH leaves the cache."""
+def _scan(subdivisions, fine, holes=0.0, seed=20140):
+    """A scanned-like closed surface around the origin (radius about 1): an icosphere subdivided `subdivisions`
+    times, its radius displaced by smooth bumps and noise of amplitude `fine`; with `holes`, about that share
+    of its faces removed in patches where a smooth field is highest (a scan's unseen parts). (vertices, faces)"""
     import trimesh
 
-    b = SceneBuilder("heavy-scan", "builtin:heavy-scan")
-    v, f = shp.rectangle()
-    b.add_mesh("floor", "rectangle", v, f, tf.scale([3, 3, 1]), b.material((0.75, 0.75, 0.72)))
     ico = trimesh.creation.icosphere(subdivisions=subdivisions)
-    p = np.asarray(ico.vertices)
-    noise = np.random.default_rng(20140).standard_normal(len(p))
+    p, faces = np.asarray(ico.vertices), np.asarray(ico.faces)
+    noise = np.random.default_rng(seed).standard_normal(len(p))
     r = 1.0 + 0.15 * np.sin(5 * p[:, 0]) * np.cos(4 * p[:, 1]) + 0.05 * np.sin(17 * p[:, 2] + 3 * p[:, 0])
-    r += 0.002 * noise
-    blob = tf.translate([0, 0, 0.95]) @ tf.scale([0.8, 0.6, 0.8])
-    b.add_mesh("scan", "mesh", p * r[:, None], np.asarray(ico.faces), blob, b.material((0.6, 0.45, 0.35)))
+    r += fine * noise
+    if holes > 0:
+        c = p[faces].mean(axis=1)
+        field = np.sin(7 * c[:, 0] + 1) * np.sin(6 * c[:, 1] + 2) * np.sin(5 * c[:, 2] + 3)
+        faces = faces[field < np.quantile(field, 1.0 - holes)]
+    return p * r[:, None], faces
+
+
+def _scan_scene(name, res, spp, shadow_rays, seed, subdivisions, fine, holes, blob, floor):
+    b = SceneBuilder(name, f"builtin:{name}")
+    v, f = shp.rectangle()
+    b.add_mesh("floor", "rectangle", v, f, tf.scale([floor, floor, 1]), b.material((0.75, 0.75, 0.72)))
+    sv, sf = _scan(subdivisions, fine, holes)
+    b.add_mesh("scan", "mesh", sv, sf, blob, b.material((0.6, 0.45, 0.35)))
     light = tf.translate([0.4, -0.2, 3.2]) @ tf.rotate([1, 0, 0], 180) @ tf.scale([1.0, 1.0, 1])
     b.add_mesh("light", "rectangle", v, f, light, None, radiance=(9.0, 9.0, 8.5))
     cam = Camera(tf.look_at([0, -4.2, 3.4], [0, 0, 0.5], [0, 0, 1]), 45.0, res, res)
     return b.build(cam, RenderSettings(spp, shadow_rays, seed))
+
+
+def heavy_scan(res=256, spp=16, shadow_rays=16, seed=0, subdivisions=8):
+    """A scanned-like occluder of 1.3M triangles (an icosphere subdivided 8 times, its radius displaced by
+    smooth bumps and fine noise) on a floor under a large square light: geometry whose BVH leaves the cache."""
+    blob = tf.translate([0, 0, 0.95]) @ tf.scale([0.8, 0.6, 0.8])
+    return _scan_scene("heavy-scan", res, spp, shadow_rays, seed, subdivisions, 0.002, 0.0, blob, 3)
+
+
+def heavy_open_scan(res=256, spp=16, shadow_rays=16, seed=0, subdivisions=8):
+    """heavy-scan as a capture comes: a rougher surface with a tenth of it missing in patches, so the mesh is
+    open (1.2M triangles) and has no inside to decide segments by."""
+    blob = tf.translate([0, 0, 0.95]) @ tf.scale([0.8, 0.6, 0.8])
+    return _scan_scene("heavy-open-scan", res, spp, shadow_rays, seed, subdivisions, 0.01, 0.1, blob, 3)
+
+
+def heavy_small(res=256, spp=16, shadow_rays=16, seed=0, subdivisions=8):
+    """The 1.3M-triangle scan shrunk into a corner of a large floor: a heavy, closed occluder that few of the
+    shadow segments come near."""
+    blob = tf.translate([-1.6, 1.2, 0.25]) @ tf.scale([0.25, 0.2, 0.25])
+    return _scan_scene("heavy-small", res, spp, shadow_rays, seed, subdivisions, 0.002, 0.0, blob, 3)
 
 
 def heavy_canopy(res=256, spp=16, shadow_rays=16, seed=0, leaves=1_000_000, layout_seed=2014):
@@ -145,6 +175,8 @@ BUILTINS = {
     "quad-shadow": (quad_shadow, "one square blocker over a floor: umbra, penumbra and lit regions"),
     "heavy-scan": (heavy_scan, "a 1.3M-triangle scanned-like occluder on a floor under a large light"),
     "heavy-canopy": (heavy_canopy, "a million leaf triangles over the ground: dense foliage, penumbra everywhere"),
+    "heavy-open-scan": (heavy_open_scan, "heavy-scan open: a rougher 1.2M-triangle scan with a tenth of it missing"),
+    "heavy-small": (heavy_small, "the 1.3M-triangle scan small in a corner: a heavy occluder few segments meet"),
 }
 
 

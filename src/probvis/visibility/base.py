@@ -24,12 +24,22 @@ from ..cases import (CASE_LIT, CASE_MASK, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOW
                      CASE_VERIFIED, N_CASES)
 from ..errors import ProbvisError
 
-_TYPE_NAMES = {int: "integer", float: "number", str: "string", bool: "true/false", tuple: "numbers"}
+
+
+class Switch:
+    """An option type: a switch the estimator may also set itself. "on" and "off" force it, "auto" (usually the
+    default) leaves the choice to the estimator; true/false, yes/no and 1/0 are read as on/off."""
+
+    CHOICES = ("auto", "on", "off")
+
+
+_TYPE_NAMES = {int: "integer", float: "number", str: "string", bool: "true/false", tuple: "numbers",
+               Switch: " | ".join(Switch.CHOICES)}
 
 
 @dataclass(frozen=True)
 class Option:
-    """A setting of an estimator. `type` is int, float, str, bool or tuple (`count` comma-separated numbers);
+    """A setting of an estimator. `type` is int, float, str, bool, `Switch` or tuple (`count` comma-separated numbers);
     `default` None means the estimator picks a value itself (say how in `help`). Numbers are checked against
     `minimum` and `maximum`, strings against `choices`; `check(value)` may return an error message, which
     follows the option's name ("must be positive")."""
@@ -88,6 +98,12 @@ class Option:
             if isinstance(value, str) and value.lower() in ("true", "false", "1", "0", "yes", "no", "on", "off"):
                 return value.lower() in ("true", "1", "yes", "on")
             raise bad
+        if self.type is Switch:
+            word = {True: "on", False: "off"}.get(value) if isinstance(value, bool) else \
+                _SWITCH_WORDS.get(value.strip().lower()) if isinstance(value, str) else None
+            if word is None:
+                raise bad
+            return word
         if self.type is str:
             if isinstance(value, str):
                 return value
@@ -98,6 +114,10 @@ class Option:
                 raise bad
             return tuple(_number(x, float, bad) for x in items)
         return _number(value, self.type, bad)
+
+
+_SWITCH_WORDS = {"auto": "auto", "on": "on", "true": "on", "yes": "on", "1": "on", "off": "off", "false": "off",
+                 "no": "off", "0": "off"}
 
 
 def _show(x):

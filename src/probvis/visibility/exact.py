@@ -1,10 +1,12 @@
 """Exact visibility: every shadow segment is tested against the whole scene's BVH (any-hit, early exit), the
 segments of one shading point traversed together as a packet.
 
-With `shells`, heavy meshes get conservative shells (`probvis.shells`, a voxel grid each segment walks) that
+With shells, heavy meshes get conservative shells (`probvis.shells`, a voxel grid each segment walks) that
 decide some segments first: one crossing an inner shell is blocked, one missing the outer shells is tested
 against the rest of the scene only, and the others against the scene only where they cross the outer shells.
-The answer is the same for every segment (tested bit for bit); only the tests made differ."""
+The answer is the same for every segment (tested bit for bit); only the tests made differ. `shells auto` (the
+default) gives them to the closed heavy meshes only, where an inner shell blocks segments early; on an open
+mesh the outer shell alone costs its walk for little."""
 import numpy as np
 
 from ..accel import occluded_segments
@@ -12,7 +14,7 @@ from ..proxies import MIN_TRIANGLES
 from ..shading import ShadedBatch
 from ..shells import shell_memory, shell_tests
 from ..transmittance import ExtinctionGrid
-from .base import Option, Phase, RenderPath, VisibilityEstimator, VisibilityResult
+from .base import Option, Phase, RenderPath, Switch, VisibilityEstimator, VisibilityResult
 from .proxy_kernel import N_TESTS, Correction, geometry_tests, shade_proxy
 
 
@@ -20,7 +22,8 @@ class ExactVisibility(VisibilityEstimator):
     name = "exact"
     summary = "every shadow segment against the whole scene's BVH (the reference)"
     options = (
-        Option("shells", bool, False, "decide segments by conservative shells of heavy meshes first (same image)"),
+        Option("shells", Switch, "auto", "decide segments by conservative shells of heavy meshes first (same image); "
+               "auto: of the closed ones"),
         Option("min_triangles", int, MIN_TRIANGLES, "with shells: meshes of at least this many triangles get them",
                minimum=4),
         Option("cache", bool, True, "cache shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
@@ -33,14 +36,16 @@ class ExactVisibility(VisibilityEstimator):
     def prepare(self, scene, bvh, emitters, settings, integrator):
         super().prepare(scene, bvh, emitters, settings, integrator)
         self.shells = None
-        if self.params.shells:
+        if self.params.shells != "off":
             with self.timed("shells"):
-                self.shells = shell_tests(scene, bvh, self.params.min_triangles, self.params.cache)
+                shells = shell_tests(scene, bvh, self.params.min_triangles, self.params.cache,
+                                     closed_only=self.params.shells == "auto")
+            self.shells = shells if shells.active else None
         self.tests = np.zeros(N_TESTS, np.int64)
 
     def render_path(self):
         """The integrator's fused kernel; with shells, the proxy kernel with every emitter exact-only."""
-        return RenderPath.OWN_KERNEL if self.shells is not None and self.shells.active else RenderPath.FUSED_EXACT
+        return RenderPath.OWN_KERNEL if self.shells is not None else RenderPath.FUSED_EXACT
 
     def evaluate(self, query):
         occluded, n_node, n_tri = occluded_segments(self.bvh, query.origin, query.direction, query.tmax, query.point)
@@ -57,7 +62,7 @@ class ExactVisibility(VisibilityEstimator):
         return ShadedBatch(radiance, counts, n_seg)
 
     def memory_estimate(self, scene, settings, batch_samples):
-        return shell_memory(scene, self.params.min_triangles) if self.params.shells else {}
+        return shell_memory(scene, self.params.min_triangles) if self.params.shells != "off" else {}
 
     def memory_bytes(self):
         return {"shells": self.shells.nbytes} if self.shells is not None else {}

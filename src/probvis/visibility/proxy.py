@@ -22,7 +22,7 @@ from ..rng import uniforms
 from ..shading import ShadedBatch
 from ..shells import ShellTests, shell_memory, shell_tests
 from ..transmittance import RESOLUTION as VOLUME_RESOLUTION, transmittances
-from .base import Option, Phase, RenderPath, VisibilityEstimator, VisibilityResult
+from .base import Option, Phase, RenderPath, Switch, VisibilityEstimator, VisibilityResult
 from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SUM_BOTH,
                            SUM_INV_P, SUM_MISMATCH, SUM_WV, SUM_WV2, VOLUME_VOXEL, Correction, geometry_tests,
                            shade_proxy)
@@ -54,7 +54,8 @@ class ProxyVisibility(VisibilityEstimator):
                "volume for meshes of mostly separate small parts (foliage), mesh otherwise", choices=KINDS),
         Option("q", str, "auto", "probability of also testing a segment exactly: auto (efficiency-aware, per "
                "emitter) or a number in (0, 1]", check=_parse_q, metavar="auto|Q"),
-        Option("shells", bool, True, "decide segments exactly by conservative shells of the heavy meshes first"),
+        Option("shells", Switch, "auto", "decide segments exactly by conservative shells of the heavy meshes first; "
+               "auto: of the closed ones, kept where the pilot predicts they pay"),
         Option("cache", bool, True, "cache proxies and shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
     )
     phases = (
@@ -91,7 +92,8 @@ class ProxyVisibility(VisibilityEstimator):
         with self.timed("proxy_bvh"):  # no proxy: nothing to test but the scene, whose BVH stands in
             self.proxy_bvh = build_bvh(self.proxies.triangles) if has_proxy else bvh
         with self.timed("shells"):
-            self.shells = shell_tests(scene, bvh, p.min_triangles, p.cache) if p.shells else ShellTests.none(bvh)
+            self.shells = ShellTests.none(bvh) if p.shells == "off" else \
+                shell_tests(scene, bvh, p.min_triangles, p.cache, closed_only=p.shells == "auto")
         e, r = scene.n_emitters, REGIONS * REGIONS
         self.fixed_q = None if p.q == "auto" else float(p.q)
         self.q = np.full((r, e), self.fixed_q or PILOT_Q)  # per region and emitter
@@ -106,8 +108,8 @@ class ProxyVisibility(VisibilityEstimator):
         if not has_proxy:
             self.exact[:] = True  # nothing to gain: every segment is tested exactly
         elif self.fixed_q is None:
-            configs = {"plain": ShellTests.none(bvh)}
-            if self.shells.active:
+            configs = {"plain": ShellTests.none(bvh)} if p.shells != "on" or not self.shells.active else {}
+            if self.shells.active:  # forced on: the only configuration
                 configs["shells"] = self.shells
             with self.timed("pilot"):
                 plan = run_pilot(integrator, settings, self._kernel, configs, PILOT_Q)
@@ -191,7 +193,7 @@ class ProxyVisibility(VisibilityEstimator):
         out = {"proxy geometry and its BVH (ratio, triangles)": int((scene.n_triangles - sum(heavy) + proxy) * 200),
                "volumetric proxies' extinction grid": 8 * VOLUME_RESOLUTION ** 3 if heavy and p.kind != "mesh" else 0,
                "per-pixel q and sums (batch size)": batch_samples // max(1, settings.spp) * scene.n_emitters * 49}
-        if p.shells:
+        if p.shells != "off":
             out.update(shell_memory(scene, p.min_triangles))
         return out
 

@@ -109,7 +109,7 @@ def pilot_pixels(camera, spp):
 
 def run_pilot(integrator, settings, kernel, configs, q_default):
     """Measure and plan (a `Plan`). `kernel(batch, shells, correction)` runs the proxy kernel; `configs` maps
-    "plain" (no shells) and, if the scene has them, "shells" to `ShellTests`."""
+    "plain" (no shells) and/or "shells" to `ShellTests`: the configurations to choose from."""
     scene = integrator.scene
     cam, e = scene.camera, scene.n_emitters
     image_pixels = pilot_pixels(cam, settings.spp)
@@ -175,7 +175,7 @@ def run_pilot(integrator, settings, kernel, configs, q_default):
         plans[tag] = (float(np.mean(score)), (rho, cost_e), sums, emitter_plans)
     regions = REGIONS * REGIONS
     plan = Plan(np.zeros((regions, e), bool), np.full((regions, e), q_default), np.full(e, np.nan),
-                configs.get("shells", configs["plain"]), False, camera_cost=kappa, sums=np.zeros((e, N_SUMS)))
+                configs.get("shells") or configs["plain"], False, camera_cost=kappa, sums=np.zeros((e, N_SUMS)))
     if not plans:
         return plan
     # with shells or without, whichever the pilot finds better; shells must win by SHELL_MARGIN (their walk
