@@ -1,26 +1,27 @@
-"""The on-disk cache of derived geometry (proxies, shells): arrays keyed by the SHA-256 of what they were
-derived from, under `$PROBVIS_CACHE_DIR` (default `~/.cache/probvis`). Entries are written atomically; a
+"""The on-disk cache of derived geometry (proxies, shells): arrays keyed by a 128-bit hash (XXH3) of what they
+were derived from, under `$PROBVIS_CACHE_DIR` (default `~/.cache/probvis`). Entries are written atomically; a
 damaged entry is rebuilt and a cache that cannot be written is a warning, never an error."""
-import hashlib
 import os
 import warnings
 from pathlib import Path
 
 import numpy as np
+import xxhash
 
 
 def cache_dir(kind):
-    """Where entries of `kind` ("proxies", "shells", "parts") are cached."""
+    """Where entries of `kind` ("proxies", "shells", "closed", "parts") are cached."""
     return Path(os.environ.get("PROBVIS_CACHE_DIR") or Path.home() / ".cache" / "probvis") / kind
 
 
 def content_key(label, *arrays):
-    """SHA-256 of a label (what is derived, and how) and the arrays it is derived from."""
-    h = hashlib.sha256(label.encode())
+    """XXH3-128 of a label (what is derived, and how) and the arrays it is derived from: a few milliseconds for
+    a million triangles, where SHA-256 of their bytes took a tenth of a second on every run."""
+    h = xxhash.xxh3_128(label.encode())
     for a in arrays:
         a = np.ascontiguousarray(a)
         h.update(f"{a.dtype.str}{a.shape}".encode())
-        h.update(a.tobytes())
+        h.update(a.reshape(-1).view(np.uint8))
     return h.hexdigest()
 
 

@@ -9,7 +9,7 @@ geometry unchanged. A heavy shape made mostly of separate small parts (foliage: 
 collapse) is prefiltered into an extinction grid instead (`transmittance`), with `kind="auto"`; `kind`
 "mesh" or "volume" forces one for every heavy shape. A shape the decimator cannot handle keeps its own
 triangles, with a warning: a proxy is only ever an approximation that the estimator corrects, so a missing
-one costs speed, never correctness. Proxies are cached on disk (`disk_cache`), keyed by the SHA-256 of the
+one costs speed, never correctness. Proxies are cached on disk (`disk_cache`), keyed by a hash of the
 shape's triangles and the decimation target.
 """
 import time

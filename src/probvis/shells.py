@@ -28,7 +28,7 @@ from scipy import ndimage
 
 from .disk_cache import content_key, load_or_build
 from .scene.scene import EMITTER_POINT, EMITTER_SPOT
-from .voxels import grid_placement, walk_start, walk_step
+from .voxels import bounds, grid_placement, walk_start, walk_step
 
 RESOLUTION = 64  # voxels along the longest side of the heavy meshes' bounds
 PAD = 1e-3  # triangle bounds are padded by this fraction of a voxel: a segment leaving a heavy mesh starts inside
@@ -209,25 +209,37 @@ def _inside_regions(labels, n_labels, lo, pitch, bvh, first, count):
     return candidates[inside[candidates]]
 
 
-def heavy_meshes(scene, min_triangles, closed_only=False):
+def heavy_meshes(scene, min_triangles, closed_only=False, use_cache=True):
     """The scene's shapes of at least `min_triangles` triangles that are not emitters; with `closed_only`, only
-    those that can get an inner shell (watertight, no emitter in their bounds): shells pay where they block
-    segments early, and an open mesh's outer shell alone costs a walk for little (an open scan, foliage)."""
+    those that can get an inner shell (closed, `mesh_facts`, and no emitter in their bounds)."""
     heavy = [s for s in scene.shapes if s.n_triangles >= min_triangles and s.emitter < 0]
     if closed_only:
-        boxes = _emitter_boxes(scene)
-        heavy = [s for s in heavy if not _emitter_within(boxes, _span(scene, s)) and is_closed(_span(scene, s))]
+        boxes = emitter_boxes(scene)
+        facts = [mesh_facts(span(scene, s), use_cache) for s in heavy]
+        heavy = [s for s, (lo, hi, closed) in zip(heavy, facts) if closed and not overlaps(boxes, lo, hi)]
     return heavy
 
 
-def _span(scene, shape):
+def mesh_facts(tris, use_cache=True):
+    """(lo, hi, closed): a mesh's bounds and whether it is closed (`is_closed`), cached on disk by the
+    triangles' content. A hash takes 3 ms for a million triangles, their bounds 12 ms and the closedness test
+    a quarter of a second."""
+    def build():
+        lo, hi = bounds(tris)
+        return {"lo": lo, "hi": hi, "closed": np.array(is_closed(tris))}
+
+    out, _ = load_or_build("closed", content_key(f"mesh facts v{CACHE_VERSION}", tris), build, use_cache)
+    return out["lo"], out["hi"], bool(out["closed"])
+
+
+def span(scene, shape):
+    """The triangles of one of the scene's shapes."""
     return scene.triangles[shape.first_triangle:shape.first_triangle + shape.n_triangles]
 
 
-def _emitter_boxes(scene):
+def emitter_boxes(scene):
     """Bounds of the emitting shapes and of the point and spot lights (as empty boxes), (n, 2, 3)."""
-    boxes = np.array([[_span(scene, s).min((0, 1)), _span(scene, s).max((0, 1))]
-                      for s in scene.shapes if s.emitter >= 0]).reshape(-1, 2, 3)
+    boxes = np.array([bounds(span(scene, s)) for s in scene.shapes if s.emitter >= 0]).reshape(-1, 2, 3)
     points = scene.emitter_position[np.isin(scene.emitter_kind, (EMITTER_POINT, EMITTER_SPOT))]
     return np.concatenate([boxes, np.stack([points, points], axis=1)])
 
@@ -237,20 +249,20 @@ def build_shells(scene, bvh, heavy, resolution=RESOLUTION, use_cache=True):
     t0 = time.perf_counter()
     if not heavy:
         return None
-    spans = [_span(scene, s) for s in heavy]
-    emitter_boxes = _emitter_boxes(scene)
-    key = content_key(f"shells v{CACHE_VERSION} resolution {resolution}", emitter_boxes, *spans)
+    spans = [span(scene, s) for s in heavy]
+    boxes = emitter_boxes(scene)
+    key = content_key(f"shells v{CACHE_VERSION} resolution {resolution}", boxes, *spans)
 
     def build():
-        lo = np.min([t.min((0, 1)) for t in spans], axis=0)
-        hi = np.max([t.max((0, 1)) for t in spans], axis=0)
+        mesh_boxes = np.array([bounds(t) for t in spans])
+        lo, hi = mesh_boxes[:, 0].min(axis=0), mesh_boxes[:, 1].max(axis=0)
         lo, pitch, dims = grid_placement(lo, hi, resolution)  # the border region is outside
         grid = np.zeros(dims, np.uint8)
         closed = []
-        for shape, tris in zip(heavy, spans):
+        for shape, tris, (mesh_lo, mesh_hi) in zip(heavy, spans, mesh_boxes):
             marked = np.zeros(dims, bool)
             _mark(tris, lo, pitch, PAD * pitch, dims, marked)
-            ok = is_closed(tris) and not _emitter_within(emitter_boxes, tris)
+            ok = not overlaps(boxes, mesh_lo, mesh_hi) and is_closed(tris)
             inside = np.zeros(dims, bool)
             if ok:
                 labels, n_labels = ndimage.label(~marked)
@@ -268,9 +280,8 @@ def build_shells(scene, bvh, heavy, resolution=RESOLUTION, use_cache=True):
     return Shells(out["grid"], out["lo"], float(out["pitch"]), report, time.perf_counter() - t0, cached)
 
 
-def _emitter_within(boxes, tris):
-    """Whether any emitter's bounds overlap the bounds of `tris`."""
-    lo, hi = tris.min((0, 1)), tris.max((0, 1))
+def overlaps(boxes, lo, hi):
+    """Whether any of the boxes (n, 2, 3) overlaps the box [lo, hi]."""
     return bool(np.any(np.all((boxes[:, 0] <= hi) & (boxes[:, 1] >= lo), axis=1)))
 
 
@@ -328,12 +339,23 @@ def shell_memory(scene, min_triangles):
             "shells: voxel grid (RESOLUTION)": RESOLUTION ** 3}
 
 
-def shell_tests(scene, bvh, min_triangles, use_cache=True, closed_only=False):
-    """`ShellTests` for the scene's heavy meshes (`heavy_meshes`; with `closed_only`, the closed ones), or
-    `ShellTests.none` when there are none."""
+def crossing_share(origin, direction, tmax, lo, hi):
+    """Share of the segments origin + t direction, t in [0, tmax], that pass through the box [lo, hi] (slab
+    tests; an axis the direction does not move along is crossed for all t or none)."""
+    if len(origin) == 0:
+        return 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / direction
+        ta, tb = (lo - origin) * inv, (hi - origin) * inv
+    near = np.fmax.reduce(np.fmin(ta, tb), axis=1)
+    far = np.fmin.reduce(np.fmax(ta, tb), axis=1)
+    return float(np.mean(np.maximum(near, 0.0) <= np.minimum(far, tmax)))
+
+
+def shell_tests(scene, bvh, heavy, use_cache=True):
+    """`ShellTests` for the scene's shapes `heavy` (`heavy_meshes`), or `ShellTests.none` when there are none."""
     from .accel import build_bvh
 
-    heavy = heavy_meshes(scene, min_triangles, closed_only)
     shells = build_shells(scene, bvh, heavy, use_cache=use_cache)
     if shells is None:
         return ShellTests.none(bvh)

@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from .voxels import grid_placement, walk_start, walk_step
+from .voxels import bounds, grid_placement, walk_start, walk_step
 
 RESOLUTION = 64  # voxels along the longest side of the prefiltered meshes' bounds
 SMALL_PARTS = 1.5  # a mesh whose welded vertices exceed this many per triangle is mostly separate small parts
@@ -63,7 +63,7 @@ def mostly_small_parts(n_vertices, n_triangles):
 def extinction_grid(parts, resolution=RESOLUTION):
     """The `ExtinctionGrid` of triangle soups `parts` (a list of (n, 3, 3) arrays)."""
     tris = np.concatenate(parts)
-    lo, hi = tris.min((0, 1)), tris.max((0, 1))
+    lo, hi = bounds(tris)
     lo, pitch, dims = grid_placement(lo, hi, resolution)
     area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
     cell = np.clip(np.floor((tris.mean(axis=1) - lo) / pitch).astype(np.int64), 0, dims - 1)

@@ -12,6 +12,13 @@ def grid_placement(lo, hi, resolution):
     return lo, pitch, np.maximum(np.ceil((hi - lo) / pitch).astype(np.int64) + 2, 3)
 
 
+def bounds(points):
+    """(lo, hi), the corners of the box around `points` (..., 3), reduced coordinate by coordinate: numpy
+    reduces an (n, 3) array over its first axis eight times slower (0.1 s for a million triangles)."""
+    flat = points.reshape(-1, 3)
+    return np.array([flat[:, a].min() for a in range(3)]), np.array([flat[:, a].max() for a in range(3)])
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def slab(o, d, lo, hi, t0, t1):
     """The interval [t0, t1] narrowed to where o + t d lies in [lo, hi] (empty: t0 > t1)."""

@@ -89,9 +89,10 @@ def test_shells_never_change_an_exact_image():
     assert auto.stats["estimator"]["tests"]["scene"]["node"] < plain.stats["intersection_tests"]["shadow"]["node"]
 
 
-def test_open_meshes_get_no_shells_by_default():
+def test_open_meshes_get_no_shells_by_default(cache):
     """`shells auto` skips a scene whose heavy meshes are all open: exact visibility's own kernel, no shells
-    built, no stats of theirs; `--no-shells` and `off` likewise, `on` builds them."""
+    built, no stats of theirs; `--no-shells` and `off` likewise, `on` builds them. The closedness verdicts are
+    cached, one per mesh."""
     scene = sphere_scene(leaves=1500)
     leaves_only = dict(min_triangles=6000)  # of the sphere's 5,120 triangles and 8,000 leaves: only the leaves
     assert [s.name for s in heavy_meshes(scene, 1000, closed_only=True)] == ["sphere"]
@@ -101,8 +102,10 @@ def test_open_meshes_get_no_shells_by_default():
     for setting in ("auto", "off", False):
         r = probvis.render(open_scene, spp=1, shadow_rays=2, visibility_options=dict(leaves_only, shells=setting))
         assert "shells" not in r.stats["estimator"] and r.stats["estimator"]["memory_bytes"] == {}
+    assert r.stats["render_path"] == "fused-exact" and not list(cache.glob("shells/*.npz"))
     r = probvis.render(open_scene, spp=1, shadow_rays=2, visibility_options=dict(leaves_only, shells="on"))
     assert [m["name"] for m in r.stats["estimator"]["shells"]["meshes"]] == ["leaves"]
+    assert len(list(cache.glob("closed/*.npz"))) == 3  # the sphere, 1,500 leaves and 8,000 leaves
 
 
 def test_open_and_broken_meshes_get_no_inner_shell():
@@ -157,7 +160,7 @@ def test_shells_are_cached(cache):
     assert not first.cached and again.cached
     np.testing.assert_array_equal(first.grid, again.grid)
     assert len(list(cache.glob("shells/*.npz"))) == 1
-    assert not shell_tests(scene, bvh, 10 ** 6).active  # no mesh that heavy: no shells
+    assert not shell_tests(scene, bvh, heavy_meshes(scene, 10 ** 6)).active  # no mesh that heavy: no shells
 
 
 def test_the_heavy_builtins_open_and_closed():

