@@ -1,11 +1,15 @@
 """The command line: outputs, one-line errors with non-zero exit, nothing half-written."""
 import json
+import re
 import subprocess
 import sys
 
 import numpy as np
+import pytest
 
+import probvis
 from probvis.cli import main
+from probvis.errors import ProbvisError
 from probvis.io import read_exr
 from tests.conftest import sensor, write_scene
 
@@ -160,3 +164,23 @@ def test_first_run_says_it_compiles_kernels(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(integrator, "_warmed", set())
     assert main(["render", "quad-shadow", "-D", "res=8", "-o", str(tmp_path / "c.exr"), "-q"]) == 0
     assert "compiling" not in capsys.readouterr().err  # -q: nothing
+
+
+@pytest.mark.parametrize("flags, expect", [([], "auto"), (["--shells"], "on"), (["--shells", "off"], "off"),
+                                           (["--shells=auto"], "auto"), (["--no-shells"], "off"),
+                                           (["--shells", "yes"], "on")])
+def test_shells_is_a_tri_state_flag(tmp_path, flags, expect):
+    stats = tmp_path / "s.json"
+    code = main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "--shadow-rays", "1", "-o",
+                 str(tmp_path / "o.exr"), "--stats", str(stats), *flags])
+    assert code == 0 and json.loads(stats.read_text())["visibility"]["shells"] == expect
+
+
+@pytest.mark.parametrize("flags", [["--shells", "maybe"], ["--shells=2"], ["--visibility", "proxy", "--shells", "x"]])
+def test_a_bad_shells_value_is_one_line_naming_it(tmp_path, capsys, flags):
+    code = main(["render", "quad-shadow", "-D", "res=8", "-o", str(tmp_path / "o.exr"), *flags])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "shells expects auto | on | off" in err
+    assert not (tmp_path / "o.exr").exists()
+    with pytest.raises(ProbvisError, match=re.escape("shells expects auto | on | off, got 'maybe'")):
+        probvis.render("quad-shadow", visibility_options={"shells": "maybe"})
