@@ -108,14 +108,16 @@ def _cached_small_parts(tris, digest, use_cache):
 
 
 def build_proxies(scene, ratio=0.01, triangles=None, min_triangles=MIN_TRIANGLES, use_cache=True,
-                  kind="auto"):
+                  kind="auto", only=None):
     """`ProxyGeometry` of a scene: shapes of at least `min_triangles` decimated to `ratio` of their triangles
-    (or to `triangles` each) or, by `kind`, prefiltered into the extinction grid; the others kept."""
+    (or to `triangles` each) or, by `kind`, prefiltered into the extinction grid; the others kept. `only`: the
+    first triangles of the shapes that may get proxies (None: all)."""
     t0 = time.perf_counter()
     parts, volumes, report, clearance = [], [], [], 0.0
     for shape in scene.shapes:
         tris = scene.triangles[shape.first_triangle:shape.first_triangle + shape.n_triangles]
-        if shape.n_triangles < min_triangles or shape.emitter >= 0:
+        if (shape.n_triangles < min_triangles or shape.emitter >= 0
+                or only is not None and shape.first_triangle not in only):
             parts.append(tris)
             continue
         t = time.perf_counter()
@@ -137,6 +139,8 @@ def build_proxies(scene, ratio=0.01, triangles=None, min_triangles=MIN_TRIANGLES
         report.append({"name": shape.name, "kind": "mesh", "triangles": shape.n_triangles,
                        "proxy_triangles": None if proxy is None else len(proxy),
                        "seconds": time.perf_counter() - t, "cached": cached})
+    if not report:  # no shape to simplify: the scene's own triangles, not a copy of them
+        return ProxyGeometry(scene.triangles, report, ExtinctionGrid.none(), time.perf_counter() - t0, clearance)
     volume = extinction_grid(volumes) if volumes else ExtinctionGrid.none()
     if not parts:  # every shape prefiltered: a BVH needs a triangle, a degenerate one that nothing hits
         parts.append(np.repeat(volumes[0][:1, :1], 3, axis=1))

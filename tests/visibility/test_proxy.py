@@ -252,3 +252,21 @@ def test_film_regions_follow_the_crop_window():
     assert r.min() == 0 and r.max() == 63 and np.bincount(r).tolist() == [32] * 64
     crop = Camera(np.eye(4), 40.0, 16, 8, film_width=64, film_height=32, crop_x=48, crop_y=24)
     assert set(film_regions(crop, np.arange(16 * 8)).tolist()) == {54, 55, 62, 63}
+
+
+def test_a_heavy_mesh_few_segments_come_near_gets_no_proxy():
+    """With q auto, a heavy mesh whose bounds few of the pilot's segments cross (the scan small in a corner)
+    gets neither proxy nor shells: the render is exact visibility's, decided by the survey alone. With a fixed q
+    it gets its proxy, as asked."""
+    from probvis.scene.builtin import heavy_scan, heavy_small
+
+    options = {"min_triangles": 1000}
+    small = probvis.render(heavy_small(res=32, subdivisions=3), spp=1, shadow_rays=4, visibility="proxy",
+                           visibility_options=options)
+    assert small.stats["estimator"]["proxies"] == [] and small.stats["render_path"] == "fused-exact"
+    fixed = probvis.render(heavy_small(res=32, subdivisions=3), spp=1, shadow_rays=4, visibility="proxy",
+                           visibility_options=dict(options, q="0.5"))
+    assert [p["name"] for p in fixed.stats["estimator"]["proxies"]] == ["scan"]
+    near = probvis.render(heavy_scan(res=32, subdivisions=3), spp=1, shadow_rays=4, visibility="proxy",
+                          visibility_options=options)
+    assert [p["name"] for p in near.stats["estimator"]["proxies"]] == ["scan"]

@@ -7,6 +7,8 @@ against the rest of the scene only, and the others against the scene only where 
 The answer is the same for every segment (tested bit for bit); only the tests made differ. `shells auto` (the
 default) gives them to the closed heavy meshes only, where an inner shell blocks segments early; on an open
 mesh the outer shell alone costs its walk for little."""
+from typing import NamedTuple
+
 import numpy as np
 
 from ..accel import occluded_segments
@@ -45,9 +47,10 @@ class ExactVisibility(VisibilityEstimator):
         self.shells = None
         if self.params.shells != "off":
             with self.timed("shells"):
-                heavy = meshes_for_shells(self.params.shells, scene, integrator, settings, self.params.min_triangles,
-                                          self.params.cache)
-                shells = shell_tests(scene, bvh, heavy, self.params.cache)
+                survey = survey_heavy_meshes(scene, integrator, settings, self.params.min_triangles,
+                                             self.params.cache) if self.params.shells == "auto" else \
+                    [HeavyMesh(s, True, True) for s in heavy_meshes(scene, self.params.min_triangles)]
+                shells = shell_tests(scene, bvh, meshes_for_shells(self.params.shells, survey), self.params.cache)
             self.shells = shells if shells.active else None
         self.tests = np.zeros(N_TESTS, np.int64)
 
@@ -84,17 +87,18 @@ class ExactVisibility(VisibilityEstimator):
         return out
 
 
+class HeavyMesh(NamedTuple):
+    """What `survey_heavy_meshes` learnt of one heavy mesh."""
 
-def meshes_for_shells(setting, scene, integrator, settings, min_triangles, use_cache):
-    """The heavy meshes that get shells under `setting`: "on" every one, "off" none, "auto" the closed ones
-    (`mesh_facts`, no emitter in their bounds) whose bounds at least CROSSING_SHARE of a pilot's shadow
-    segments cross. Shells decide only the segments that pass near their mesh and cost every segment a walk
-    and the shell kernel, so a heavy mesh that most segments pass far from (small in a corner of the view)
-    costs more than it saves."""
-    if setting == "off":
-        return []
-    if setting == "on":
-        return heavy_meshes(scene, min_triangles)
+    shape: object  # its `ShapeInfo`
+    crossed: bool  # at least CROSSING_SHARE of the pilot's shadow segments cross its bounds
+    solid: bool  # closed, with no emitter in its bounds: it can get an inner shell
+
+
+def survey_heavy_meshes(scene, integrator, settings, min_triangles, use_cache):
+    """A `HeavyMesh` for each of the scene's heavy meshes (`heavy_meshes`), from a pilot of the render's own
+    shadow segments (PILOT_SIDE² shading points, PILOT_RAYS segments each) and the meshes' cached facts
+    (`mesh_facts`): the cheapest evidence of where testing less geometry can pay, a few milliseconds."""
     heavy = heavy_meshes(scene, min_triangles)
     if not heavy:
         return []
@@ -104,10 +108,20 @@ def meshes_for_shells(setting, scene, integrator, settings, min_triangles, use_c
     pixels = np.unique(ys[:, None] * cam.width + xs[None, :])
     batch = integrator.shading_batch(pixels, 1, PILOT_RAYS, (settings.seed ^ PILOT_SALT) & MAX_SEED)
     q = integrator.shadow_query(batch)
-    boxes, chosen = emitter_boxes(scene), []
+    boxes, out = emitter_boxes(scene), []
     for shape in heavy:
         lo, hi, closed = mesh_facts(span(scene, shape), use_cache)
-        if closed and not overlaps(boxes, lo, hi) and crossing_share(q.origin, q.direction, q.tmax, lo, hi) \
-                >= CROSSING_SHARE:
-            chosen.append(shape)
-    return chosen
+        out.append(HeavyMesh(shape, crossing_share(q.origin, q.direction, q.tmax, lo, hi) >= CROSSING_SHARE,
+                             closed and not overlaps(boxes, lo, hi)))
+    return out
+
+
+def meshes_for_shells(setting, survey):
+    """The heavy meshes of a survey (`survey_heavy_meshes`) that get shells under `setting`: "on" every one,
+    "off" none, "auto" the closed ones (no emitter in their bounds either) that the pilot's segments often
+    cross. Shells decide only the segments that pass near their mesh and cost every segment a walk and the
+    shell kernel, so a heavy mesh that most segments pass far from (small in a corner of the view) costs more
+    than it saves."""
+    if setting == "off":
+        return []
+    return [m.shape for m in survey if setting == "on" or (m.crossed and m.solid)]

@@ -23,7 +23,7 @@ from ..shading import ShadedBatch
 from ..shells import ShellTests, shell_memory, shell_tests
 from ..transmittance import RESOLUTION as VOLUME_RESOLUTION, transmittances
 from .base import Option, Phase, RenderPath, Switch, VisibilityEstimator, VisibilityResult
-from .exact import meshes_for_shells
+from .exact import meshes_for_shells, survey_heavy_meshes
 from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SUM_BOTH,
                            SUM_INV_P, SUM_MISMATCH, SUM_WV, SUM_WV2, VOLUME_VOXEL, Correction, geometry_tests,
                            shade_proxy)
@@ -60,6 +60,7 @@ class ProxyVisibility(VisibilityEstimator):
         Option("cache", bool, True, "cache proxies and shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
     )
     phases = (
+        Phase("survey", "prepare", "a pilot of shadow segments: which heavy meshes they cross"),
         Phase("proxies", "prepare", "decimating heavy meshes or prefiltering them into an extinction grid (or "
               "reading the cache)"),
         Phase("proxy_bvh", "prepare", "building the proxy geometry's BVH"),
@@ -87,14 +88,16 @@ class ProxyVisibility(VisibilityEstimator):
             if p.triangles is not None and p.min_triangles <= shape.n_triangles <= p.triangles:
                 raise ProbvisError(f"triangles {p.triangles} is not below the {shape.n_triangles} of mesh "
                                    f"'{shape.name}' (or raise min_triangles above it)")
-        with self.timed("proxies"):
-            self.proxies = build_proxies(scene, p.ratio, p.triangles, p.min_triangles, p.cache, p.kind)
+        with self.timed("survey"):  # the cheapest evidence first: which heavy meshes the segments cross
+            survey = survey_heavy_meshes(scene, integrator, settings, p.min_triangles, p.cache)
+        with self.timed("proxies"):  # with q auto, none for a mesh that few segments come near
+            only = {m.shape.first_triangle for m in survey if m.crossed or p.q != "auto"}
+            self.proxies = build_proxies(scene, p.ratio, p.triangles, p.min_triangles, p.cache, p.kind, only)
         has_proxy = self.proxies.n_decimated + self.proxies.n_volumes > 0
         with self.timed("proxy_bvh"):  # no proxy: nothing to test but the scene, whose BVH stands in
             self.proxy_bvh = build_bvh(self.proxies.triangles) if has_proxy else bvh
         with self.timed("shells"):
-            self.shells = shell_tests(scene, bvh, meshes_for_shells(p.shells, scene, integrator, settings,
-                                                                    p.min_triangles, p.cache), p.cache)
+            self.shells = shell_tests(scene, bvh, meshes_for_shells(p.shells, survey), p.cache)
         e, r = scene.n_emitters, REGIONS * REGIONS
         self.fixed_q = None if p.q == "auto" else float(p.q)
         self.q = np.full((r, e), self.fixed_q or PILOT_Q)  # per region and emitter
