@@ -1,3 +1,5 @@
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -6,6 +8,27 @@ import pytest
 import probvis
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+WARM_UP = """
+import sys
+import probvis
+from probvis.scene.builtin import quad_shadow
+for visibility in sys.argv[1:]:
+    probvis.render(quad_shadow(res=4), spp=1, shadow_rays=2, visibility=visibility)
+"""
+WARM_UP_GROUPS = (("occlusion-map", "probvis"), ("exact", "nee++", "cache-cv", "ratio"))  # about even
+
+
+def pytest_configure(config):
+    """With the tests in parallel processes (pytest-xdist), fill Numba's on-disk cache first, the render paths
+    split between processes: otherwise every test process compiles the same kernels at once, for minutes on a
+    fresh clone. With a warm cache this takes seconds."""
+    if hasattr(config, "workerinput") or not config.pluginmanager.hasplugin("xdist"):
+        return
+    if config.getoption("numprocesses", None) in (None, 0):
+        return
+    procs = [subprocess.Popen([sys.executable, "-c", WARM_UP, *group]) for group in WARM_UP_GROUPS]
+    for p in procs:
+        p.wait()
 
 
 def relmse(x, ref):
