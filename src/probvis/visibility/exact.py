@@ -5,8 +5,9 @@ With shells, heavy meshes get conservative shells (`probvis.shells`, a voxel gri
 decide some segments first: one crossing an inner shell is blocked, one missing the outer shells is tested
 against the rest of the scene only, and the others against the scene only where they cross the outer shells.
 The answer is the same for every segment (tested bit for bit); only the tests made differ. `shells auto` (the
-default) gives them to the closed heavy meshes only, where an inner shell blocks segments early; on an open
-mesh the outer shell alone costs its walk for little."""
+default) gives them only to the closed heavy meshes that a pilot's segments often cross, where an inner shell
+blocks segments early; on an open mesh the outer shell alone costs its walk for little, and on a mesh few
+segments come near the walk costs more than it saves (`meshes_for_shells`)."""
 from typing import NamedTuple
 
 import numpy as np
@@ -32,7 +33,7 @@ class ExactVisibility(VisibilityEstimator):
     summary = "every shadow segment against the whole scene's BVH (the reference)"
     options = (
         Option("shells", Switch, "auto", "decide segments by conservative shells of heavy meshes first (same image); "
-               "auto: of the closed ones"),
+               "auto: of the closed ones that the segments often cross"),
         Option("min_triangles", int, MIN_TRIANGLES, "with shells: meshes of at least this many triangles get them",
                minimum=4),
         Option("cache", bool, True, "cache shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),

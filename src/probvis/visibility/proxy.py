@@ -56,7 +56,7 @@ class ProxyVisibility(VisibilityEstimator):
         Option("q", str, "auto", "probability of also testing a segment exactly: auto (efficiency-aware, per "
                "emitter) or a number in (0, 1]", check=_parse_q, metavar="auto|Q"),
         Option("shells", Switch, "auto", "decide segments exactly by conservative shells of the heavy meshes first; "
-               "auto: of the closed ones, kept where the pilot predicts they pay"),
+               "auto: of the closed ones that the segments often cross, kept where the pilot predicts they pay"),
         Option("cache", bool, True, "cache proxies and shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
     )
     phases = (
