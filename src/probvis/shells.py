@@ -122,8 +122,8 @@ def classify_segments(grid, lo, pitch, org, dirs, tmax):
 
 def is_closed(tris):
     """Whether a triangle soup, its equal corners welded, is watertight: every edge shared by exactly two
-    triangles. Hash tables in one pass (`_closed`): a tenth of a second for a million triangles, where welding
-    by sorting takes seconds."""
+    triangles. Hash tables in one pass (`_closed`): a quarter of a second for 1.3M triangles, where welding by
+    sorting took 1.6 s."""
     corners = np.ascontiguousarray(tris, dtype=np.float64).reshape(-1, 3)
     return bool(len(corners)) and _closed(corners.view(np.uint64))
 
@@ -209,15 +209,9 @@ def _inside_regions(labels, n_labels, lo, pitch, bvh, first, count):
     return candidates[inside[candidates]]
 
 
-def heavy_meshes(scene, min_triangles, closed_only=False, use_cache=True):
-    """The scene's shapes of at least `min_triangles` triangles that are not emitters; with `closed_only`, only
-    those that can get an inner shell (closed, `mesh_facts`, and no emitter in their bounds)."""
-    heavy = [s for s in scene.shapes if s.n_triangles >= min_triangles and s.emitter < 0]
-    if closed_only:
-        boxes = emitter_boxes(scene)
-        facts = [mesh_facts(span(scene, s), use_cache) for s in heavy]
-        heavy = [s for s, (lo, hi, closed) in zip(heavy, facts) if closed and not overlaps(boxes, lo, hi)]
-    return heavy
+def heavy_meshes(scene, min_triangles):
+    """The scene's shapes of at least `min_triangles` triangles that are not emitters."""
+    return [s for s in scene.shapes if s.n_triangles >= min_triangles and s.emitter < 0]
 
 
 def mesh_facts(tris, use_cache=True):

@@ -12,7 +12,7 @@ from probvis.scene import transform as tf
 from probvis.scene.scene import Camera
 from probvis.settings import RenderSettings
 from probvis.shells import (FREE, PAD, SOLID, SURFACE, build_shells, classify_segments, heavy_meshes, is_closed,
-                            shell_tests)
+                            mesh_facts, shell_tests, span)
 
 
 @pytest.fixture(autouse=True)
@@ -95,10 +95,12 @@ def test_open_meshes_get_no_shells_by_default(cache):
     cached, one per mesh."""
     scene = sphere_scene(leaves=1500)
     leaves_only = dict(min_triangles=6000)  # of the sphere's 5,120 triangles and 8,000 leaves: only the leaves
-    assert [s.name for s in heavy_meshes(scene, 1000, closed_only=True)] == ["sphere"]
-    assert heavy_meshes(scene, 1000, closed_only=True) != heavy_meshes(scene, 1000)
+    heavy = heavy_meshes(scene, 1000)
+    assert [s.name for s in heavy] == ["sphere", "leaves"]
+    assert [s.name for s in heavy if mesh_facts(span(scene, s))[2]] == ["sphere"]
     open_scene = sphere_scene(leaves=8000)
-    assert [s.name for s in heavy_meshes(open_scene, **leaves_only, closed_only=True)] == []
+    assert [s.name for s in heavy_meshes(open_scene, **leaves_only)] == ["leaves"]
+    assert [s.name for s in heavy_meshes(open_scene, **leaves_only) if mesh_facts(span(open_scene, s))[2]] == []
     for setting in ("auto", "off", False):
         r = probvis.render(open_scene, spp=1, shadow_rays=2, visibility_options=dict(leaves_only, shells=setting))
         assert "shells" not in r.stats["estimator"] and r.stats["estimator"]["memory_bytes"] == {}
@@ -164,12 +166,16 @@ def test_shells_are_cached(cache):
 
 
 def test_the_heavy_builtins_open_and_closed():
-    """heavy-scan and heavy-small are closed, heavy-open-scan is not (holes): `auto` gives shells to the first
-    two only. Small subdivisions stand in for the built-ins' 1.3M triangles."""
+    """heavy-scan and heavy-small are closed, heavy-open-scan is not (holes); `auto` gives shells to heavy-scan
+    only: heavy-small's scan is closed but few segments come near it. Small subdivisions stand in for the
+    built-ins' 1.3M triangles."""
     from probvis.scene.builtin import heavy_open_scan, heavy_scan, heavy_small
 
-    for make, closed in ((heavy_scan, True), (heavy_small, True), (heavy_open_scan, False)):
-        scene = make(res=8, subdivisions=3)
+    for make, closed, shelled in ((heavy_scan, True, True), (heavy_small, True, False),
+                                  (heavy_open_scan, False, False)):
+        scene = make(res=32, subdivisions=3)
         scan = next(s for s in scene.shapes if s.name == "scan")
-        assert is_closed(scene.triangles[scan.first_triangle:scan.first_triangle + scan.n_triangles]) == closed
-        assert [s.name for s in heavy_meshes(scene, 1000, closed_only=True)] == (["scan"] if closed else [])
+        assert is_closed(span(scene, scan)) == closed == mesh_facts(span(scene, scan))[2]
+        r = probvis.render(scene, spp=1, shadow_rays=2, visibility_options={"min_triangles": 1000})
+        assert [m["name"] for m in (r.stats["estimator"].get("shells") or {}).get("meshes", [])] == \
+            (["scan"] if shelled else [])

@@ -25,7 +25,6 @@ from ..cases import (CASE_LIT, CASE_MASK, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOW
 from ..errors import ProbvisError
 
 
-
 class Switch:
     """An option type: a switch the estimator may also set itself. "on" and "off" force it, "auto" (usually the
     default) leaves the choice to the estimator; true/false, yes/no and 1/0 are read as on/off."""

@@ -49,8 +49,7 @@ class ExactVisibility(VisibilityEstimator):
         if self.params.shells != "off":
             with self.timed("shells"):
                 survey = survey_heavy_meshes(scene, integrator, settings, self.params.min_triangles,
-                                             self.params.cache) if self.params.shells == "auto" else \
-                    [HeavyMesh(s, True, True) for s in heavy_meshes(scene, self.params.min_triangles)]
+                                             self.params.cache)
                 shells = shell_tests(scene, bvh, meshes_for_shells(self.params.shells, survey), self.params.cache)
             self.shells = shells if shells.active else None
         self.tests = np.zeros(N_TESTS, np.int64)
