@@ -62,14 +62,29 @@ def mostly_small_parts(n_vertices, n_triangles):
 
 def extinction_grid(parts, resolution=RESOLUTION):
     """The `ExtinctionGrid` of triangle soups `parts` (a list of (n, 3, 3) arrays)."""
-    tris = np.concatenate(parts)
-    lo, hi = bounds(tris)
+    lo = np.min([bounds(t)[0] for t in parts], axis=0)
+    hi = np.max([bounds(t)[1] for t in parts], axis=0)
     lo, pitch, dims = grid_placement(lo, hi, resolution)
-    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
-    cell = np.clip(np.floor((tris.mean(axis=1) - lo) / pitch).astype(np.int64), 0, dims - 1)
-    flat = np.ravel_multi_index(cell.T, dims)
-    sigma = np.bincount(flat, weights=0.5 * area, minlength=int(np.prod(dims))) / pitch ** 3
-    return ExtinctionGrid(sigma.reshape(dims), lo, pitch)
+    sigma = np.zeros(int(np.prod(dims)))
+    for tris in parts:
+        _deposit(tris, lo, pitch, dims[0], dims[1], dims[2], sigma)
+    return ExtinctionGrid(sigma.reshape(dims) / pitch ** 3, lo, pitch)
+
+
+@njit(cache=True, error_model="numpy")
+def _deposit(tris, lo, pitch, nx, ny, nz, sigma):
+    """Add half of each triangle's area to the flat voxel of `sigma` that holds its centroid, in triangle order
+    (one pass; numpy's temporaries took 0.2 s for a million triangles)."""
+    for t in range(tris.shape[0]):
+        ax, ay, az = tris[t, 1, 0] - tris[t, 0, 0], tris[t, 1, 1] - tris[t, 0, 1], tris[t, 1, 2] - tris[t, 0, 2]
+        bx, by, bz = tris[t, 2, 0] - tris[t, 0, 0], tris[t, 2, 1] - tris[t, 0, 1], tris[t, 2, 2] - tris[t, 0, 2]
+        cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        area = 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
+        cell = 0
+        for a, n in ((0, nx), (1, ny), (2, nz)):
+            c = (tris[t, 0, a] + tris[t, 1, a] + tris[t, 2, a]) / 3.0
+            cell = cell * n + min(max(np.int64(np.floor((c - lo[a]) / pitch)), 0), n - 1)
+        sigma[cell] += 0.5 * area
 
 
 @njit(cache=True, error_model="numpy", inline="always")
