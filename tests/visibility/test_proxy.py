@@ -17,6 +17,7 @@ from probvis.scene.scene import Camera
 from probvis.settings import RenderSettings
 from probvis.visibility import ShadowQuery
 from probvis.visibility.proxy import ProxyVisibility
+from probvis.visibility import proxy_plan
 from probvis.visibility.proxy_plan import Q_MIN, REGIONS, allocate, film_regions, region_measures
 
 
@@ -24,6 +25,13 @@ from probvis.visibility.proxy_plan import Q_MIN, REGIONS, allocate, film_regions
 def cache(tmp_path, monkeypatch):
     monkeypatch.setenv("PROBVIS_CACHE_DIR", str(tmp_path / "cache"))
     return tmp_path / "cache"
+
+
+@pytest.fixture(autouse=True)
+def pilot_at_any_cost(monkeypatch):
+    """The tests' renders are far too short to afford q auto's pilot (PILOT_BUDGET of their seconds): lift the
+    budget so that they test the pilot's plan; `test_a_pilot_dearer_than_its_budget_is_skipped` restores it."""
+    monkeypatch.setattr(proxy_plan, "PILOT_BUDGET", np.inf)
 
 
 def blob_scene(res=24):
@@ -270,3 +278,20 @@ def test_a_heavy_mesh_few_segments_come_near_gets_no_proxy():
     near = probvis.render(heavy_scan(res=32, subdivisions=3), spp=1, shadow_rays=4, visibility="proxy",
                           visibility_options=options)
     assert [p["name"] for p in near.stats["estimator"]["proxies"]] == ["scan"]
+
+
+def test_a_pilot_dearer_than_its_budget_is_skipped(monkeypatch):
+    """With the real budget a short render cannot afford the pilot: the probe predicts more than PILOT_BUDGET of
+    the render, no proxy is built, and the image is exact visibility's, bit for bit. Lifting the budget runs it."""
+    monkeypatch.setattr(proxy_plan, "PILOT_BUDGET", 0.03)
+    scene = blob_scene()
+    auto = probvis.render(scene, spp=2, shadow_rays=4, seed=3, visibility="proxy", visibility_options=OPTIONS)
+    pilot = auto.stats["estimator"]["pilot"]
+    assert not pilot["ran"] and pilot["pilot_seconds"] > pilot["budget_seconds"] == pytest.approx(
+        0.03 * pilot["render_seconds"])
+    assert auto.stats["estimator"]["proxies"] == [] and auto.stats["estimator"]["pilot_segments"] == 0
+    np.testing.assert_array_equal(auto.image, probvis.render(scene, spp=2, shadow_rays=4, seed=3).image)
+    monkeypatch.setattr(proxy_plan, "PILOT_BUDGET", np.inf)
+    ran = probvis.render(scene, spp=2, shadow_rays=4, seed=3, visibility="proxy", visibility_options=OPTIONS)
+    assert ran.stats["estimator"]["pilot"]["ran"] and ran.stats["estimator"]["pilot_segments"] > 0
+

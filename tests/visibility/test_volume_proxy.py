@@ -10,6 +10,7 @@ from probvis.emitters import build_emitter_sampler
 from probvis.integrator import Integrator
 from probvis.proxies import build_proxies
 from probvis.transmittance import ExtinctionGrid, extinction_grid, transmittances
+from probvis.visibility import proxy_plan
 from probvis.visibility.proxy import ProxyVisibility
 
 from .test_proxy import blob_scene, segment_draws
@@ -18,6 +19,7 @@ from .test_proxy import blob_scene, segment_draws
 @pytest.fixture(autouse=True)
 def cache(tmp_path, monkeypatch):
     monkeypatch.setenv("PROBVIS_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(proxy_plan, "PILOT_BUDGET", np.inf)  # as in test_proxy: the pilot's plan under test
 
 
 def box_lengths(org, d, lo, hi):

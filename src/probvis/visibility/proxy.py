@@ -27,7 +27,7 @@ from .exact import meshes_for_shells, survey_heavy_meshes
 from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SUM_BOTH,
                            SUM_INV_P, SUM_MISMATCH, SUM_WV, SUM_WV2, VOLUME_VOXEL, Correction, geometry_tests,
                            shade_proxy)
-from .proxy_plan import REGIONS, film_regions, run_pilot
+from .proxy_plan import REGIONS, Pilot, film_regions
 
 PILOT_Q = 0.5  # q where the pilot measured nothing (it found no segment)
 
@@ -90,14 +90,24 @@ class ProxyVisibility(VisibilityEstimator):
                                    f"'{shape.name}' (or raise min_triangles above it)")
         with self.timed("survey"):  # the cheapest evidence first: which heavy meshes the segments cross
             survey = survey_heavy_meshes(scene, integrator, settings, p.min_triangles, p.cache)
-        with self.timed("proxies"):  # with q auto, none for a mesh that few segments come near
-            only = {m.shape.first_triangle for m in survey if m.crossed or p.q != "auto"}
+        shell_meshes = meshes_for_shells(p.shells, survey)
+        # with q auto, no proxy for a mesh that few segments come near, nor for any where the pilot would cost
+        # more than PILOT_BUDGET of the render: exact visibility then renders, as `exact` would
+        only = {m.shape.first_triangle for m in survey if m.crossed or p.q != "auto"}
+        tags = (["plain"] if p.shells != "on" or not shell_meshes else []) + (["shells"] if shell_meshes else [])
+        self.pilot = Pilot(integrator, settings) if p.q == "auto" and only else None
+        self.pilot_fits = False
+        if self.pilot is not None:
+            with self.timed("pilot"):
+                self.pilot_fits = self.pilot.probe(tags)
+            only = only if self.pilot_fits else set()
+        with self.timed("proxies"):
             self.proxies = build_proxies(scene, p.ratio, p.triangles, p.min_triangles, p.cache, p.kind, only)
         has_proxy = self.proxies.n_decimated + self.proxies.n_volumes > 0
         with self.timed("proxy_bvh"):  # no proxy: nothing to test but the scene, whose BVH stands in
             self.proxy_bvh = build_bvh(self.proxies.triangles) if has_proxy else bvh
         with self.timed("shells"):
-            self.shells = shell_tests(scene, bvh, meshes_for_shells(p.shells, survey), p.cache)
+            self.shells = shell_tests(scene, bvh, shell_meshes, p.cache)
         e, r = scene.n_emitters, REGIONS * REGIONS
         self.fixed_q = None if p.q == "auto" else float(p.q)
         self.q = np.full((r, e), self.fixed_q or PILOT_Q)  # per region and emitter
@@ -113,10 +123,10 @@ class ProxyVisibility(VisibilityEstimator):
             self.exact[:] = True  # nothing to gain: every segment is tested exactly
         elif self.fixed_q is None:
             configs = {"plain": ShellTests.none(bvh)} if p.shells != "on" or not self.shells.active else {}
-            if self.shells.active:  # forced on: the only configuration
+            if self.shells.active:  # with shells (forced on: the only configuration)
                 configs["shells"] = self.shells
             with self.timed("pilot"):
-                plan = run_pilot(integrator, settings, self._kernel, configs, PILOT_Q)
+                plan = self.pilot.plan(self._kernel, configs, PILOT_Q)
             self.exact, self.q, self.gain, self.shells = plan.exact, plan.q, plan.gain, plan.shells
             self.shells_dropped, self.costs, self.camera_cost = plan.shells_dropped, plan.costs, plan.camera_cost
             self.sums += plan.sums
@@ -231,4 +241,6 @@ class ProxyVisibility(VisibilityEstimator):
         if self.shells.shells is not None:
             out["shells"] = self.shells.report()
         out["shells_dropped"] = self.shells_dropped
+        if self.pilot is not None:  # q auto's probe: the pilot ran only if it fit its budget
+            out["pilot"] = dict({k: float(v) for k, v in self.pilot.predicted.items()}, ran=self.pilot_fits)
         return out

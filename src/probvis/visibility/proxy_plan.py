@@ -6,7 +6,9 @@ The pilot renders a grid of the image's own pixels, one sample each, for two ind
 samples: exact visibility through the integrator's fused kernel, and the proxy kernel with no exact test and
 with every segment tested both ways, without the shells and, if there are any, with them. From those it takes
 the costs (relative to exact visibility), each region's variance and mismatch energy, and plans both
-configurations; the render takes the one whose plan predicts more.
+configurations; the render takes the one whose plan predicts more. Its first stage, exact visibility on the
+first set and on a single sample, predicts the render's seconds and the pilot's: where the pilot would cost more
+than PILOT_BUDGET of the render, nothing else is run or built, and exact visibility renders.
 """
 import time
 from dataclasses import dataclass
@@ -20,7 +22,8 @@ from .base import CASE_UNKNOWN
 from .proxy_kernel import N_SUMS, SUM_INV_P, SUM_MISMATCH, SUM_WV, Correction
 
 PILOT_RESOLUTION = 64  # the pilot's pixels along the image's longer side: up to 4,096 camera samples,
-PILOT_SHARE = 1 / 300  # and at most this share of the render's (six kernel runs: about 2% of its time)
+PILOT_SHARE = 1 / 300  # and at most this share of the render's camera samples per kernel run
+PILOT_BUDGET = 0.03  # the pilot runs only if its predicted seconds are at most this share of the render's
 PILOT_SETS = 2  # independent sets of pilot camera samples: their differences give the variance; each kernel
 # runs on both and the faster time is kept (the first call may load or compile)
 REGIONS = 8  # q per emitter in REGIONS x REGIONS tiles of the film
@@ -107,47 +110,109 @@ def pilot_pixels(camera, spp):
     return (ys[:, None] * w + xs[None, :]).ravel()
 
 
-def run_pilot(integrator, settings, kernel, configs, q_default):
-    """Measure and plan (a `Plan`). `kernel(batch, shells, correction)` runs the proxy kernel; `configs` maps
-    "plain" (no shells) and/or "shells" to `ShellTests`: the configurations to choose from."""
-    scene = integrator.scene
-    cam, e = scene.camera, scene.n_emitters
-    image_pixels = pilot_pixels(cam, settings.spp)
-    n_pix = len(image_pixels)
-    seed = (settings.seed ^ PILOT_SALT) & MAX_SEED  # apart from the render's samples, a valid seed still
-    best, batches = {}, []
-    for r in range(PILOT_SETS):  # camera rays, which every method pays: they dilute the gain
-        t0 = time.perf_counter()
-        batch = integrator.shading_batch(image_pixels, 1, settings.shadow_rays, (seed + r) & MAX_SEED)
-        best["camera"] = min(best.get("camera", np.inf), time.perf_counter() - t0)
-        batches.append(batch._replace(cases=np.full_like(batch.cases, CASE_UNKNOWN)))
-    measure_all = Correction(np.ones((n_pix, e)), np.zeros((n_pix, e), bool))
-    proxy_only = Correction(np.zeros((n_pix, e)), np.zeros((n_pix, e), bool))
-    exact_only = Correction(np.ones((n_pix, e)), np.ones((n_pix, e), bool))
+def calls_per_set(tags):
+    """Kernel runs of the pilot per set of camera samples after the probe's: without shells, the proxy alone
+    and both ways; with them, exact visibility too."""
+    return sum(3 if tag == "shells" else 2 for tag in tags)
 
-    def timed(name, run):  # on both sets of camera samples, the faster time kept; the outputs
+
+class Pilot:
+    """The pilot of `q=auto`, in two stages so that deciding costs at most PILOT_BUDGET of the render.
+
+    `probe` renders the first set of pilot camera samples with exact visibility (which the plan needs anyway),
+    and the same for one camera sample, to tell a run's fixed cost from its cost per sample: from those it
+    predicts the render's seconds and the rest of the pilot's, before any proxy is built. Only when the whole
+    pilot fits the budget does `plan` build on the probe: the second set, the proxy kernel's runs, the plan.
+    """
+
+    def __init__(self, integrator, settings):
+        self.integrator = integrator
+        self.settings = settings
+        self.pixels = pilot_pixels(integrator.scene.camera, settings.spp)
+        self.seed = (settings.seed ^ PILOT_SALT) & MAX_SEED  # apart from the render's samples, a valid seed still
+        self.best = {}  # the fastest time of each kernel run over the sets of camera samples
+        self.batches = []
+        self.predicted = {}  # seconds: the render, the whole pilot, and its budget
+
+    def _batch(self, pixels, r):
+        batch = self.integrator.shading_batch(pixels, 1, self.settings.shadow_rays, (self.seed + r) & MAX_SEED)
+        return batch._replace(cases=np.full_like(batch.cases, CASE_UNKNOWN))
+
+    def _timed(self, name, run, batches):
         outs = []
         for batch in batches:
             t0 = time.perf_counter()
             outs.append(run(batch))
-            best[name] = min(best.get(name, np.inf), time.perf_counter() - t0)
+            self.best[name] = min(self.best.get(name, np.inf), time.perf_counter() - t0)
         return outs
 
-    region = film_regions(cam, image_pixels)
+    def probe(self, tags):
+        """Time camera rays and exact visibility on the first set of pilot samples and on one sample (twice: the
+        first run may load kernels), for a pilot of the configurations `tags`; True if the pilot's predicted
+        seconds fit PILOT_BUDGET of the render's."""
+        t_start = time.perf_counter()
+        one = {"camera": np.inf, "exact": np.inf}
+        for _ in range(2):
+            t0 = time.perf_counter()
+            single = self._batch(self.pixels[:1], 0)
+            t1 = time.perf_counter()
+            self.integrator.shade_exact(single)
+            one["camera"] = min(one["camera"], t1 - t0)
+            one["exact"] = min(one["exact"], time.perf_counter() - t1)
+        t0 = time.perf_counter()
+        self.batches.append(self._batch(self.pixels, 0))
+        self.best["camera"] = time.perf_counter() - t0
+        self._timed("exact_plain", self.integrator.shade_exact, self.batches)
+        cam = self.integrator.scene.camera
+        n_pilot, n_render = len(self.pixels), cam.width * cam.height * self.settings.spp
+        per_run = self.best["camera"] + self.best["exact_plain"]
+        fixed = one["camera"] + one["exact"]
+        per_sample = (per_run - fixed) / max(n_pilot - 1, 1)
+        if per_sample <= 0.0:  # timing noise on a tiny pilot: charge every sample the whole run's average
+            per_sample, fixed = per_run / n_pilot, 0.0
+        spent = time.perf_counter() - t_start
+        # the second set's camera rays and exact visibility, then the proxy kernel's runs on both sets, each
+        # about as dear as exact visibility's
+        rest = per_run + PILOT_SETS * calls_per_set(tags) * self.best["exact_plain"]
+        self.predicted = {"render_seconds": fixed + per_sample * n_render, "pilot_seconds": spent + rest}
+        self.predicted["budget_seconds"] = PILOT_BUDGET * self.predicted["render_seconds"]
+        return self.predicted["pilot_seconds"] <= self.predicted["budget_seconds"]
 
-    def measure(tag, shells):
-        """Time the proxy kernel with no exact test and with every segment tested both ways (and exact
-        visibility, with shells) under one configuration of shells; the measures per region."""
-        if shells.active:
-            timed("exact_" + tag, lambda b: kernel(b, shells, exact_only))
-        timed("proxy_" + tag, lambda b: kernel(b, shells, proxy_only))
-        outs = timed("both_" + tag, lambda b: kernel(b, shells, measure_all))
-        # errors are judged relative to the pixel (relMSE): each pixel weighs 1 / (its luminance² + 0.01)
-        lum = 0.5 * sum(out[0] @ LUMINANCE for out in outs)
-        return region_measures([out[3] for out in outs], region, 1.0 / (lum ** 2 + 0.01))
+    def plan(self, kernel, configs, q_default):
+        """Measure and plan (a `Plan`) after `probe`. `kernel(batch, shells, correction)` runs the proxy kernel;
+        `configs` maps "plain" (no shells) and/or "shells" to `ShellTests`: the configurations to choose from."""
+        scene = self.integrator.scene
+        cam, e = scene.camera, scene.n_emitters
+        n_pix = len(self.pixels)
+        for r in range(1, PILOT_SETS):  # camera rays, which every method pays: they dilute the gain
+            t0 = time.perf_counter()
+            self.batches.append(self._batch(self.pixels, r))
+            self.best["camera"] = min(self.best["camera"], time.perf_counter() - t0)
+        self._timed("exact_plain", self.integrator.shade_exact, self.batches[1:])
+        measure_all = Correction(np.ones((n_pix, e)), np.zeros((n_pix, e), bool))
+        proxy_only = Correction(np.zeros((n_pix, e)), np.zeros((n_pix, e), bool))
+        exact_only = Correction(np.ones((n_pix, e)), np.ones((n_pix, e), bool))
+        region = film_regions(cam, self.pixels)
 
-    timed("exact_plain", integrator.shade_exact)
-    measured = {tag: measure(tag, shells) for tag, shells in configs.items()}
+        def measure(tag, shells):
+            """Time the proxy kernel with no exact test and with every segment tested both ways (and exact
+            visibility, with shells) under one configuration of shells; the measures per region."""
+            if shells.active:
+                self._timed("exact_" + tag, lambda b: kernel(b, shells, exact_only), self.batches)
+            self._timed("proxy_" + tag, lambda b: kernel(b, shells, proxy_only), self.batches)
+            outs = self._timed("both_" + tag, lambda b: kernel(b, shells, measure_all), self.batches)
+            # errors are judged relative to the pixel (relMSE): each pixel weighs 1 / (its luminance² + 0.01)
+            lum = 0.5 * sum(out[0] @ LUMINANCE for out in outs)
+            return region_measures([out[3] for out in outs], region, 1.0 / (lum ** 2 + 0.01))
+
+        measured = {tag: measure(tag, shells) for tag, shells in configs.items()}
+        return choose(measured, self.best, configs, e, q_default)
+
+
+def choose(measured, best, configs, e, q_default):
+    """The `Plan` from the pilot's measures per configuration (`region_measures`) and its best times per run:
+    per emitter, exact visibility or the proxy with q per region (`allocate`), in the configuration whose plan
+    predicts more."""
     unit = best["exact_plain"]  # costs relative to exact visibility's fused kernel without shells
     kappa = best["camera"] / unit
     plans = {}
