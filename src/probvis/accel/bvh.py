@@ -29,9 +29,20 @@ def _area(b):
     return 2.0 * (dx * dy + dy * dz + dz * dx)
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _swap_rows(tri_lo, tri_hi, cent, idx, a, b):
+    idx[a], idx[b] = idx[b], idx[a]
+    for k in range(3):
+        tri_lo[a, k], tri_lo[b, k] = tri_lo[b, k], tri_lo[a, k]
+        tri_hi[a, k], tri_hi[b, k] = tri_hi[b, k], tri_hi[a, k]
+        cent[a, k], cent[b, k] = cent[b, k], cent[a, k]
+
+
 @njit(cache=True, error_model="numpy", nogil=True)
 def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, defer_depth):
-    """Build the subtree over idx[first:last] (reordering that range in place). Ranges reached at depth
+    """Build the subtree over positions first..last-1, reordering those rows of the primitives' bounds
+    `tri_lo`, `tri_hi`, centroids `cent` and triangle ids `idx` together in place: every pass then reads them in
+    order (through `idx` the reads scattered once the top levels had split the ranges). Ranges reached at depth
     `defer_depth` (> 0) are not built but left as placeholder nodes (count -1, range in `deferred`), so that
     the caller can build them concurrently. Leaves store absolute positions in `idx`."""
     n = last - first
@@ -71,8 +82,7 @@ def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, 
         # chain of stores and reloads (LLVM cannot keep them in registers past the loads of tri_lo)
         lx = ly = lz = cx0 = cy0 = cz0 = np.inf
         hx = hy = hz = cx1 = cy1 = cz1 = -np.inf
-        for i in range(start, end):
-            t = idx[i]
+        for t in range(start, end):
             lx, ly, lz = min(lx, tri_lo[t, 0]), min(ly, tri_lo[t, 1]), min(lz, tri_lo[t, 2])
             hx, hy, hz = max(hx, tri_hi[t, 0]), max(hy, tri_hi[t, 1]), max(hz, tri_hi[t, 2])
             cx0, cy0, cz0 = min(cx0, cent[t, 0]), min(cy0, cent[t, 1]), min(cz0, cent[t, 2])
@@ -96,8 +106,7 @@ def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, 
             ext = box[a + 3] - box[a]
             if ext > 0.0:
                 scale[a] = n_bins * (1.0 - 1e-9) / ext
-        for i in range(start, end):
-            t = idx[i]
+        for t in range(start, end):
             for a in range(3):
                 if scale[a] == 0.0:
                     continue
@@ -146,12 +155,11 @@ def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, 
         if best_axis >= 0:
             lo, hi = start, end - 1
             while lo <= hi:
-                t = idx[lo]
-                j = min(max(int((cent[t, best_axis] - box[best_axis]) * scale[best_axis]), 0), n_bins - 1)
+                j = min(max(int((cent[lo, best_axis] - box[best_axis]) * scale[best_axis]), 0), n_bins - 1)
                 if j <= best_split:
                     lo += 1
                 else:
-                    idx[lo], idx[hi] = idx[hi], idx[lo]
+                    _swap_rows(tri_lo, tri_hi, cent, idx, lo, hi)
                     hi -= 1
             mid = lo
         else:
