@@ -18,6 +18,7 @@ from probvis.settings import RenderSettings
 from probvis.visibility import ShadowQuery
 from probvis.visibility.proxy import ProxyVisibility
 from probvis.visibility import proxy_plan
+from probvis.visibility.proxy_kernel import N_SUMS
 from probvis.visibility.proxy_plan import Q_MIN, REGIONS, allocate, film_regions, region_measures
 
 
@@ -113,18 +114,21 @@ def test_images_are_unbiased(q, shells):
 
 
 class Checkerboard(ProxyVisibility):
-    """Proxy visibility with exact visibility in every other film region and q 0.1 or 0.5 in the others."""
+    """Proxy visibility with exact visibility in every other film region and q 0.1 or 0.5 in the others, each
+    segment's q in proportion to its weight (`segment_q`, as q=auto plans it)."""
 
     def prepare(self, scene, bvh, emitters, settings, integrator):
         super().prepare(scene, bvh, emitters, settings, integrator)
         r = np.arange(len(self.q))
         self.exact[:] = (r % 2 == 0)[:, None]
         self.q[:] = np.where(r % 3 == 0, 0.1, 0.5)[:, None]
+        self.weight[:] = 0.05
 
 
 def test_per_region_choices_stay_unbiased():
-    """With exact visibility in half the film regions and two values of q in the others (what q=auto may
-    choose), the image-mean difference with exact visibility, paired by seed, averages to zero within 4 SE."""
+    """With exact visibility in half the film regions and two values of q in the others, each segment's q
+    scaled by its weight (what q=auto may choose), the image-mean difference with exact visibility, paired by
+    seed, averages to zero within 4 SE."""
     scene = blob_scene(32)
 
     def mean(seed, **vis):
@@ -214,6 +218,11 @@ def test_efficiency_model():
     use, q, gain = allocate([600, 400], [500.0, 300.0], [0.0, 300.0], 0.2)
     assert list(use) == [True, False] and q[0] == Q_MIN
     assert gain == pytest.approx(1000 / (600 * (0.2 + Q_MIN) + 400))
+    # q per segment in proportion to its weight: the correction adds M' / q and costs e q n' (one region's
+    # optimum of (V - M + M' / q)(n ρ + e q n') is q = √(M' n ρ / ((V - M) e n')))
+    use, q, gain = allocate([1000], [1000.0], [50.0], 0.2, 1.0, scaled=([30.0], [700.0]))
+    assert use[0] and q[0] == pytest.approx(np.sqrt(30.0 * 1000 * 0.2 / (950.0 * 700.0)), rel=1e-6)
+    assert gain == pytest.approx(1000.0 * 1000 / ((950.0 + 30.0 / q[0]) * (1000 * 0.2 + q[0] * 700.0)), rel=1e-9)
     # camera rays costing half an exact test per segment, on both sides: the gain shrinks from 1/0.22 to 1.5/0.72
     assert allocate([1000], [1000.0], [0.0], 0.2 + 0.5, 1.0, 1.5)[2] == pytest.approx(1.5 / (0.7 + Q_MIN))
 
@@ -234,17 +243,17 @@ def test_the_pilot_counts_a_camera_samples_variance_once_per_camera_sample():
     region = rng.integers(0, REGIONS * REGIONS, n_pix)
     sets = []
     for _ in range(2):
-        sums = np.zeros((n_pix, 1, 5))
+        sums = np.zeros((n_pix, 1, N_SUMS))
         sums[:, 0, 2] = n_seg * rng.standard_normal(n_pix) + rng.standard_normal((n_pix, n_seg)).sum(1)
         sums[:, 0, 4] = n_seg
         sets.append(sums)
-    means, variance, _ = region_measures(sets, region)
+    means, variance, _, _ = region_measures(sets, region)
     assert variance.sum() / n_pix == pytest.approx(n_seg ** 2 + n_seg, rel=0.1)
     np.testing.assert_allclose(means[..., 4].sum(), n_seg * n_pix)
     np.testing.assert_allclose(means[..., 2].sum(), 0.5 * (sets[0][..., 2].sum() + sets[1][..., 2].sum()))
     # weighted per pixel (relMSE's 1 / (mean² + 0.01)), the variance and the mismatch energy scale with it
     sets[0][:, 0, 1] = sets[1][:, 0, 1] = 1.0
-    plain, w_variance, w_mismatch = region_measures(sets, region, np.full(n_pix, 3.0))
+    plain, w_variance, w_mismatch, _ = region_measures(sets, region, np.full(n_pix, 3.0))
     np.testing.assert_allclose(w_variance, 3 * variance)
     np.testing.assert_allclose(w_mismatch.sum(), 3 * n_pix)
     np.testing.assert_allclose(plain[..., 1].sum(), n_pix)
@@ -295,3 +304,13 @@ def test_a_pilot_dearer_than_its_budget_is_skipped(monkeypatch):
     ran = probvis.render(scene, spp=2, shadow_rays=4, seed=3, visibility="proxy", visibility_options=OPTIONS)
     assert ran.stats["estimator"]["pilot"]["ran"] and ran.stats["estimator"]["pilot_segments"] > 0
 
+
+
+def test_a_segments_q_follows_its_weight():
+    """`segment_q`: q where no reference weight is set, else q w / weight, at least WEIGHT_FLOOR q, at most 1."""
+    from probvis.visibility.proxy_kernel import WEIGHT_FLOOR, segment_q
+
+    assert segment_q(0.2, 0.7, 0.0) == 0.2
+    assert segment_q(0.2, 0.5, 0.25) == pytest.approx(0.4)
+    assert segment_q(0.2, 1e-6, 0.25) == pytest.approx(WEIGHT_FLOOR * 0.2)
+    assert segment_q(0.6, 1.0, 0.25) == 1.0

@@ -68,7 +68,7 @@ class ExactVisibility(VisibilityEstimator):
             radiance, counts, n_seg, _, tests = shade_proxy(
                 self.integrator.scene_arrays, self.emitters.arrays, self.bvh.arrays, batch, self.bvh.arrays,
                 ExtinctionGrid.none().arrays, 0.0, self.shells.arrays, self.shells.rest.arrays,
-                Correction(np.ones((n_pix, e)), np.ones((n_pix, e), bool)))
+                Correction(np.ones((n_pix, e)), np.ones((n_pix, e), bool), np.zeros(e)))
         self.tests += tests
         return ShadedBatch(radiance, counts, n_seg)
 

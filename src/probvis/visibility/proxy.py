@@ -25,8 +25,8 @@ from ..transmittance import RESOLUTION as VOLUME_RESOLUTION, transmittances
 from .base import Option, Phase, RenderPath, Switch, VisibilityEstimator, VisibilityResult
 from .exact import meshes_for_shells, survey_heavy_meshes
 from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SUM_BOTH,
-                           SUM_INV_P, SUM_MISMATCH, SUM_WV, SUM_WV2, VOLUME_VOXEL, Correction, geometry_tests,
-                           shade_proxy)
+                           SUM_INV_P, SUM_MISMATCH, SUM_MISMATCH_W, SUM_W, SUM_WV, SUM_WV2, VOLUME_VOXEL,
+                           WEIGHT_FLOOR, Correction, geometry_tests, shade_proxy)
 from .proxy_plan import REGIONS, Pilot, film_regions
 
 PILOT_Q = 0.5  # q where the pilot measured nothing (it found no segment)
@@ -113,6 +113,7 @@ class ProxyVisibility(VisibilityEstimator):
         self.q = np.full((r, e), self.fixed_q or PILOT_Q)  # per region and emitter
         self.exact = np.zeros((r, e), bool)  # regions and emitters that take exact visibility alone
         self.gain = np.full(e, np.nan)  # predicted, per emitter
+        self.weight = np.zeros(e)  # per emitter, the weight at which a segment takes q (0: q for every segment)
         self.sums = np.zeros((e, N_SUMS))  # per emitter, the kernel's sums behind δ (`proxy_kernel`)
         self.tests = np.zeros(N_TESTS, np.int64)  # tests by geometry (`proxy_kernel`)
         self.pilot_segments = 0
@@ -128,6 +129,7 @@ class ProxyVisibility(VisibilityEstimator):
             with self.timed("pilot"):
                 plan = self.pilot.plan(self._kernel, configs, PILOT_Q)
             self.exact, self.q, self.gain, self.shells = plan.exact, plan.q, plan.gain, plan.shells
+            self.weight = plan.weight
             self.shells_dropped, self.costs, self.camera_cost = plan.shells_dropped, plan.costs, plan.camera_cost
             self.sums += plan.sums
             self.pilot_segments = plan.segments
@@ -149,7 +151,7 @@ class ProxyVisibility(VisibilityEstimator):
         exact = self.exact[region]
         with self.timed("render_kernel"):
             radiance, counts, n_seg, sums, tests = self._kernel(
-                batch, self.shells, Correction(np.where(exact, 1.0, self.q[region]), exact))
+                batch, self.shells, Correction(np.where(exact, 1.0, self.q[region]), exact, self.weight))
         self.sums += sums.sum(axis=0)
         self.tests += tests
         return ShadedBatch(radiance, counts, n_seg)
@@ -157,17 +159,24 @@ class ProxyVisibility(VisibilityEstimator):
     def _accumulate(self, emitter, w, v, v_p, q):
         """Add segments tested both ways (with probability q) to the per-emitter sums behind δ."""
         for col, x in ((SUM_BOTH, np.ones_like(w)), (SUM_MISMATCH, ((v - v_p) * w) ** 2 / q), (SUM_WV, w * v / q),
-                       (SUM_WV2, (w * v) ** 2 / q), (SUM_INV_P, 1.0 / q)):
+                       (SUM_WV2, (w * v) ** 2 / q), (SUM_INV_P, 1.0 / q), (SUM_W, w / q),
+                       (SUM_MISMATCH_W, (v - v_p) ** 2 * w / q)):
             np.add.at(self.sums, (emitter, col), x)
 
     def evaluate(self, query):
         """The staged interface (segments without their pixels): per emitter, exact visibility if every region
-        takes it, else the proxy with the mean q of the regions that use it."""
+        takes it, else the proxy with the mean q of the regions that use it, scaled by the segment's weight as
+        `proxy_kernel.segment_q` scales it."""
         n = len(query.tmax)
         exact_e = self.exact.all(axis=0)
         q_e = np.where(exact_e, 1.0, np.where(self.exact, 0.0, self.q).sum(0) / np.maximum((~self.exact).sum(0), 1))
         exact_only = exact_e[query.emitter]
         q = np.where(exact_only, 1.0, q_e[query.emitter])
+        ref = self.weight[query.emitter]
+        if query.weight is not None and (ref > 0).any():
+            with np.errstate(divide="ignore", invalid="ignore"):
+                scaled = np.minimum(1.0, q * np.maximum(query.weight / ref, WEIGHT_FLOOR))
+            q = np.where(exact_only | (ref <= 0), q, scaled)
         on_proxy = np.flatnonzero(~exact_only)
         traced = exact_only | (uniforms(query.key, CORRECTION_DIM) < q)
         on_scene = np.flatnonzero(traced)
@@ -234,7 +243,8 @@ class ProxyVisibility(VisibilityEstimator):
                           "exact_only": not used[:, k].any(), "regions_with_proxy": int(used[:, k].sum()),
                           "segments_measured": int(n[k]),
                           "mismatch_energy": None if not np.isfinite(delta[k]) else float(delta[k]),
-                          "predicted_gain": None if not np.isfinite(self.gain[k]) else float(self.gain[k])}
+                          "predicted_gain": None if not np.isfinite(self.gain[k]) else float(self.gain[k]),
+                          "q_weight": float(self.weight[k]) if self.weight[k] > 0 else None}
                          for k in range(len(n))],
         })
         out["tests"] = geometry_tests(self.tests)

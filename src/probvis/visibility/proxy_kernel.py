@@ -27,17 +27,30 @@ N_TESTS = 6
 PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SHELL_VOXEL, VOLUME_VOXEL = range(N_TESTS)
 # per pixel and emitter, over segments decided by the shells (p = 1) and segments tested both ways (p = q):
 # segments tested both ways, Σ ((V - V_P) w)² / q, Σ w V / p, Σ (w V)² / p, Σ 1 / p (w: the luminance of the
-# segment's unoccluded contribution)
-N_SUMS = 5
-SUM_BOTH, SUM_MISMATCH, SUM_WV, SUM_WV2, SUM_INV_P = range(N_SUMS)
+# segment's unoccluded contribution); over the segments tested both ways, Σ w / q and Σ (V - V_P)² w / q
+N_SUMS = 7
+SUM_BOTH, SUM_MISMATCH, SUM_WV, SUM_WV2, SUM_INV_P, SUM_W, SUM_MISMATCH_W = range(N_SUMS)
+WEIGHT_FLOOR = 0.1  # a segment's q is at least this share of its pixel's q
 
 
 class Correction(NamedTuple):
     """Per pixel of the batch and emitter: the probability q of testing a segment exactly, and whether it is
-    tested exactly alone (no proxy)."""
+    tested exactly alone (no proxy); per emitter the weight at which a segment takes q itself: a segment of
+    weight w (`segment_q`) takes q w / weight, where weight > 0."""
 
     q: np.ndarray  # (n_pix, emitters)
     exact_only: np.ndarray  # (n_pix, emitters) bool
+    weight: np.ndarray  # (emitters,)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def segment_q(q, w, weight):
+    """A segment's probability of the exact test: q, or where `weight` > 0 in proportion to the luminance w of
+    its unoccluded contribution (the correction's variance is ((V - V_P) w)² / q, so the q that minimises
+    variance x tests grows with w), at least WEIGHT_FLOOR q and at most 1."""
+    if weight <= 0.0:
+        return q
+    return min(1.0, q * max(w / weight, WEIGHT_FLOOR))
 
 
 def geometry_tests(tests):
@@ -68,7 +81,8 @@ def _trace(bvh, root, org, dirs, tmin, tmax, c, work, occ, n_node, n_tri):
 @njit(cache=True, parallel=True, error_model="numpy")
 def shade_proxy(geom, es, bvh, batch, proxy, volume, clearance, shells, rest, plan):
     """`ShadedBatch` arrays of a `ShadingBatch` (as the fused exact kernel's) with V_P + B (V - V_P) / q per
-    segment, B ~ Bernoulli(`plan.q[pixel, emitter]`) (V alone where `plan.exact_only`, a `Correction`); V_P is
+    segment, B ~ Bernoulli(q), q the segment's `segment_q` under `plan` (V alone where `plan.exact_only`, a
+    `Correction`); V_P is
     the visibility against the `proxy` BVH, whose test ignores the first `clearance` of each segment, times the
     transmittance through the extinction grid `volume` of the volumetric proxies (see `probvis.transmittance`).
 
@@ -81,7 +95,7 @@ def shade_proxy(geom, es, bvh, batch, proxy, volume, clearance, shells, rest, pl
     Also returns the per pixel and emitter sums (N_SUMS slots) and the tests by geometry (N_TESTS slots)."""
     root_s, root_p, root_r = root_record(bvh.root), root_record(proxy.root), root_record(rest.root)
     depth = max(bvh.stack_depth, proxy.stack_depth, rest.stack_depth)
-    q, exact_only = plan.q, plan.exact_only
+    q, exact_only, weight = plan.q, plan.exact_only, plan.weight
     spp, n_shadow = batch.spp, batch.shadow_rays
     radiance, counts, n_seg = shaded_arrays(batch)
     n_pix, n_emit = q.shape
@@ -104,7 +118,7 @@ def shade_proxy(geom, es, bvh, batch, proxy, volume, clearance, shells, rest, pl
         t_lo, t_hi, t_end = np.empty(n_shadow), np.empty(n_shadow), np.empty(n_shadow)
         occ2 = np.empty(n_shadow, np.bool_)
         decided = np.empty(n_shadow, np.bool_)
-        value = np.empty(n_shadow)
+        value, q_k = np.empty(n_shadow), np.empty(n_shadow)
         work = packet_work(depth)
         for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
             for s in range(spp):
@@ -174,8 +188,13 @@ def shade_proxy(geom, es, bvh, batch, proxy, volume, clearance, shells, rest, pl
                 c = 0
                 for k in range(m):
                     e = s_emit[k]
-                    if not decided[k] and (exact_only[px, e] or uniform(mix64(batch.keys[i] + np.uint64(k + 1)),
-                                                                        CORRECTION_DIM) < q[px, e]):
+                    if decided[k]:
+                        continue
+                    q_k[k] = 1.0
+                    if not exact_only[px, e]:
+                        q_k[k] = segment_q(q[px, e], luminance(contrib[k, 0], contrib[k, 1], contrib[k, 2]),
+                                           weight[e])
+                    if exact_only[px, e] or uniform(mix64(batch.keys[i] + np.uint64(k + 1)), CORRECTION_DIM) < q_k[k]:
                         idx[c] = k
                         tmin[c] = t_lo[k]
                         t_end[c] = t_hi[k]
@@ -212,13 +231,15 @@ def shade_proxy(geom, es, bvh, batch, proxy, volume, clearance, shells, rest, pl
                     if exact_only[px, e]:
                         value[k] = v
                         continue
-                    w = luminance(contrib[k, 0], contrib[k, 1], contrib[k, 2])
+                    w, p = luminance(contrib[k, 0], contrib[k, 1], contrib[k, 2]), q_k[k]
                     sums[px, e, SUM_BOTH] += 1.0
-                    sums[px, e, SUM_MISMATCH] += ((v - value[k]) * w) ** 2 / q[px, e]
-                    sums[px, e, SUM_WV] += w * v / q[px, e]
-                    sums[px, e, SUM_WV2] += (w * v) ** 2 / q[px, e]
-                    sums[px, e, SUM_INV_P] += 1.0 / q[px, e]
-                    value[k] += (v - value[k]) / q[px, e]
+                    sums[px, e, SUM_MISMATCH] += ((v - value[k]) * w) ** 2 / p
+                    sums[px, e, SUM_WV] += w * v / p
+                    sums[px, e, SUM_WV2] += (w * v) ** 2 / p
+                    sums[px, e, SUM_INV_P] += 1.0 / p
+                    sums[px, e, SUM_W] += w / p
+                    sums[px, e, SUM_MISMATCH_W] += (v - value[k]) ** 2 * w / p
+                    value[k] += (v - value[k]) / p
                 l0, l1, l2 = batch.emitted[i, 0] + a0, batch.emitted[i, 1] + a1, batch.emitted[i, 2] + a2
                 for k in range(m):
                     l0 += contrib[k, 0] * value[k]

@@ -19,7 +19,7 @@ from ..color import LUMINANCE
 from ..settings import MAX_SEED
 from ..shells import ShellTests
 from .base import CASE_UNKNOWN
-from .proxy_kernel import N_SUMS, SUM_INV_P, SUM_MISMATCH, SUM_WV, Correction
+from .proxy_kernel import N_SUMS, SUM_BOTH, SUM_INV_P, SUM_MISMATCH, SUM_MISMATCH_W, SUM_W, SUM_WV, Correction
 
 PILOT_RESOLUTION = 64  # the pilot's pixels along the image's longer side: up to 4,096 camera samples,
 PILOT_SHARE = 1 / 300  # and at most this share of the render's camera samples per kernel run
@@ -43,27 +43,33 @@ class Plan:
     gain: np.ndarray  # (emitters,) predicted efficiency gain over exact visibility (NaN: nothing measured)
     shells: ShellTests  # the configuration chosen (the shells, or none)
     shells_dropped: bool  # shells were built but the plan without them predicts more
+    weight: np.ndarray = None  # (emitters,) the weight at which a segment takes its region's q (`segment_q`)
     costs: tuple = None  # (ρ, e): the proxy path's cost without and the extra exact test's, relative to exact
     camera_cost: float = None  # κ: the camera rays' cost, relative to the same
     sums: np.ndarray = None  # (emitters, N_SUMS) what the pilot measured
     segments: int = 0  # pilot segments measured both ways
 
 
-def allocate(n, variance, mismatch, rho, exact=1.0, base=1.0, rounds=20):
+def allocate(n, variance, mismatch, rho, exact=1.0, base=1.0, rounds=20, scaled=None):
     """Per region (arrays over regions of one emitter: segments, exact visibility's variance of the region's sum
     over its camera samples, mismatch energy) whether to use the proxy and its q, minimising total variance x
     total cost, with costs per segment `base` for exact visibility and `rho` + `exact` q for the proxy; and the
-    predicted gain over exact visibility, (Σ V) base n / (variance x cost)."""
+    predicted gain over exact visibility, (Σ V) base n / (variance x cost).
+
+    `scaled` = (mismatch', n'): where each segment's q is the region's q times its weight over a reference
+    weight (`proxy_kernel.segment_q`), the correction adds mismatch' / q instead of mismatch / q (mismatch' =
+    Σ (V - V_P)² w w_ref) and costs exact q n' (n' = Σ w / w_ref) instead of exact q n."""
     n, variance, mismatch = (np.asarray(x, float) for x in (n, variance, mismatch))
+    mismatch_q, n_q = (mismatch, n) if scaled is None else (np.asarray(x, float) for x in scaled)
     total_v, total_n = variance.sum(), n.sum()
     if total_v <= 0 or total_n <= 0:
         return np.zeros(len(n), bool), np.ones(len(n)), 1.0
     lam = total_v / (base * total_n)
     for _ in range(rounds):
         with np.errstate(divide="ignore", invalid="ignore"):
-            q = np.clip(np.sqrt(np.where(n > 0, mismatch / (lam * exact * n), 1.0)), Q_MIN, 1.0)
-        proxy_v = variance - mismatch + mismatch / q
-        proxy_c = n * (rho + exact * q)
+            q = np.clip(np.sqrt(np.where(n_q > 0, mismatch_q / (lam * exact * n_q), 1.0)), Q_MIN, 1.0)
+        proxy_v = variance - mismatch + mismatch_q / q
+        proxy_c = n * rho + exact * q * n_q
         use = proxy_v + lam * proxy_c < variance + lam * base * n
         v = np.where(use, proxy_v, variance).sum()
         c = np.where(use, proxy_c, base * n).sum()
@@ -75,9 +81,9 @@ def region_measures(sample_sets, region, weight=None):
     """Per film region and emitter, from the pilot's per-pixel sums (`shade_proxy`'s, every segment tested both
     ways) of two independent sets of camera samples, one per pixel: the sums' means over the two sets, and the
     variance of exact visibility's Σ w V over a camera sample's segments summed over the region's samples,
-    estimated from the two sets' differences pixel by pixel, and the mismatch energy, both weighted per pixel by
-    `weight`. What a camera sample's point adds to that variance counts once per camera sample, not once per
-    segment."""
+    estimated from the two sets' differences pixel by pixel, the mismatch energy and Σ (V - V_P)² w, all three
+    weighted per pixel by `weight`. What a camera sample's point adds to that variance counts once per camera
+    sample, not once per segment."""
     first, second = sample_sets
     weight = (np.ones(len(region)) if weight is None else weight)[:, None]
     sums = np.zeros((REGIONS * REGIONS,) + first.shape[1:])
@@ -86,7 +92,9 @@ def region_measures(sample_sets, region, weight=None):
     np.add.at(variance, region, 0.5 * (first[..., SUM_WV] - second[..., SUM_WV]) ** 2 * weight)
     mismatch = np.zeros((REGIONS * REGIONS, first.shape[1]))
     np.add.at(mismatch, region, 0.5 * (first[..., SUM_MISMATCH] + second[..., SUM_MISMATCH]) * weight)
-    return sums, variance, mismatch
+    mismatch_w = np.zeros((REGIONS * REGIONS, first.shape[1]))
+    np.add.at(mismatch_w, region, 0.5 * (first[..., SUM_MISMATCH_W] + second[..., SUM_MISMATCH_W]) * weight)
+    return sums, variance, mismatch, mismatch_w
 
 
 def film_regions(camera, pix):
@@ -189,9 +197,10 @@ class Pilot:
             self.batches.append(self._batch(self.pixels, r))
             self.best["camera"] = min(self.best["camera"], time.perf_counter() - t0)
         self._timed("exact_plain", self.integrator.shade_exact, self.batches[1:])
-        measure_all = Correction(np.ones((n_pix, e)), np.zeros((n_pix, e), bool))
-        proxy_only = Correction(np.zeros((n_pix, e)), np.zeros((n_pix, e), bool))
-        exact_only = Correction(np.ones((n_pix, e)), np.ones((n_pix, e), bool))
+        constant = np.zeros(e)  # q the same for every segment
+        measure_all = Correction(np.ones((n_pix, e)), np.zeros((n_pix, e), bool), constant)
+        proxy_only = Correction(np.zeros((n_pix, e)), np.zeros((n_pix, e), bool), constant)
+        exact_only = Correction(np.ones((n_pix, e)), np.ones((n_pix, e), bool), constant)
         region = film_regions(cam, self.pixels)
 
         def measure(tag, shells):
@@ -211,42 +220,49 @@ class Pilot:
 
 def choose(measured, best, configs, e, q_default):
     """The `Plan` from the pilot's measures per configuration (`region_measures`) and its best times per run:
-    per emitter, exact visibility or the proxy with q per region (`allocate`), in the configuration whose plan
+    per emitter, exact visibility or the proxy with q per region (`allocate`) for a segment of the emitter's
+    mean weight, each segment's q in proportion to its weight (`segment_q`), in the configuration whose plan
     predicts more."""
     unit = best["exact_plain"]  # costs relative to exact visibility's fused kernel without shells
     kappa = best["camera"] / unit
     plans = {}
-    for tag, (sums, pair_variance, pair_mismatch) in measured.items():
+    for tag, (sums, pair_variance, pair_mismatch, pair_mismatch_w) in measured.items():
         if sums[..., SUM_INV_P].sum() == 0:
             continue
         base = best.get("exact_" + tag, unit) / unit
         # the extra exact tests' cost is a difference of two timings: floored, so noise cannot zero it
         rho = best["proxy_" + tag] / unit
         cost_e = max(best["both_" + tag] - best["proxy_" + tag], 0.01 * unit) / unit
+        both, w_sum = sums[..., SUM_BOTH].sum(axis=0), sums[..., SUM_W].sum(axis=0)
+        weight = np.where(both > 0, w_sum / np.maximum(both, 1), 0.0)  # per emitter, the mean weight
         emitter_plans, score = [], []
         for k in range(e):
             n, mismatch, variance = sums[:, k, SUM_INV_P], pair_mismatch[:, k], pair_variance[:, k]
-            if n.sum() == 0:
+            if n.sum() == 0 or weight[k] <= 0:
                 emitter_plans.append(None)
                 continue
-            mu, nu = mismatch.sum() / n.sum(), variance.sum() / n.sum()
-            mismatch = (mismatch + SHRINK * mu) * n / (n + SHRINK)
-            variance = (variance + SHRINK * nu) * n / (n + SHRINK)
-            use, q, gain = allocate(n, variance, mismatch, rho + kappa, cost_e, base + kappa)
+            mismatch_w, n_w = pair_mismatch_w[:, k] * weight[k], sums[:, k, SUM_W] / weight[k]
+            shrunk = []
+            for x in (mismatch, variance, mismatch_w, n_w):
+                shrunk.append((x + SHRINK * x.sum() / n.sum()) * n / (n + SHRINK))
+            mismatch, variance, mismatch_w, n_w = shrunk
+            use, q, gain = allocate(n, variance, mismatch, rho + kappa, cost_e, base + kappa,
+                                    scaled=(mismatch_w, n_w))
             use &= gain >= GAIN_MARGIN
             emitter_plans.append((use, q, gain * (1 + kappa) / (base + kappa)))
             # a plan that uses the proxies must win by the margin, as within a configuration
             score.append((gain / GAIN_MARGIN if use.any() else 1.0) * (1 + kappa) / (base + kappa))
-        plans[tag] = (float(np.mean(score)), (rho, cost_e), sums, emitter_plans)
+        plans[tag] = (float(np.mean(score)), (rho, cost_e), sums, emitter_plans, weight)
     regions = REGIONS * REGIONS
     plan = Plan(np.zeros((regions, e), bool), np.full((regions, e), q_default), np.full(e, np.nan),
-                configs.get("shells") or configs["plain"], False, camera_cost=kappa, sums=np.zeros((e, N_SUMS)))
+                configs.get("shells") or configs["plain"], False, np.zeros(e), camera_cost=kappa,
+                sums=np.zeros((e, N_SUMS)))
     if not plans:
         return plan
     # with shells or without, whichever the pilot finds better; shells must win by SHELL_MARGIN (their walk
     # costs a few percent where it decides nothing, within the pilot's timing noise)
     tag = max(plans, key=lambda t: plans[t][0] / (SHELL_MARGIN if t == "shells" else 1.0))
-    _, plan.costs, sums, emitter_plans = plans[tag]
+    _, plan.costs, sums, emitter_plans, plan.weight = plans[tag]
     plan.shells = configs[tag]
     plan.shells_dropped = tag == "plain" and "shells" in configs
     plan.sums = sums.sum(axis=0)
