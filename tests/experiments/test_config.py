@@ -26,9 +26,12 @@ def test_quick_preset_covers_every_estimator():
 def test_proxies_experiment_parses(shared):
     from pathlib import Path
 
-    exp = load_experiment(Path(__file__).resolve().parents[2] / "experiments" / "proxies.toml")
+    folder = Path(__file__).resolve().parents[2] / "experiments"
+    exp, sixteen = load_experiment(folder / "proxies.toml"), load_experiment(folder / "proxies-16spp.toml")
     assert exp.seconds == "render" and exp.baseline == "exact"
     assert {m.visibility for m in exp.methods} == {"exact", "proxy", "occlusion-map"}
+    assert (exp.spp, exp.shadow_rays, sixteen.spp, sixteen.shadow_rays) == (4, (16, 64), 16, (16,))
+    assert sixteen.methods == exp.methods and sixteen.scenes == exp.scenes
 
 
 def test_paper_experiment_parses(shared):
