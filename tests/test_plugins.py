@@ -154,20 +154,115 @@ class _Broken(probvis.visibility.VisibilityEstimator):
 
     def evaluate(self, query):
         n = len(query.origin)
-        zeros = np.zeros(n, np.int64)
+        zeros, ones = np.zeros(n, np.int64), np.ones(n)
+        value, counts, aovs = {"nan": np.full(n, np.nan), "short": np.ones(max(n - 1, 0)), "huge": np.full(n, 1e300),
+                               "complex": ones + 1j}.get(self.mode, ones), zeros, {}
         if self.mode == "tuple":
             return (np.ones(n), zeros, zeros)
-        value = np.full(n, np.nan) if self.mode == "nan" else np.ones(max(n - 1, 0))
-        return probvis.visibility.VisibilityResult(value, zeros, zeros)
+        if self.mode in ("negative tests", "fractional tests"):
+            counts = zeros - 3 if self.mode == "negative tests" else np.full(n, 0.5)
+        if self.mode == "undeclared aov":
+            aovs = {"foo": ones}
+        if self.mode == "raises":
+            raise ZeroDivisionError("oops")
+        if self.mode == "undeclared phase":
+            with self.timed("nope"):
+                pass
+        return probvis.visibility.VisibilityResult(value, zeros, counts, aovs)
 
 
-@pytest.mark.parametrize("mode, message", [("nan", r"returned \d+ non-finite values"),
-                                           ("short", "returned value of shape"),
-                                           ("tuple", "returned a tuple, not a VisibilityResult")])
+@pytest.mark.parametrize("mode, message", [
+    ("nan", r"returned \d+ values that are not finite or beyond"),
+    ("huge", r"returned \d+ values that are not finite or beyond ±1e\+12"),
+    ("complex", r"returned value of shape \(\d+,\) \(complex128\)"),
+    ("short", "returned value of shape"),
+    ("tuple", "returned a tuple, not a VisibilityResult"),
+    ("negative tests", "returned triangle_tests that are not whole numbers >= 0"),
+    ("fractional tests", "returned triangle_tests that are not whole numbers >= 0"),
+    ("undeclared aov", "returned AOV 'foo', which the class does not declare"),
+])
 def test_misbehaving_estimators_are_named_not_rendered(mode, message):
-    cls = type(f"Broken_{mode}", (_Broken,), {"mode": mode})
-    with pytest.raises(ProbvisError, match=rf"visibility 'broken' \(.*Broken_{mode}\): evaluate {message}"):
+    cls = type(f"Broken_{mode.replace(' ', '_')}", (_Broken,), {"mode": mode})
+    with pytest.raises(ProbvisError, match=rf"visibility 'broken' \(.*{cls.__name__}\): evaluate {message}"):
         probvis.render("quad-shadow", spp=1, visibility=cls)
+
+
+@pytest.mark.parametrize("mode, message", [
+    ("raises", r"raised ZeroDivisionError in the render \(.*\): oops \(a bug in the estimator\)"),
+    ("undeclared phase", r"times phase 'nope', which it does not declare in `phases`"),
+])
+def test_an_estimator_that_raises_is_named(mode, message):
+    cls = type(f"Broken_{mode.replace(' ', '_')}", (_Broken,), {"mode": mode})
+    with pytest.raises(ProbvisError, match=rf"visibility 'broken' \(.*{cls.__name__}\).*{message}"):
+        probvis.render("quad-shadow", spp=1, visibility=cls)
+
+
+class _Exact(probvis.visibility.VisibilityEstimator):
+    """Exact visibility through the staged interface; subclasses break one other method."""
+
+    name = "exact-plugin"
+    summary = "exact"
+
+    def evaluate(self, query):
+        occ, node, tri = probvis.accel.occluded_segments(self.bvh, query.origin, query.direction, query.tmax,
+                                                          query.point)
+        return probvis.visibility.VisibilityResult(1.0 - occ, node, tri)
+
+
+def _no_super(self, scene, bvh, emitters, settings, integrator):
+    pass
+
+
+def _raise(*args, **kwargs):
+    raise RuntimeError("inner")
+
+
+@pytest.mark.parametrize("methods, message", [
+    ({"__init__": _raise}, "raised RuntimeError in __init__: inner"),
+    ({"prepare": _raise}, "raised RuntimeError in the render"),
+    ({"prepare": _no_super}, "raised AttributeError in the render"),
+    ({"stats": _raise}, "raised RuntimeError in stats: inner"),
+    ({"stats": lambda self: {"ratio": float("nan")}}, "stats\\(\\) returned a value JSON cannot hold"),
+    ({"stats": lambda self: {"ids": np.arange(3)}}, "stats\\(\\) returned a value JSON cannot hold"),
+    ({"memory_estimate": lambda self, *a: {"x": "lots"}}, "memory_estimate\\(\\) must return a dict of byte counts"),
+    ({"memory_estimate": lambda self, *a: {"x": -10 ** 12}}, "memory_estimate\\(\\) must return a dict of byte counts"),
+    ({"classify": lambda self, points: np.zeros(3, np.int8)}, "classify returned int8 of shape \\(3,\\)"),
+])
+def test_a_plugin_s_every_method_is_checked(methods, message):
+    cls = type("Faulty", (_Exact,), methods)
+    with pytest.raises(ProbvisError, match=rf"visibility 'exact-plugin' \(.*Faulty\).*{message}"):
+        probvis.render("quad-shadow", spp=1, defines={"res": 8}, visibility=cls)
+    assert probvis.render("quad-shadow", spp=1, defines={"res": 8}, visibility=_Exact).image.mean() > 0
+
+
+@pytest.mark.parametrize("options, message", [
+    ((probvis.visibility.Option("spp", int, 1, "clash"),), "option 'spp' (--spp) clashes with probvis's own --spp"),
+    ((probvis.visibility.Option("q", float, 0.5, "a"), probvis.visibility.Option("q", float, 0.5, "b")),
+     "declares option 'q' twice"),
+    ((probvis.visibility.Option("p", float, 5.0, "above its maximum", minimum=0.0, maximum=1.0),),
+     "the default of option 'p' is invalid: p must be from 0 to 1, got 5.0"),
+    ((probvis.visibility.Option("kind", str, "c", "not a choice", choices=("a", "b")),),
+     "the default of option 'kind' is invalid: kind must be one of a, b, got 'c'"),
+])
+def test_a_plugin_s_options_are_checked_when_it_loads(options, message):
+    cls = type("Declared", (_Exact,), {"options": options})
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        estimator_class(cls)
+
+
+def test_a_plugin_file_that_raises_is_one_line_and_writes_nothing(tmp_path):
+    (tmp_path / "ests.py").write_text("import numpy as np\nimport probvis\n\n\n"
+                                      "class Raises(probvis.visibility.VisibilityEstimator):\n"
+                                      "    name = 'raises'\n    summary = 'raises'\n\n"
+                                      "    def evaluate(self, query):\n        raise ZeroDivisionError('oops')\n")
+    (tmp_path / "exits.py").write_text("import sys\nsys.exit(3)\n")
+    for spec, message in (("ests.py:Raises", "raised ZeroDivisionError in the render"),
+                          ("exits.py:X", "cannot import 'exits.py': SystemExit: 3"),
+                          ("ests.py:Nope", "'ests.py' defines no 'Nope'")):
+        r = run_cli("render", "quad-shadow", "-D", "res=8", "--spp", "1", "--visibility", spec, "-o", "o.exr",
+                    cwd=tmp_path)
+        assert r.returncode != 0 and r.stderr.count("\n") == 1 and message in r.stderr, r.stderr
+        assert not (tmp_path / "o.exr").exists()
 
 
 def test_an_estimator_without_evaluate_is_refused():

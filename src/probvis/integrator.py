@@ -13,7 +13,8 @@ itself (`shade`). This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0
 """
 import sys
 import time
-from contextlib import nullcontext
+import json
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from threadpoolctl import threadpool_limits
 from . import memory
 from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
-from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
+from .cases import CASE_MASK, CASE_UNKNOWN, CASE_VERIFIED, N_CASES
 from .emitters import build_emitter_sampler
 from .errors import ProbvisError
 from .film import Film, splat_chunk, splat_filter
@@ -39,6 +40,7 @@ from .shading import ShadedBatch, ShadingBatch
 from .visibility import (RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult,
                          estimator_class)
 
+MAX_VISIBILITY = 1e12  # a segment's |estimate| beyond this is a plug-in's mistake (1/q weights stay far below)
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keeps progress and Ctrl-C prompt)
 TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
 COMPILE_TIME = "1-3 minutes"  # what the first run's kernel compilation takes on 2 cores (60-150 s measured)
@@ -136,11 +138,62 @@ def _checked(estimator, res, n):
         raise ProbvisError(f"{where} returned a {type(res).__name__}, not a VisibilityResult")
     for field in ("value", "node_tests", "triangle_tests"):
         arr = np.asarray(getattr(res, field))
-        if arr.shape != (n,) or not np.issubdtype(arr.dtype, np.number):
-            raise ProbvisError(f"{where} returned {field} of shape {arr.shape} ({arr.dtype}) for {n} segments")
-    if not np.all(np.isfinite(res.value)):
-        raise ProbvisError(f"{where} returned {int((~np.isfinite(res.value)).sum())} non-finite values")
+        if arr.shape != (n,) or arr.dtype.kind not in "biuf":
+            raise ProbvisError(f"{where} returned {field} of shape {arr.shape} ({arr.dtype}) for {n} segments "
+                               "(real numbers, one per segment)")
+    if not np.all(np.isfinite(res.value)) or np.abs(res.value).max(initial=0.0) > MAX_VISIBILITY:
+        bad = int((~(np.abs(res.value) <= MAX_VISIBILITY)).sum())
+        raise ProbvisError(f"{where} returned {bad} values that are not finite or beyond ±{MAX_VISIBILITY:g}")
+    for field in ("node_tests", "triangle_tests"):
+        arr = np.asarray(getattr(res, field))
+        if arr.dtype.kind == "f" and not np.all(np.isfinite(arr) & (arr == np.round(arr))) or np.any(arr < 0):
+            raise ProbvisError(f"{where} returned {field} that are not whole numbers >= 0 (counts of tests)")
+    declared = {a.name for a in estimator.aovs if a.kind == "segment"}
+    for name, arr in (res.aovs or {}).items():
+        arr = np.asarray(arr)
+        if name not in declared:
+            raise ProbvisError(f"{where} returned AOV '{name}', which the class does not declare in `aovs`")
+        if arr.shape != (n,) or arr.dtype.kind not in "biuf" or not np.all(np.isfinite(arr)):
+            raise ProbvisError(f"{where} returned AOV '{name}' of shape {arr.shape} ({arr.dtype}): it needs one "
+                               f"finite number per segment ({n})")
     return res
+
+
+@contextmanager
+def plugin_errors(cls, stage):
+    """An exception raised by a plug-in estimator (a class from outside probvis) as one error naming its class
+    and the stage; probvis's own estimators' exceptions pass through (a bug in probvis, with its traceback)."""
+    try:
+        yield
+    except (ProbvisError, MemoryError, KeyboardInterrupt):
+        raise
+    except Exception as exc:
+        if cls.__module__.split(".")[0] == "probvis":
+            raise
+        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "
+                           f"{type(exc).__name__} in {stage}: {exc} (a bug in the estimator)") from None
+
+
+def _checked_cases(estimator, cases, like):
+    """`classify`'s result if it has one int8 CASE_* value per camera sample and emitter (the shape of `like`)."""
+    arr = np.asarray(cases)
+    valid = {int(c) for c in range(N_CASES)} | {int(c) | CASE_VERIFIED for c in range(N_CASES)}
+    if arr.shape != like.shape or arr.dtype.kind not in "iu" or not set(np.unique(arr).tolist()) <= valid:
+        cls = type(estimator)
+        raise ProbvisError(f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): classify returned "
+                           f"{arr.dtype} of shape {arr.shape}; it needs CASE_* values (int8) of shape {like.shape}, "
+                           "one per camera sample and emitter")
+    return arr.astype(np.int8, copy=False)
+
+
+def _checked_stats(cls, stats):
+    """The estimator's `stats()` if JSON can hold it (no NaN, no arrays or sets): the stats file must be JSON."""
+    try:
+        json.dumps(stats, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): stats() returned a value "
+                           f"JSON cannot hold ({exc}); return numbers, strings, lists and dicts") from None
+    return stats
 
 
 def make_path(integrator, estimator, path, n_slots):
@@ -202,7 +255,7 @@ def render_pass(scene, settings, estimator, progress=False):
                                                          np.where(shaded, batch.triangle, -1), batch.keys,
                                                          batch.albedo))
                 if cases is not None:
-                    batch = batch._replace(cases=cases)
+                    batch = batch._replace(cases=_checked_cases(estimator, cases, batch.cases))
                     film.add_cases(batch)
                     counted = cases[shaded] & CASE_MASK
                     for c in range(N_CASES):
@@ -333,20 +386,24 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
         estimator, options = visibility, visibility.settings()
     else:
         options = dict(visibility_options or {})
-        estimator = estimator_class(visibility)(**options)
+        cls = estimator_class(visibility)
+        with plugin_errors(cls, "__init__"):
+            estimator = cls(**options)
     staged = type(estimator).render_path is VisibilityEstimator.render_path  # may need the slot buffers
     rfilter = splat_filter(scene.camera, settings.filter_importance)
-    need = memory.estimate(scene, settings, estimator, batch_pixels(scene, settings, staged), staged,
-                           splat_chunk(rfilter, scene.camera.width)[1] if rfilter is not None else 0)
+    with plugin_errors(type(estimator), "memory_estimate"):
+        need = memory.estimate(scene, settings, estimator, batch_pixels(scene, settings, staged), staged,
+                               splat_chunk(rfilter, scene.camera.width)[1] if rfilter is not None else 0)
     if (type(estimator), repr(sorted(options.items()))) not in _warmed:
         need["kernels"] = memory.KERNEL_BYTES  # loading (or compiling) the kernels comes after the estimate
     memory.check(need, MEMORY_HINTS)
     with threadpool_limits(limits=threads):  # one budget: BLAS and OpenMP pools get no more than Numba
-        cpu_compile = time.process_time()
-        compile_seconds = _warm_up(type(estimator), options, progress)
-        cpu_render = time.process_time()
-        cpu_compile = cpu_render - cpu_compile
-        result = render_pass(scene, settings, estimator, progress)
+        with plugin_errors(type(estimator), "the render (prepare, classify, evaluate or shade)"):
+            cpu_compile = time.process_time()
+            compile_seconds = _warm_up(type(estimator), options, progress)
+            cpu_render = time.process_time()
+            cpu_compile = cpu_render - cpu_compile
+            result = render_pass(scene, settings, estimator, progress)
     image = result.film.developed()
     negative = image < 0
     clamp = {"negative_pixel_share": float(negative.any(axis=-1).mean()),
@@ -360,5 +417,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
                "cpu_render": time.process_time() - cpu_render}
     mem = {"estimated_bytes": int(sum(need.values())), "estimate": {k: int(v) for k, v in need.items()},
            "process_peak_rss_bytes": memory.peak_rss()}
-    stats = render_stats(scene, settings, estimator, result, image, clamp, seconds, mem)
+    with plugin_errors(type(estimator), "stats"):
+        stats = render_stats(scene, settings, estimator, result, image, clamp, seconds, mem)
+    _checked_stats(type(estimator), stats["estimator"])
     return RenderResult(image, stats, result.film.aovs())

@@ -6,6 +6,7 @@ refuses a render that would not fit in the memory available now, naming what to 
 """
 import resource
 
+import numpy as np
 import psutil
 
 from .cases import N_CASES
@@ -36,7 +37,16 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=
         "splat": splat_bytes,
         "process": psutil.Process().memory_info().rss,  # what is already resident: Python, Numba, the scene
     }
-    parts.update(estimator.memory_estimate(scene, settings, per_batch))
+    own = estimator.memory_estimate(scene, settings, per_batch)
+    bad = [k for k, v in (own.items() if isinstance(own, dict) else [("", own)])
+           if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not 0 <= v < 2 ** 63]
+    if bad:
+        from .errors import ProbvisError
+
+        cls = type(estimator)
+        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_estimate() must "
+                           f"return a dict of byte counts (whole numbers >= 0), got {own!r:.200}")
+    parts.update(own)
     return parts
 
 

@@ -47,14 +47,22 @@ def _load(spec, what):
             module = importlib.import_module(module_name)
     except ProbvisError:
         raise
-    except Exception as exc:  # an import error of any kind in the user's module
+    except (Exception, SystemExit) as exc:  # an import error of any kind in the user's module, or its exit
         raise ProbvisError(f"{what}: cannot import '{module_name}': {type(exc).__name__}: {exc}") from None
     cls = getattr(module, class_name, None)
+    if cls is None:
+        raise ProbvisError(f"{what}: '{module_name}' defines no '{class_name}'")
     if not (isinstance(cls, type) and issubclass(cls, VisibilityEstimator)):
         raise ProbvisError(f"{what}: '{spec}' is not a probvis.visibility.VisibilityEstimator subclass")
     if not cls.name:
         raise ProbvisError(f"{what}: '{spec}' declares no name")
     return cls
+
+
+# options of `probvis render` itself: an estimator's option of the same name would clash with its flag
+RESERVED_OPTIONS = {"output", "define", "defines", "seed", "spp", "shadow_rays", "strict", "visibility", "case_image",
+                    "filter_importance", "clamp_negative", "stats", "tests_image", "threads", "exposure", "quiet",
+                    "help"}
 
 
 def _entry_points():
@@ -74,7 +82,25 @@ def estimator_class(name, what="visibility"):
         missing = ", ".join(sorted(cls.__abstractmethods__))
         raise ProbvisError(f"{what}: {cls.__module__}.{cls.__qualname__} does not implement {missing} (see "
                            "docs/writing-an-estimator.md)")
+    _check_declarations(cls, what)
     return cls
+
+
+def _check_declarations(cls, what):
+    """A plug-in's options as the command line and `parse` will take them: distinct names, none of probvis's own
+    flags, defaults their own checks accept."""
+    where = f"{what}: {cls.__module__}.{cls.__qualname__}"
+    names = [o.name for o in cls.options]
+    for o in cls.options:
+        if names.count(o.name) > 1:
+            raise ProbvisError(f"{where} declares option '{o.name}' twice")
+        if o.name in RESERVED_OPTIONS:
+            raise ProbvisError(f"{where}: option '{o.name}' ({o.flag}) clashes with probvis's own {o.flag} (rename it)")
+        if o.default is not None:
+            try:
+                o.parse(o.default)
+            except ProbvisError as exc:
+                raise ProbvisError(f"{where}: the default of option '{o.name}' is invalid: {exc}") from None
 
 
 def _estimator_class(name, what):
@@ -96,7 +122,8 @@ def _estimator_class(name, what):
         return _load(f"{cls.__module__}:{cls.__qualname__}", what)
     if ":" in name:
         return _load(name, what)
-    raise ProbvisError(f"unknown {what} '{name}' (available: {', '.join(available_names())}, or module:Class)")
+    raise ProbvisError(f"unknown {what} '{name}' (available: {', '.join(available_names())}, or module:Class or "
+                       "file.py:Class)")
 
 
 def make_estimator(name, **options):

@@ -250,6 +250,10 @@ class VisibilityEstimator(abc.ABC):
     @contextmanager
     def timed(self, phase):
         """Add the block's wall time to declared phase `phase`."""
+        if phase not in self.seconds:
+            cls = type(self)
+            raise ProbvisError(f"visibility '{self.name}' ({cls.__module__}.{cls.__qualname__}) times phase "
+                               f"'{phase}', which it does not declare in `phases` ({', '.join(self.seconds)})")
         t0 = time.perf_counter()
         try:
             yield
