@@ -1,4 +1,5 @@
 """Reading Mitsuba XML: transforms as Mitsuba composes them, defaults, semantics, and clear errors."""
+import re
 import warnings
 
 import numpy as np
@@ -117,6 +118,12 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
      "out of range"),
     ("<bsdf type='diffuse' id='a'/><bsdf type='diffuse' id='a'/>", "duplicate id 'a'"),
     ("<shape type='shapegroup' id='g'><shape type='instance'><ref id='g'/></shape></shape>", "nested instancing"),
+    ("<shape type='rectangle'><boolean name='flip_normals' value='true'/><boolean name='flip_normals' value='false'/>"
+     "</shape>", "parameter 'flip_normals' is given twice"),
+    ("<shape type='cube' id='c'/><shape type='rectangle'><ref id='c'/></shape>", "id 'c' is a <shape>, not a bsdf"),
+    ("<shape type='obj'><string name='filename' value='.'/></shape>", "is not a regular file"),
+    ("<default name='res' value='8'/><default name='res' value='4'/>", "parameter 'res' is declared twice"),
+    ("<default name='res'/>", "missing attribute 'value' of parameter 'res'"),
 ])
 def test_unsupported_input_names_file_line_and_element(tmp_path, body, message):
     path = write_scene(tmp_path / "bad.xml", sensor() + LIGHT + "\n" + body)
@@ -223,3 +230,27 @@ def test_truncated_ply_empty_texture_and_a_plain_direct_integrator(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         probvis.load_scene(write_scene(tmp_path / "s.xml", plain + LIGHT))
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ('<rfilter type="box"/>', '<rfilter type="tent"><float name="radius" value="0.01"/></rfilter>',
+     "tent radius 0.01 reaches 0.01 pixels, less than half a pixel"),
+    ('<rfilter type="box"/>', '<rfilter type="gaussian"><float name="stddev" value="1e-5"/></rfilter>',
+     "gaussian stddev 1e-05 reaches 4e-05 pixels"),
+    ('<transform name="to_world">', '<transform name="to_world"><scale value="1e-12"/>',
+     "the sensor's to_world scales by 1e-12"),
+    ('<float name="fov" value="40"/>', '<float name="fov" value="40"/><float name="fov" value="90"/>',
+     "parameter 'fov' is given twice"),
+])
+def test_sensor_values_that_would_render_black_are_refused(tmp_path, old, new, message):
+    path = write_scene(tmp_path / "bad.xml", sensor().replace(old, new) + LIGHT)
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.load_scene(path)
+
+
+def test_entity_declarations_are_refused_with_their_line(tmp_path):
+    path = tmp_path / "bomb.xml"
+    path.write_text('<?xml version="1.0"?>\n<!DOCTYPE scene [<!ENTITY lol "lol">]>\n<scene version="3.0.0">'
+                    '&lol;</scene>\n')
+    with pytest.raises(ProbvisError, match=re.escape(f"{path}:2: an entity declaration (<!ENTITY>) is not allowed")):
+        probvis.load_scene(path)

@@ -53,6 +53,10 @@ class _TreeBuilder(xml.sax.ContentHandler):
         self.stack.pop()
 
 
+_DEFUSED = {"EntitiesForbidden": "an entity declaration (<!ENTITY>)", "DTDForbidden": "a document type (<!DOCTYPE>)",
+            "ExternalReferenceForbidden": "a reference to an external file or address"}
+
+
 def parse_tree(path):
     path = Path(path)
     if not path.exists():
@@ -72,7 +76,10 @@ def parse_tree(path):
     except xml.sax.SAXParseException as exc:
         raise ProbvisError(f"{path}:{exc.getLineNumber()}: malformed XML: {exc.getMessage()}") from None
     except defusedxml.DefusedXmlException as exc:
-        raise ProbvisError(f"{path}: forbidden XML construct: {exc}") from None
+        line = next((i for i, text in enumerate(data.splitlines(), 1) if b"<!" in text and b"<!--" not in text), None)
+        where = f"{path}:{line}" if line else str(path)
+        raise ProbvisError(f"{where}: {_DEFUSED.get(type(exc).__name__, 'this XML construct')} is not allowed in "
+                           "scene files (remove it; Mitsuba's scenes use <default> and $parameters)") from None
     except ProbvisError as exc:
         raise ProbvisError(f"{path}:{exc}") from None
     if handler.root is None:
@@ -89,7 +96,7 @@ _VAR = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 
 
 def _unique_ids(root, fail):
-    """Every `id` of the file once, as Mitsuba requires."""
+    """Every `id` of the file once, as Mitsuba requires; the element of each id."""
     seen, todo = {}, [root]
     while todo:
         node = todo.pop()
@@ -100,6 +107,7 @@ def _unique_ids(root, fail):
                 fail(later, f"duplicate id '{key}' (first defined on line {first.line})")
             seen[key] = node
         todo.extend(node.children)
+    return {key: node.tag for key, node in seen.items()}
 
 
 class _Reader:
@@ -109,6 +117,7 @@ class _Reader:
         self.approximated = set()  # plugin types already warned about
         self.overrides = {k: str(v) for k, v in overrides.items()}
         self.defaults = {}
+        self.default_lines = {}  # the line of each <default>
         self.used = set()  # overridden parameters the scene refers to
         self.ids = {}
 
@@ -259,10 +268,13 @@ class _Reader:
 
     def params(self, node, allowed_props, allowed_objects=()):
         """Split children into a {name: value} dict and a list of nested objects, rejecting anything else."""
-        props, objects = {}, []
+        props, objects, lines = {}, [], {}
         for ch in node.children:
             if ch.tag in _PROPERTY_TAGS:
                 name = self.attr(ch, "name")
+                if name in lines:
+                    self.fail(ch, f"parameter '{name}' is given twice (first on line {lines[name]})")
+                lines[name] = ch.line
                 if name not in allowed_props:
                     self.fail(ch, f"unsupported parameter '{name}' for {node.tag} '{node.attrs.get('type', '')}'")
                 props[name] = self.transform(ch) if ch.tag == "transform" else self.value(ch)
@@ -422,7 +434,8 @@ class _Reader:
         self.check_attrs(node, ("id", "name"))
         key = self.attr(node, "id")
         if key not in self.ids:
-            self.fail(node, f"reference to unknown id '{key}'")
+            tag = self.id_tags.get(key)
+            self.fail(node, f"id '{key}' is a <{tag}>, not a {kind}" if tag else f"reference to unknown id '{key}'")
         k, val = self.ids[key]
         if k != kind:
             self.fail(node, f"id '{key}' is a {k}, not a {kind}")
@@ -582,8 +595,10 @@ class _Reader:
             if fname is None:
                 self.fail(node, "missing 'filename'")
             mesh_path = (self.path.parent / fname) if not Path(fname).is_absolute() else Path(fname)
-            if not mesh_path.is_file():
+            if not mesh_path.exists():
                 self.fail(node, f"mesh file not found: {mesh_path}")
+            if not mesh_path.is_file():
+                self.fail(node, f"mesh {mesh_path} is not a regular file (a mesh is an OBJ, PLY or serialized file)")
             try:
                 if kind == "serialized":
                     v, f, vnormals, uv = shp.load_serialized(mesh_path, props.get("shape_index", 0))
@@ -685,6 +700,10 @@ class _Reader:
         if not size > 0 or abs(np.linalg.det(m[:3, :3] / size)) < 1e-12 or np.any(m[3] != (0, 0, 0, 1)):
             self.fail(node, "the sensor's to_world is singular or projective: a camera needs an invertible "
                             "rotation, scale and translation (check its scale and matrix)")
+        scale = np.abs(np.linalg.det(m[:3, :3])) ** (1 / 3)
+        if not 1e-6 <= scale <= 1e6:
+            self.fail(node, f"the sensor's to_world scales by {scale:.3g}, beyond what its rays keep in double "
+                            "precision (1e-6 to 1e6): a camera needs only a rotation and translation")
         cam = Camera(m, fov_x, near_clip=near, far_clip=far,
                      principal_x=props.get("principal_point_offset_x", 0.0),
                      principal_y=props.get("principal_point_offset_y", 0.0), **lens, **film)
@@ -768,6 +787,11 @@ class _Reader:
         most = MAX_FILTER_RADIUS if kind == "tent" else MAX_FILTER_RADIUS / 4  # a Gaussian reaches 4 stddev
         if not 0 < value <= most:
             self.fail(node, f"{kind} {name} must be positive and at most {most:g} pixels, got {value:g}")
+        reach = value if kind == "tent" else 4 * value  # a Gaussian reaches 4 stddev
+        if reach < 0.5:
+            self.fail(node, f"{kind} {name} {value:g} reaches {reach:g} pixels, less than half a pixel: most camera "
+                            f"samples would reach no pixel centre and the image would be black (use at least "
+                            f"{0.5 if kind == 'tent' else 0.125:g}, or a box filter)")
         return {"rfilter": kind, field_name: value}
 
     def integrator(self, node):
@@ -803,13 +827,19 @@ class _Reader:
         if root.tag != "scene":
             self.fail(root, "the root element must be <scene>")
         self.check_attrs(root, ("version",))
-        _unique_ids(root, self.fail)
+        self.id_tags = _unique_ids(root, self.fail)
         builder = SceneBuilder(self.path.stem, str(self.path))
         camera, spp, seed, shadow_rays = None, 4, 0, 1
         for ch in root.children:
             if ch.tag == "default":
                 self.check_attrs(ch, ("name", "value"))
-                self.defaults[self.attr(ch, "name")] = ch.attrs.get("value", "")
+                name = self.attr(ch, "name")
+                if "value" not in ch.attrs:
+                    self.fail(ch, f"missing attribute 'value' of parameter '{name}'")
+                if name in self.default_lines:
+                    self.fail(ch, f"parameter '{name}' is declared twice (first on line {self.default_lines[name]})")
+                self.default_lines[name] = ch.line
+                self.defaults[name] = ch.attrs["value"]
             elif ch.tag == "integrator":
                 shadow_rays = self.integrator(ch)
             elif ch.tag == "sensor":
