@@ -76,6 +76,10 @@ CASES = [
      "give ratio or triangles, not both"),
     (["render", "quad-shadow", "-D", "res=8192"], "this render needs about"),  # under the 6 GiB RLIMIT_AS
     (["render", "quad-shadow", "--exposure", "-inf"], "argument --exposure: must be a number of stops"),
+    (["render", "quad-shadow", "--visibility", "occlusion-map", "-o", "c-e1.exr", "--case-image", "c.exr"],
+     "--case-image c.exr: with several emitters it writes c-e1.exr, the same file as -o c-e1.exr"),
+    (["render", "quad-shadow", "--visibility", "occlusion-map", "--radius", "1e-300"],
+     "radius 1e-300 is below a billionth of the scene"),
 ]
 
 
@@ -135,3 +139,18 @@ def test_ctrl_c_to_the_process_group_of_an_experiment(tmp_path):
     lines = [line for line in err.strip().splitlines() if not line.startswith("experiment '")
              and not line.startswith("computing ")]
     assert len(lines) == 1 and "interrupted" in lines[0] and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("output", ["o.exr", "o.png"])
+def test_a_file_size_limit_is_one_line_and_leaves_nothing(tmp_path, output):
+    """Under `ulimit -f` (RLIMIT_FSIZE) the image's writer fails: one line naming the file, no temporary left."""
+    def limits():
+        _limits()
+        resource.setrlimit(resource.RLIMIT_FSIZE, (1024, 1024))
+
+    r = subprocess.run([sys.executable, "-m", "probvis.cli", "render", "quad-shadow", "-D", "res=64", "--spp", "1",
+                        "-o", output], capture_output=True, text=True, cwd=tmp_path, timeout=TIME_LIMIT,
+                       preexec_fn=limits)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert r.stderr.startswith(f"probvis: error: cannot write '{output}': File too large"), r.stderr
+    assert not list(tmp_path.iterdir())

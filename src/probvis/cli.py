@@ -3,6 +3,7 @@ import argparse
 import dataclasses
 import json
 import os
+import re
 import shlex
 import signal
 import sys
@@ -222,6 +223,13 @@ def _plan_outputs(outputs, args):
         if key in seen:
             raise ProbvisError(f"{flag} {path}: the same file as {seen[key]}; give each output its own name")
         seen[key] = f"{flag} {path}"
+    if args.case_image:  # with several emitters it writes NAME-e0.ext, NAME-e1.ext, ... instead
+        case = Path(args.case_image).resolve()
+        per_emitter = re.compile(re.escape(case.stem) + r"-e\d+" + re.escape(case.suffix))
+        for key, owner in seen.items():
+            if key.parent == case.parent and per_emitter.fullmatch(key.name):
+                raise ProbvisError(f"--case-image {args.case_image}: with several emitters it writes {key.name}, the "
+                                   f"same file as {owner}; give each output its own name")
 
 
 def _cmd_render(args):

@@ -56,6 +56,8 @@ def atomic_path(path):
         os.replace(tmp, path)
     except OSError as exc:
         raise ProbvisError(f"cannot write '{path}': {exc.strerror or exc}") from None
+    except RuntimeError as exc:  # OpenEXR's writer: "Failed to write ... image file "<tmp>". File too large."
+        raise ProbvisError(f"cannot write '{path}': {str(exc).rsplit(chr(34) + '. ', 1)[-1].rstrip('.')}") from None
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -201,8 +203,9 @@ def tonemap_srgb(image, exposure=0.0):
 def write_png(path, image, exposure=0.0):
     import imageio.v3 as iio
 
-    with atomic_path(path) as tmp:
-        iio.imwrite(tmp, tonemap_srgb(image, exposure), extension=".png")
+    data = iio.imwrite("<bytes>", tonemap_srgb(image, exposure), extension=".png")  # encoded in memory: a failed
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:  # write is then our OSError, not imageio's at exit
+        f.write(data)
 
 
 def write_image(path, image, exposure=0.0):

@@ -119,6 +119,9 @@ class OcclusionMapVisibility(VisibilityEstimator):
         if p.radius is not None and p.radius > diagonal:
             raise ProbvisError(f"radius {p.radius:g} is larger than the scene (diagonal {diagonal:.4g}): every photon "
                                "would be every point's neighbour; use a radius well below the scene's size")
+        if p.radius is not None and p.radius < 1e-9 * diagonal:
+            raise ProbvisError(f"radius {p.radius:g} is below a billionth of the scene (diagonal {diagonal:.4g}): "
+                               "no photon would be any point's neighbour; leave it out for the default")
         # an envmap has no closed-form irradiance: its "lit" points are sampled and tested like unknown ones
         env = scene.environment
         self.no_closed_form = ([] if env is None or env.constant else
