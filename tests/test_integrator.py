@@ -141,10 +141,16 @@ def test_stats_and_test_count_image_add_up():
     ({"defines": ["res=8"]}, "defines must be a dict"), ({"visibility_options": ["x"]}, "visibility_options must be"),
     ({"settings": "fast"}, "settings must be a RenderSettings"),
     ({"filter_importance": "yes"}, "filter_importance must be True or False"),
+    ({"visibility_options": {1: 2}}, "visibility_options must be a dict with names"),
 ])
 def test_bad_render_settings(kwargs, message):
     with pytest.raises(ProbvisError, match=message):
         probvis.render("quad-shadow", **kwargs)
+
+
+def test_a_numpy_resolution_is_two_whole_numbers():
+    r = probvis.render("quad-shadow", spp=1, shadow_rays=1, resolution=np.array([8, 6]))
+    assert r.image.shape == (6, 8, 3)
 
 
 @pytest.mark.parametrize("scene", [None, 42, 1.5, ["quad-shadow"]])

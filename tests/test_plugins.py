@@ -188,7 +188,7 @@ def test_misbehaving_estimators_are_named_not_rendered(mode, message):
 
 
 @pytest.mark.parametrize("mode, message", [
-    ("raises", r"raised ZeroDivisionError in the render \(.*\): oops \(a bug in the estimator\)"),
+    ("raises", r"raised ZeroDivisionError in the render \(.*\): oops \(a bug in the estimator; rerunning will not help\)"),
     ("undeclared phase", r"times phase 'nope', which it does not declare in `phases`"),
 ])
 def test_an_estimator_that_raises_is_named(mode, message):

@@ -171,7 +171,8 @@ def plugin_errors(cls, stage):
         if cls.__module__.split(".")[0] == "probvis":
             raise
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "
-                           f"{type(exc).__name__} in {stage}: {exc} (a bug in the estimator)") from None
+                           f"{type(exc).__name__} in {stage}: {exc} (a bug in the estimator; rerunning will not "
+                           "help)") from None
 
 
 def _checked_cases(estimator, cases, like):
@@ -332,12 +333,15 @@ def _check_arguments(scene, settings, resolution, defines, options, numbers):
         raise ProbvisError(f"scene must be a Scene, a scene file path or a built-in name, got {type(scene).__name__}")
     if settings is not None and not isinstance(settings, RenderSettings):
         raise ProbvisError(f"settings must be a RenderSettings, got {type(settings).__name__}")
-    if resolution is not None and not (isinstance(resolution, (tuple, list)) and len(resolution) == 2 and all(
-            isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in resolution)):
+    if resolution is not None and not (isinstance(resolution, (tuple, list, np.ndarray)) and len(resolution) == 2
+                                       and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+                                               for v in list(resolution))):
         raise ProbvisError(f"resolution must be (width, height), two whole numbers, got {resolution!r}")
     for name, value in (("defines", defines), ("visibility_options", options)):
         if value is not None and not isinstance(value, dict):
             raise ProbvisError(f"{name} must be a dict of name: value, got {type(value).__name__}")
+        if value is not None and not all(isinstance(k, str) for k in value):
+            raise ProbvisError(f"{name} must be a dict with names (strings) as keys, got {sorted(map(repr, value))}")
     for name, value in numbers.items():
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))):
             raise ProbvisError(f"{name} must be a whole number, got {value!r} (a {type(value).__name__})")
@@ -373,7 +377,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
         raise ProbvisError(f"scene parameters {sorted(defines)} apply only when loading a scene from a file")
     load_seconds = time.perf_counter() - t_start
     if resolution is not None:
-        scene = scene.with_resolution(*resolution)
+        scene = scene.with_resolution(*(int(v) for v in resolution))
     settings = (settings or scene.defaults).replace(spp=spp, shadow_rays=shadow_rays, seed=seed, threads=threads,
                                                     filter_importance=filter_importance)
     if settings.threads is not None and settings.threads > numba.config.NUMBA_NUM_THREADS:

@@ -84,6 +84,8 @@ def test_mistakes_are_named(change, message):
 def test_files(tmp_path):
     with pytest.raises(ProbvisError, match="experiment file not found"):
         load_experiment(tmp_path / "missing.toml")
+    with pytest.raises(ProbvisError, match="is a folder, not an experiment file"):
+        load_experiment(tmp_path)
     bad = tmp_path / "bad.toml"
     bad.write_text("name = 'x'\n[[scenes]\n")
     with pytest.raises(ProbvisError, match=r"bad.toml: malformed TOML: .*line 2"):
@@ -109,6 +111,7 @@ def test_command_line_mistakes_exit_2_with_one_line(tmp_path, capsys):
 @pytest.mark.parametrize("change, message", [
     ({"methods": [{"name": "e", "visibility": "exact", "baseline": "yes"}]}, "methods[0].baseline: expected true"),
     ({"reference": {"visibility": "magic"}}, "reference.visibility: unknown visibility 'magic'"),
+    ({"name": "../../escape"}, "name: must be a plain name"),
     ({"scenes": [{"name": "q", "source": "quad-shadow", "defines": 3}]}, "scenes[0].defines: expected a table"),
 ])
 def test_more_mistakes_are_named(change, message):
@@ -119,3 +122,10 @@ def test_more_mistakes_are_named(change, message):
 def test_table_column_defaults_to_16_rays_or_the_most():
     assert parse_experiment(doc(shadow_rays=[1, 16, 64])).table_shadow_rays == 16
     assert parse_experiment(doc(shadow_rays=[1, 4])).table_shadow_rays == 4
+
+
+def test_a_reference_that_is_not_an_exr_is_refused_before_any_render(tmp_path):
+    (tmp_path / "r.png").write_bytes(b"\x89PNG")
+    change = {"scenes": [{"name": "q", "source": "quad-shadow", "reference": "r.png"}]}
+    with pytest.raises(ProbvisError, match=re.escape("scenes[0].reference: r.png is not an EXR image")):
+        parse_experiment(doc(**change), tmp_path)

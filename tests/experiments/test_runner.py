@@ -103,8 +103,11 @@ def test_unreachable_scheduler_is_one_clear_error(tmp_path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]  # closed again when the block ends: nothing listens there
     with pytest.raises(ProbvisError, match=f"cannot reach the Dask scheduler at tcp://127.0.0.1:{port}"):
-        experiment(parse_experiment(TINY), tmp_path, scheduler=f"tcp://127.0.0.1:{port}", progress=False,
+        experiment(parse_experiment(TINY), tmp_path / "rep", scheduler=f"tcp://127.0.0.1:{port}", progress=False,
                    log=lambda m: None)
+    assert not (tmp_path / "rep").exists()  # no empty cache folder left behind
+    with pytest.raises(ProbvisError, match="out must be the report's folder"):
+        experiment(parse_experiment(TINY), None)
 
 
 def test_full_disk_while_writing_the_report_keeps_the_renders(tiny_run, tmp_path, monkeypatch):

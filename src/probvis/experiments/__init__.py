@@ -15,6 +15,8 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     Returns (results, path of index.html, run summary)."""
     if not isinstance(exp, Experiment):
         exp = load_experiment(exp)
+    if not isinstance(out, (str, Path)):
+        raise ProbvisError(f"out must be the report's folder (a path), got {type(out).__name__}")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ProbvisError(f"report folder '{out}' is a file: give -o a folder (new or existing)")

@@ -3,6 +3,7 @@
 Every key is checked against the schema below, so a typo is an error naming the key, never a silent default.
 Paths inside the file are relative to the file.
 """
+import re
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -129,6 +130,8 @@ def _scene(where, table, base):
         ref = (base / _str(f"{where}.reference", reference)).resolve()
         if not ref.is_file():
             _fail(f"{where}.reference", f"image not found: {ref}")
+        if ref.suffix.lower() != ".exr":
+            _fail(f"{where}.reference", f"{ref.name} is not an EXR image (a reference holds linear radiance: .exr)")
         reference = str(ref)
     noise = table.get("reference_noise", 0.0)
     if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not 0 <= noise < float("inf"):
@@ -213,7 +216,7 @@ def parse_experiment(data, base=Path("."), source=""):
     if _int("table_shadow_rays", table_rays) not in shadow_rays:
         _fail("table_shadow_rays", f"{table_rays} is not one of shadow_rays {list(shadow_rays)}")
     return Experiment(
-        name=_str("name", data.get("name", Path(source).stem or "experiment")),
+        name=_plain_name("name", data.get("name", Path(source).stem or "experiment")),
         description=str(data.get("description", "")),
         scenes=scene_specs, methods=method_specs, shadow_rays=tuple(sorted(shadow_rays)),
         spp=_int("spp", data.get("spp", 4), 1, MAX_SPP), seeds=_int_list("seeds", data.get("seeds", [0]), 0),
@@ -221,6 +224,14 @@ def parse_experiment(data, base=Path("."), source=""):
         resolution=resolution, target_relmse=None if target is None else float(target),
         table_shadow_rays=table_rays, timing_repeats=_int("timing_repeats", data.get("timing_repeats", 1), 1, 16),
         seconds=_choice("seconds", data.get("seconds", "total"), ("total", "render")))
+
+
+def _plain_name(where, value):
+    """A name that report files and folders are made of: letters, digits, '.', '_' and '-', not starting with '.'."""
+    name = _str(where, value)
+    if not re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9._-]*", name):
+        _fail(where, f"must be a plain name (letters, digits, '.', '_', '-'; it names files), got {name!r}")
+    return name
 
 
 def _choice(where, value, choices):
@@ -232,6 +243,8 @@ def _choice(where, value, choices):
 def load_experiment(path):
     """Read and validate an experiment TOML file."""
     path = Path(path)
+    if path.is_dir():
+        raise ProbvisError(f"{path} is a folder, not an experiment file (.toml)")
     if not path.is_file():
         raise ProbvisError(f"experiment file not found: {path}")
     try:

@@ -230,10 +230,22 @@ def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log
     if workers < 1:
         raise ProbvisError(f"workers must be at least 1, got {workers}")
     scenes = _load_scenes(exp)
-    cache = Cache(cache_dir)
-    refs, cells = plan(exp, scenes)
     files = {spec.name: _reference_file(spec, scenes[spec.name]) for spec in exp.scenes
              if spec.reference is not None}  # checked before the first render
+    new = [d for d in (Path(cache_dir), *Path(cache_dir).parents) if not d.exists()]  # folders this run makes
+    cache = Cache(cache_dir)
+    try:
+        return _run(exp, scenes, files, cache, workers, scheduler, progress, log)
+    except BaseException:
+        for folder in new:  # nothing rendered: leave no empty folders behind
+            if any(folder.iterdir()):
+                break
+            folder.rmdir()
+        raise
+
+
+def _run(exp, scenes, files, cache, workers, scheduler, progress, log):
+    refs, cells = plan(exp, scenes)
     todo = [t for t in refs + cells if not cache.has(t.key)]
     out = RunSummary(tasks=cells, computed=len(todo), cells_cached=sum(cache.has(t.key) for t in cells))
     log(f"experiment '{exp.name}': {len(cells)} cells ({out.cells_cached} cached), {len(refs)} rendered "
