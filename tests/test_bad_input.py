@@ -154,3 +154,25 @@ def test_a_file_size_limit_is_one_line_and_leaves_nothing(tmp_path, output):
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert r.stderr.startswith(f"probvis: error: cannot write '{output}': File too large"), r.stderr
     assert not list(tmp_path.iterdir())
+
+
+def test_a_texture_too_large_to_read_is_one_line(tmp_path, monkeypatch):
+    """A PNG above MAX_IMAGE_PIXELS is refused from its header, before decoding; a MemoryError anywhere is one line."""
+    from PIL import Image
+
+    import probvis
+    from probvis.io import image
+
+    Image.new("L", (64, 64)).save(tmp_path / "big.png")
+    monkeypatch.setattr(image, "MAX_IMAGE_PIXELS", 1000)
+    with pytest.raises(probvis.ProbvisError, match="image is 64x64 .* above the 0 Mpixel probvis reads"):
+        image.read_linear_rgb(tmp_path / "big.png")
+
+    def out_of_memory(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr("probvis.integrator.render", out_of_memory)
+    err = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", err)
+    assert main(["render", "quad-shadow", "-o", str(tmp_path / "o.exr")]) == 2
+    assert err.getvalue().startswith("probvis: error: out of memory") and err.getvalue().count("\n") == 1

@@ -502,6 +502,10 @@ def main(argv=None):
     except ProbvisError as exc:
         print(f"probvis: error: {exc}", file=sys.stderr)
         return 2
+    except MemoryError:  # an allocation the estimate before the render did not foresee (a texture's, say)
+        print("probvis: error: out of memory (the machine's or the process's limit, ulimit -v): lower the "
+              "resolution, --spp, --shadow-rays or the scene's texture sizes", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("probvis: interrupted, nothing written", file=sys.stderr)
         return 130

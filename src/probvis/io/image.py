@@ -42,6 +42,9 @@ def check_writable(path, formats=FORMATS, role="an image"):
         raise ProbvisError(f"cannot write '{path}': {exc.strerror or exc}") from None
 
 
+MAX_IMAGE_PIXELS = 1 << 27  # a texture or environment map larger than this (3 GiB as linear RGB) is refused
+
+
 @contextmanager
 def atomic_path(path):
     """Yield a temporary path beside `path`; rename it over `path` only when the block succeeds."""
@@ -150,8 +153,20 @@ def read_linear_rgb(path, raw=False):
     elif ext in (".png", ".jpg", ".jpeg"):
         import imageio.v3 as iio
 
+        from PIL import Image
+
+        try:
+            with Image.open(path) as im:  # the header only: refuse a size no texture needs before decoding it
+                w, h = im.size
+        except Exception:
+            w = h = 0
+        if w * h > MAX_IMAGE_PIXELS:
+            raise ProbvisError(f"{path}: image is {w}x{h} ({w * h / 1e6:.0f} Mpixel), above the "
+                               f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads (scale it down)")
         try:
             data = iio.imread(path, plugin="pillow")
+        except MemoryError:
+            raise
         except Exception as exc:
             raise ProbvisError(f"cannot read image {path}: not a valid {ext[1:].upper()} file "
                                f"({type(exc).__name__})") from None

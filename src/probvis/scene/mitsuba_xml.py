@@ -802,6 +802,11 @@ class _Reader:
                                           "hide_emitters": ("boolean",)})
             if props.get("hide_emitters", False):
                 self.fail(node, "hide_emitters=true is not supported")
+            depth = props.get("max_depth", -1)
+            if depth in (0, 1):  # Mitsuba: 0 renders nothing, 1 only the emitters seen directly
+                lost = "no light" if depth == 0 else "no direct illumination"
+                self.fail(node, f"max_depth {depth} renders {lost} in Mitsuba; probvis renders direct illumination "
+                                "(max_depth 2, or a 'direct' integrator)")
             warnings.warn(f"{self.path}:{node.line}: integrator '{kind}' rendered as its direct-illumination "
                           "component (probvis renders direct illumination only; one emitter sample per camera "
                           "sample unless --shadow-rays says otherwise)", stacklevel=2)
