@@ -184,3 +184,12 @@ def test_a_bad_shells_value_is_one_line_naming_it(tmp_path, capsys, flags):
     assert not (tmp_path / "o.exr").exists()
     with pytest.raises(ProbvisError, match=re.escape("shells expects auto | on | off, got 'maybe'")):
         probvis.render("quad-shadow", visibility_options={"shells": "maybe"})
+
+
+def test_exposure_without_a_png_is_said_to_be_ignored(tmp_path, capsys):
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "--exposure", "2", "-q",
+                 "-o", str(tmp_path / "o.exr")]) == 0
+    assert "--exposure applies to PNG outputs only" in capsys.readouterr().err
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "--exposure", "2", "-q",
+                 "-o", str(tmp_path / "o.png")]) == 0
+    assert "--exposure" not in capsys.readouterr().err

@@ -242,6 +242,8 @@ def _cmd_render(args):
                            f"'{cls.name}'")
     outputs = args.output or [f"{Path(args.scene).stem}.exr"]
     _plan_outputs(outputs, args)
+    if args.exposure and not any(Path(o).suffix.lower() == ".png" for o in outputs):
+        warnings.warn("--exposure applies to PNG outputs only (EXR and PFM keep the radiance): ignored", stacklevel=1)
     options = {o.name: getattr(args, o.name) for o in cls.options if getattr(args, o.name) is not None}
     result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed, threads=args.threads,
                     visibility=cls, visibility_options=options, defines=_defines(args.defines), strict=args.strict,
