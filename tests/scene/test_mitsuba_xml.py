@@ -256,3 +256,18 @@ def test_entity_declarations_are_refused_with_their_line(tmp_path):
                     '&lol;</scene>\n')
     with pytest.raises(ProbvisError, match=re.escape(f"{path}:2: an entity declaration (<!ENTITY>) is not allowed")):
         probvis.load_scene(path)
+
+
+@pytest.mark.parametrize("faces, message", [
+    ("f 0 1 2", "m.obj:5: face index 0 is invalid (OBJ indices start at 1)"),
+    ("f 1 2", "m.obj:5: a face needs at least 3 vertices"),
+    ("f 1//1 2//9 3//1", "m.obj:5: face refers to normal 9, but only 1 normals are defined before it"),
+    ("f 1/5 2/1 3/1", "m.obj:5: face refers to texture coordinate 5, but only 1 texture coordinates are defined"),
+])
+def test_obj_faces_a_reader_would_misread_are_named_with_their_line(tmp_path, faces, message):
+    from probvis.scene.shapes import load_mesh
+
+    (tmp_path / "m.obj").write_text(f"v 0 0 1\nv 1 0 1\nv 0 1 1\nvn 0 0 1\n{faces}\nvt 0 0\n"
+                                    if "/5" not in faces else f"v 0 0 1\nv 1 0 1\nv 0 1 1\nvt 0 0\n{faces}\n")
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        load_mesh(tmp_path / "m.obj")

@@ -86,28 +86,53 @@ def analytic_uv(kind, corners):
 
 
 def _obj_problem(path):
-    """The first face of an OBJ file that refers to a vertex it does not have, as 'file:line: ...' (None if
-    none does). Only run on a file the reader rejected, to say where."""
-    n_vertices = 0
+    """The first face of an OBJ file that a reader would misread, as 'file:line: ...' (None if none is): fewer
+    than three vertices, or a vertex, texture coordinate or normal index of 0 or beyond those defined before it.
+    Run on a file the reader rejected, or whose faces it did not all keep, or that has uv or normals."""
+    counts = {"v": 0, "vt": 0, "vn": 0}
+    what = ("vertex", "texture coordinate", "normal")
+    plural = {"vertex": "vertices", "texture coordinate": "texture coordinates", "normal": "normals"}
     try:
         with open(path, encoding="utf-8", errors="replace") as f:
             for line_no, line in enumerate(f, 1):
-                parts = line.split()
+                parts = line.split("#", 1)[0].split()
                 if not parts:
                     continue
-                if parts[0] == "v":
-                    n_vertices += 1
+                if parts[0] in counts:
+                    counts[parts[0]] += 1
                 elif parts[0] == "f":
+                    if len(parts) < 4:
+                        return f"{path}:{line_no}: a face needs at least 3 vertices: '{line.strip()}'"
                     for item in parts[1:]:
-                        try:
-                            k = int(item.split("/")[0])
-                        except ValueError:
+                        fields = item.split("/")
+                        if len(fields) > 3 or not fields[0]:
                             return f"{path}:{line_no}: malformed face '{line.strip()}'"
-                        if k == 0 or k > n_vertices or k < -n_vertices:
-                            return (f"{path}:{line_no}: face refers to vertex {k}, but only {n_vertices} vertices "
-                                    f"are defined before it")
+                        for kind, name, text in zip(("v", "vt", "vn"), what, fields):
+                            if not text:
+                                continue
+                            try:
+                                k = int(text)
+                            except ValueError:
+                                return f"{path}:{line_no}: malformed face '{line.strip()}'"
+                            n = counts[kind]
+                            if k == 0:
+                                return f"{path}:{line_no}: face index 0 is invalid (OBJ indices start at 1)"
+                            if k > n or k < -n:
+                                return (f"{path}:{line_no}: face refers to {name} {k}, but only {n} "
+                                        f"{plural[name]} are defined before it")
     except OSError as exc:
         return f"cannot read mesh {path}: {exc.strerror or exc}"
+    return None
+
+
+def _obj_checked(path, mesh):
+    """`_obj_problem` of an OBJ that the reader read, where it may have misread: fewer triangles than face
+    statements (a face dropped), or uv or normal indices, which the reader does not check."""
+    data = path.read_bytes()
+    faces = data.count(b"\nf ") + data.startswith(b"f ")
+    kept = len(mesh.faces) if mesh is not None else 0
+    if kept < faces or b"\nvt " in data or b"\nvn " in data:
+        return _obj_problem(path)
     return None
 
 
@@ -190,6 +215,8 @@ def load_mesh(path, flip_tex_coords=None):
         raise ProbvisError(problem or _ply_truncated(path, ply, None) or
                            f"cannot read mesh {path}: not a valid {path.suffix.lstrip('.').upper()} file") from None
     if ply and (problem := _ply_truncated(path, ply, mesh)):
+        raise ProbvisError(problem)
+    if path.suffix.lower() == ".obj" and (problem := _obj_checked(path, mesh)):
         raise ProbvisError(problem)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ProbvisError(f"mesh {path} contains no triangles")
