@@ -124,6 +124,8 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
     ("<shape type='obj'><string name='filename' value='.'/></shape>", "is not a regular file"),
     ("<default name='res' value='8'/><default name='res' value='4'/>", "parameter 'res' is declared twice"),
     ("<default name='res'/>", "missing attribute 'value' of parameter 'res'"),
+    ("<shape type='rectangle'><emitter type='area'><spectrum name='radiance' value='5000:1, 6000:1'/></emitter>"
+     "</shape>", "wavelengths 5000-6000 nm lie outside 360-830 nm"),
     ("<integrator type='path'><integer name='max_depth' value='1'/></integrator>",
      "max_depth 1 renders no direct illumination in Mitsuba"),
 ])

@@ -220,7 +220,11 @@ class _Reader:
         if len(w) < 2 or np.any(np.diff(w) <= 0) or not np.all(np.isfinite(v)):
             self.fail(node, "a sampled spectrum needs two or more finite values at increasing wavelengths")
         emission = node.attrs.get("name") in ("radiance", "intensity", "irradiance")
-        return spectrum_to_rgb(w, v, reflectance=not emission)
+        rgb = spectrum_to_rgb(w, v, reflectance=not emission)
+        if emission and np.any(v > 0) and not np.any(rgb > 0):
+            self.fail(node, f"wavelengths {w.min():g}-{w.max():g} nm lie outside 360-830 nm: this emission would be "
+                            "black (give the spectrum in nanometres over the visible range)")
+        return rgb
 
     def transform(self, node):
         self.check_attrs(node, ("name",))
