@@ -299,6 +299,7 @@ def test_a_pilot_dearer_than_its_budget_is_skipped(monkeypatch):
     assert not pilot["ran"] and pilot["pilot_seconds"] > pilot["budget_seconds"] == pytest.approx(
         0.03 * pilot["render_seconds"])
     assert auto.stats["estimator"]["proxies"] == [] and auto.stats["estimator"]["pilot_segments"] == 0
+    assert auto.stats["estimator"]["memory_bytes"]["proxies"] == 0  # nothing built
     np.testing.assert_array_equal(auto.image, probvis.render(scene, spp=2, shadow_rays=4, seed=3).image)
     monkeypatch.setattr(proxy_plan, "PILOT_BUDGET", np.inf)
     ran = probvis.render(scene, spp=2, shadow_rays=4, seed=3, visibility="proxy", visibility_options=OPTIONS)

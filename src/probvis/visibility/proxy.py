@@ -221,8 +221,10 @@ class ProxyVisibility(VisibilityEstimator):
         return out
 
     def memory_bytes(self):
-        own = self.proxy_bvh.nbytes if self.proxy_bvh is not self.bvh else 0
-        return {"proxies": self.proxies.triangles.nbytes + own + self.proxies.volume.nbytes,
+        """Bytes of what this estimator built: no proxy, nothing (its geometry is then the scene's own arrays)."""
+        if self.proxy_bvh is self.bvh:
+            return {"proxies": 0, "shells": self.shells.nbytes}
+        return {"proxies": self.proxies.triangles.nbytes + self.proxy_bvh.nbytes + self.proxies.volume.nbytes,
                 "shells": self.shells.nbytes}
 
     def stats(self):
