@@ -121,8 +121,9 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
     ("<shape type='rectangle'><boolean name='flip_normals' value='true'/><boolean name='flip_normals' value='false'/>"
      "</shape>", "parameter 'flip_normals' is given twice"),
     ("<shape type='cube' id='c'/><shape type='rectangle'><ref id='c'/></shape>", "id 'c' is a <shape>, not a bsdf"),
+    ("<shape type='rectangle'><ref id='m'/></shape><bsdf type='diffuse' id='m'/>",
+     "id 'm' is defined after this reference (line"),
     ("<shape type='obj'><string name='filename' value='.'/></shape>", "is not a regular file"),
-    ("<default name='res' value='8'/><default name='res' value='4'/>", "parameter 'res' is declared twice"),
     ("<default name='res'/>", "missing attribute 'value' of parameter 'res'"),
     ("<shape type='rectangle'><emitter type='area'><spectrum name='radiance' value='5000:1, 6000:1'/></emitter>"
      "</shape>", "wavelengths 5000-6000 nm lie outside 360-830 nm"),
@@ -238,7 +239,7 @@ def test_truncated_ply_empty_texture_and_a_plain_direct_integrator(tmp_path):
 
 @pytest.mark.parametrize("old, new, message", [
     ('<rfilter type="box"/>', '<rfilter type="tent"><float name="radius" value="0.01"/></rfilter>',
-     "tent radius 0.01 reaches 0.01 pixels, less than half a pixel"),
+     "tent radius 0.01 reaches 0.01 pixels: 100% of the camera samples would reach no pixel centre"),
     ('<rfilter type="box"/>', '<rfilter type="gaussian"><float name="stddev" value="1e-5"/></rfilter>',
      "gaussian stddev 1e-05 reaches 4e-05 pixels"),
     ('<transform name="to_world">', '<transform name="to_world"><scale value="1e-12"/>',
@@ -263,8 +264,9 @@ def test_entity_declarations_are_refused_with_their_line(tmp_path):
 @pytest.mark.parametrize("faces, message", [
     ("f 0 1 2", "m.obj:5: face index 0 is invalid (OBJ indices start at 1)"),
     ("f 1 2", "m.obj:5: a face needs at least 3 vertices"),
-    ("f 1//1 2//9 3//1", "m.obj:5: face refers to normal 9, but only 1 normals are defined before it"),
-    ("f 1/5 2/1 3/1", "m.obj:5: face refers to texture coordinate 5, but only 1 texture coordinates are defined"),
+    ("f 1//1 2//9 3//1", "m.obj:5: face refers to normal 9, but the file defines only 1 normals"),
+    ("f 1/5 2/1 3/1", "m.obj:5: face refers to texture coordinate 5, but the file defines only 1 texture coordinates"),
+    ("f -1 -2 -4", "m.obj:5: face refers to vertex -4, but only 3 vertices are defined before it"),
 ])
 def test_obj_faces_a_reader_would_misread_are_named_with_their_line(tmp_path, faces, message):
     from probvis.scene.shapes import load_mesh
@@ -273,3 +275,11 @@ def test_obj_faces_a_reader_would_misread_are_named_with_their_line(tmp_path, fa
                                     if "/5" not in faces else f"v 0 0 1\nv 1 0 1\nv 0 1 1\nvt 0 0\n{faces}\n")
     with pytest.raises(ProbvisError, match=re.escape(message)):
         load_mesh(tmp_path / "m.obj")
+
+
+def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
+    path = write_scene(tmp_path / "twice.xml", sensor(w="$res", h="$res") + LIGHT,
+                       defaults='<default name="res" value="8"/>\n<default name="res" value="4"/>')
+    with pytest.warns(UserWarning, match="<default> of 'res' declared again"):
+        scene = probvis.load_scene(path)
+    assert scene.camera.width == 8

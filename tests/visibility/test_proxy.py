@@ -315,3 +315,21 @@ def test_a_segments_q_follows_its_weight():
     assert segment_q(0.2, 0.5, 0.25) == pytest.approx(0.4)
     assert segment_q(0.2, 1e-6, 0.25) == pytest.approx(WEIGHT_FLOOR * 0.2)
     assert segment_q(0.6, 1.0, 0.25) == 1.0
+
+
+def test_an_emitter_whose_segments_the_shells_all_decide_still_gets_a_plan():
+    """No segment tested both ways (Σ w = 0): the plan falls back to one q for every segment, with a finite score,
+    instead of skipping the emitter (which left a NaN score and the emitter on the proxy at the pilot's q)."""
+    from probvis.shells import ShellTests
+    from probvis.visibility.proxy_plan import choose
+
+    regions, e = REGIONS * REGIONS, 2
+    sums = np.zeros((regions, e, N_SUMS))
+    sums[:, :, 4] = 10.0  # SUM_INV_P: segments decided by the shells (p = 1) ...
+    sums[:, 1, 0] = 10.0  # ... and for emitter 1 also tested both ways, with weights
+    sums[:, 1, 5] = 5.0
+    variance, mismatch = np.ones((regions, e)), np.full((regions, e), 0.01)
+    measured = {"plain": (sums, variance, mismatch, mismatch)}
+    best = {"exact_plain": 1.0, "camera": 0.1, "proxy_plain": 0.1, "both_plain": 1.1}
+    plan = choose(measured, best, {"plain": ShellTests.none(None)}, e, 0.5)
+    assert np.all(np.isfinite(plan.gain)) and plan.weight[0] == 0 and plan.weight[1] == pytest.approx(0.5)

@@ -216,7 +216,8 @@ def parse_experiment(data, base=Path("."), source=""):
     if _int("table_shadow_rays", table_rays) not in shadow_rays:
         _fail("table_shadow_rays", f"{table_rays} is not one of shadow_rays {list(shadow_rays)}")
     return Experiment(
-        name=_plain_name("name", data.get("name", Path(source).stem or "experiment")),
+        name=_plain_name("name", data["name"]) if "name" in data else
+        re.sub(r"[^A-Za-z0-9._-]", "-", Path(source).stem).lstrip(".") or "experiment",
         description=str(data.get("description", "")),
         scenes=scene_specs, methods=method_specs, shadow_rays=tuple(sorted(shadow_rays)),
         spp=_int("spp", data.get("spp", 4), 1, MAX_SPP), seeds=_int_list("seeds", data.get("seeds", [0]), 0),

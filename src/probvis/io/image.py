@@ -42,7 +42,7 @@ def check_writable(path, formats=FORMATS, role="an image"):
         raise ProbvisError(f"cannot write '{path}': {exc.strerror or exc}") from None
 
 
-MAX_IMAGE_PIXELS = 1 << 27  # a texture or environment map larger than this (3 GiB as linear RGB) is refused
+MAX_IMAGE_PIXELS = 1 << 27  # a PNG or JPEG larger than this (3 GiB as linear RGB) is refused from its header
 
 
 @contextmanager
@@ -155,11 +155,14 @@ def read_linear_rgb(path, raw=False):
 
         from PIL import Image
 
+        limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None  # Pillow's own bomb check names no size
         try:
             with Image.open(path) as im:  # the header only: refuse a size no texture needs before decoding it
                 w, h = im.size
         except Exception:
             w = h = 0
+        finally:
+            Image.MAX_IMAGE_PIXELS = limit
         if w * h > MAX_IMAGE_PIXELS:
             raise ProbvisError(f"{path}: image is {w}x{h} ({w * h / 1e6:.0f} Mpixel), above the "
                                f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads (scale it down)")

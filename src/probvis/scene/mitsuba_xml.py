@@ -20,6 +20,7 @@ from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import MAX_FILTER_RADIUS, Camera, SceneBuilder
 from .spectrum import spectrum_to_rgb
 
+MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarters of the samples out
 MAX_NESTING = 64  # elements deep: real scenes nest a handful
 MAX_EMISSION = 1e30  # radiance, intensity or scale: beyond, power sums overflow
 MAX_SCENE_BYTES = 256 << 20  # a scene file larger than this is not a scene (meshes live in their own files)
@@ -53,7 +54,7 @@ class _TreeBuilder(xml.sax.ContentHandler):
         self.stack.pop()
 
 
-_DEFUSED = {"EntitiesForbidden": "an entity declaration (<!ENTITY>)", "DTDForbidden": "a document type (<!DOCTYPE>)",
+_DEFUSED = {"EntitiesForbidden": "an entity declaration (<!ENTITY>)",
             "ExternalReferenceForbidden": "a reference to an external file or address"}
 
 
@@ -76,7 +77,9 @@ def parse_tree(path):
     except xml.sax.SAXParseException as exc:
         raise ProbvisError(f"{path}:{exc.getLineNumber()}: malformed XML: {exc.getMessage()}") from None
     except defusedxml.DefusedXmlException as exc:
-        line = next((i for i, text in enumerate(data.splitlines(), 1) if b"<!" in text and b"<!--" not in text), None)
+        lines = data.splitlines()
+        line = next((i for i, text in enumerate(lines, 1) if b"<!ENTITY" in text), None) or \
+            next((i for i, text in enumerate(lines, 1) if b"<!DOCTYPE" in text), None)
         where = f"{path}:{line}" if line else str(path)
         raise ProbvisError(f"{where}: {_DEFUSED.get(type(exc).__name__, 'this XML construct')} is not allowed in "
                            "scene files (remove it; Mitsuba's scenes use <default> and $parameters)") from None
@@ -107,7 +110,7 @@ def _unique_ids(root, fail):
                 fail(later, f"duplicate id '{key}' (first defined on line {first.line})")
             seen[key] = node
         todo.extend(node.children)
-    return {key: node.tag for key, node in seen.items()}
+    return seen
 
 
 class _Reader:
@@ -438,8 +441,12 @@ class _Reader:
         self.check_attrs(node, ("id", "name"))
         key = self.attr(node, "id")
         if key not in self.ids:
-            tag = self.id_tags.get(key)
-            self.fail(node, f"id '{key}' is a <{tag}>, not a {kind}" if tag else f"reference to unknown id '{key}'")
+            target = self.id_nodes.get(key)
+            if target is None:
+                self.fail(node, f"reference to unknown id '{key}'")
+            if target.tag == kind:
+                self.fail(node, f"id '{key}' is defined after this reference (line {target.line}): move it above")
+            self.fail(node, f"id '{key}' is a <{target.tag}>, not a {kind}")
         k, val = self.ids[key]
         if k != kind:
             self.fail(node, f"id '{key}' is a {k}, not a {kind}")
@@ -792,10 +799,10 @@ class _Reader:
         if not 0 < value <= most:
             self.fail(node, f"{kind} {name} must be positive and at most {most:g} pixels, got {value:g}")
         reach = value if kind == "tent" else 4 * value  # a Gaussian reaches 4 stddev
-        if reach < 0.5:
-            self.fail(node, f"{kind} {name} {value:g} reaches {reach:g} pixels, less than half a pixel: most camera "
-                            f"samples would reach no pixel centre and the image would be black (use at least "
-                            f"{0.5 if kind == 'tent' else 0.125:g}, or a box filter)")
+        if reach < MIN_FILTER_REACH:  # within `reach` of a pixel centre on both axes: (2 reach)² of the samples
+            self.fail(node, f"{kind} {name} {value:g} reaches {reach:g} pixels: {1 - (2 * reach) ** 2:.0%} of the "
+                            f"camera samples would reach no pixel centre and the image would be almost black (use at "
+                            f"least {MIN_FILTER_REACH if kind == 'tent' else MIN_FILTER_REACH / 4:g}, or a box filter)")
         return {"rfilter": kind, field_name: value}
 
     def integrator(self, node):
@@ -836,7 +843,7 @@ class _Reader:
         if root.tag != "scene":
             self.fail(root, "the root element must be <scene>")
         self.check_attrs(root, ("version",))
-        self.id_tags = _unique_ids(root, self.fail)
+        self.id_nodes = _unique_ids(root, self.fail)
         builder = SceneBuilder(self.path.stem, str(self.path))
         camera, spp, seed, shadow_rays = None, 4, 0, 1
         for ch in root.children:
@@ -845,8 +852,10 @@ class _Reader:
                 name = self.attr(ch, "name")
                 if "value" not in ch.attrs:
                     self.fail(ch, f"missing attribute 'value' of parameter '{name}'")
-                if name in self.default_lines:
-                    self.fail(ch, f"parameter '{name}' is declared twice (first on line {self.default_lines[name]})")
+                if name in self.default_lines:  # Mitsuba keeps the first
+                    warnings.warn(f"{self.path}:{ch.line}: <default> of '{name}' declared again (first on line "
+                                  f"{self.default_lines[name]}, whose value is kept)", stacklevel=2)
+                    continue
                 self.default_lines[name] = ch.line
                 self.defaults[name] = ch.attrs["value"]
             elif ch.tag == "integrator":

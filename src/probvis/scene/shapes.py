@@ -89,11 +89,17 @@ def _obj_problem(path):
     """The first face of an OBJ file that a reader would misread, as 'file:line: ...' (None if none is): fewer
     than three vertices, or a vertex, texture coordinate or normal index of 0 or beyond those defined before it.
     Run on a file the reader rejected, or whose faces it did not all keep, or that has uv or normals."""
-    counts = {"v": 0, "vt": 0, "vn": 0}
+    counts = {"v": 0, "vt": 0, "vn": 0}  # defined so far: a negative index counts back from the face
     what = ("vertex", "texture coordinate", "normal")
     plural = {"vertex": "vertices", "texture coordinate": "texture coordinates", "normal": "normals"}
     try:
         with open(path, encoding="utf-8", errors="replace") as f:
+            totals = {k: 0 for k in counts}  # in the whole file: a positive index may point forward
+            for line in f:
+                word = line.split(None, 1)[0] if line.strip() else ""
+                if word in totals:
+                    totals[word] += 1
+            f.seek(0)
             for line_no, line in enumerate(f, 1):
                 parts = line.split("#", 1)[0].split()
                 if not parts:
@@ -114,24 +120,30 @@ def _obj_problem(path):
                                 k = int(text)
                             except ValueError:
                                 return f"{path}:{line_no}: malformed face '{line.strip()}'"
-                            n = counts[kind]
                             if k == 0:
                                 return f"{path}:{line_no}: face index 0 is invalid (OBJ indices start at 1)"
-                            if k > n or k < -n:
-                                return (f"{path}:{line_no}: face refers to {name} {k}, but only {n} "
+                            if k > totals[kind]:
+                                return (f"{path}:{line_no}: face refers to {name} {k}, but the file defines only "
+                                        f"{totals[kind]} {plural[name]}")
+                            if k < -counts[kind]:
+                                return (f"{path}:{line_no}: face refers to {name} {k}, but only {counts[kind]} "
                                         f"{plural[name]} are defined before it")
     except OSError as exc:
         return f"cannot read mesh {path}: {exc.strerror or exc}"
     return None
 
 
+OBJ_LINE_CHECK_BYTES = 32 << 20  # uv and normal indices are checked line by line in OBJ files up to this size
+
+
 def _obj_checked(path, mesh):
     """`_obj_problem` of an OBJ that the reader read, where it may have misread: fewer triangles than face
-    statements (a face dropped), or uv or normal indices, which the reader does not check."""
+    statements (a face dropped), or uv or normal indices, which the reader does not check (in files up to
+    OBJ_LINE_CHECK_BYTES: a Python pass over a larger scan would cost more than reading it)."""
     data = path.read_bytes()
     faces = data.count(b"\nf ") + data.startswith(b"f ")
     kept = len(mesh.faces) if mesh is not None else 0
-    if kept < faces or b"\nvt " in data or b"\nvn " in data:
+    if kept < faces or len(data) <= OBJ_LINE_CHECK_BYTES and (b"\nvt " in data or b"\nvn " in data):
         return _obj_problem(path)
     return None
 

@@ -62,7 +62,7 @@ def _load(spec, what):
 # options of `probvis render` itself: an estimator's option of the same name would clash with its flag
 RESERVED_OPTIONS = {"output", "define", "defines", "seed", "spp", "shadow_rays", "strict", "visibility", "case_image",
                     "filter_importance", "clamp_negative", "stats", "tests_image", "threads", "exposure", "quiet",
-                    "help"}
+                    "help", "scene", "command"}
 
 
 def _entry_points():

@@ -215,7 +215,8 @@ class ProxyVisibility(VisibilityEstimator):
         # triangles (72 bytes) and their BVH (about twice that again); per pixel of a batch q, exact and the sums
         out = {"proxy geometry and its BVH (ratio, triangles)": int((scene.n_triangles - sum(heavy) + proxy) * 200),
                "volumetric proxies' extinction grid": 8 * VOLUME_RESOLUTION ** 3 if heavy and p.kind != "mesh" else 0,
-               "per-pixel q and sums (batch size)": batch_samples // max(1, settings.spp) * scene.n_emitters * 49}
+               "per-pixel q and sums (batch size)": batch_samples // max(1, settings.spp) * scene.n_emitters
+               * (9 + 8 * N_SUMS)}
         if p.shells != "off":
             out.update(shell_memory(scene, p.min_triangles))
         return out

@@ -25,7 +25,8 @@ CORRECTION_DIM = 1 << 21  # rng dimension of a segment's Bernoulli draw, apart f
 # the scene's included), voxels walked in the shells' grid and in the extinction grid
 N_TESTS = 6
 PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SHELL_VOXEL, VOLUME_VOXEL = range(N_TESTS)
-# per pixel and emitter, over segments decided by the shells (p = 1) and segments tested both ways (p = q):
+# per pixel and emitter, over segments decided by the shells (p = 1) and segments tested both ways (p = the
+# segment's `segment_q`):
 # segments tested both ways, Σ ((V - V_P) w)² / q, Σ w V / p, Σ (w V)² / p, Σ 1 / p (w: the luminance of the
 # segment's unoccluded contribution); over the segments tested both ways, Σ w / q and Σ (V - V_P)² w / q
 N_SUMS = 7

@@ -29,7 +29,7 @@ PILOT_SETS = 2  # independent sets of pilot camera samples: their differences gi
 REGIONS = 8  # q per emitter in REGIONS x REGIONS tiles of the film
 SHRINK = 256  # a region's mismatch energy and variance are shrunk toward its emitter's by this many segments' worth
 PILOT_SALT = 0x50524F5859  # mixed into its seed, apart from the render's samples
-Q_MIN = 0.02  # never test fewer segments exactly than this
+Q_MIN = 0.02  # a region's q is never below this (a segment's, `segment_q`, never below a tenth of its region's)
 GAIN_MARGIN = 1.25  # proxies are used where the predicted gain exceeds this: a small view flatters them
 SHELL_MARGIN = 1.05  # shells are kept where their plan predicts this much more than the plan without them
 
@@ -238,10 +238,12 @@ def choose(measured, best, configs, e, q_default):
         emitter_plans, score = [], []
         for k in range(e):
             n, mismatch, variance = sums[:, k, SUM_INV_P], pair_mismatch[:, k], pair_variance[:, k]
-            if n.sum() == 0 or weight[k] <= 0:
+            if n.sum() == 0:
                 emitter_plans.append(None)
                 continue
-            mismatch_w, n_w = pair_mismatch_w[:, k] * weight[k], sums[:, k, SUM_W] / weight[k]
+            # no segment tested both ways (the shells decided them all): one q for every segment
+            mismatch_w, n_w = ((pair_mismatch_w[:, k] * weight[k], sums[:, k, SUM_W] / weight[k]) if weight[k] > 0
+                               else (mismatch, n))
             shrunk = []
             for x in (mismatch, variance, mismatch_w, n_w):
                 shrunk.append((x + SHRINK * x.sum() / n.sum()) * n / (n + SHRINK))
