@@ -13,7 +13,6 @@ itself (`shade`). This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0
 """
 import sys
 import time
-import json
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,13 +24,14 @@ from threadpoolctl import threadpool_limits
 from . import memory
 from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
-from .cases import CASE_MASK, CASE_UNKNOWN, CASE_VERIFIED, N_CASES
+from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler
 from .errors import ProbvisError
 from .film import Film, splat_chunk, splat_filter
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
+from .plugin_checks import checked_cases, checked_result, checked_stats, plugin_errors
 from .render_stats import render_stats
 from .scene import Scene, load_scene
 from .segments import SegmentBuffers, compact, sample_emitters, sample_radiance
@@ -40,7 +40,6 @@ from .shading import ShadedBatch, ShadingBatch
 from .visibility import (RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult,
                          estimator_class)
 
-MAX_VISIBILITY = 1e12  # a segment's |estimate| beyond this is a plug-in's mistake (1/q weights stay far below)
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keeps progress and Ctrl-C prompt)
 TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
 COMPILE_TIME = "1-3 minutes"  # what the first run's kernel compilation takes on 2 cores (60-150 s measured)
@@ -120,81 +119,13 @@ class StagedPath:
 
     def __call__(self, batch):
         query, emitted, slots, offsets = self.integrator.segments(batch, self.buffers)
-        res = _checked(self.estimator, self.estimator.evaluate(query), len(query.tmax))
+        res = checked_result(self.estimator, self.estimator.evaluate(query), len(query.tmax))
         radiance, counts, segments = sample_radiance(batch, emitted, slots, offsets, res.value, res.node_tests,
                                                      res.triangle_tests)
         pixel = query.point // batch.spp
         aovs = {name: np.bincount(pixel, weights=v, minlength=len(batch.pixel)) / batch.spp
                 for name, v in res.aovs.items()}
         return ShadedBatch(radiance, counts, segments, aovs)
-
-
-def _checked(estimator, res, n):
-    """`res` if it is a `VisibilityResult` of `n` segments with finite values; otherwise an error naming the
-    estimator's class (a plug-in's mistake must not become NaN pixels)."""
-    cls = type(estimator)
-    where = f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): evaluate"
-    if not isinstance(res, VisibilityResult):
-        raise ProbvisError(f"{where} returned a {type(res).__name__}, not a VisibilityResult")
-    for field in ("value", "node_tests", "triangle_tests"):
-        arr = np.asarray(getattr(res, field))
-        if arr.shape != (n,) or arr.dtype.kind not in "biuf":
-            raise ProbvisError(f"{where} returned {field} of shape {arr.shape} ({arr.dtype}) for {n} segments "
-                               "(real numbers, one per segment)")
-    if not np.all(np.isfinite(res.value)) or np.abs(res.value).max(initial=0.0) > MAX_VISIBILITY:
-        bad = int((~(np.abs(res.value) <= MAX_VISIBILITY)).sum())
-        raise ProbvisError(f"{where} returned {bad} values that are not finite or beyond ±{MAX_VISIBILITY:g}")
-    for field in ("node_tests", "triangle_tests"):
-        arr = np.asarray(getattr(res, field))
-        if arr.dtype.kind == "f" and not np.all(np.isfinite(arr) & (arr == np.round(arr))) or np.any(arr < 0):
-            raise ProbvisError(f"{where} returned {field} that are not whole numbers >= 0 (counts of tests)")
-    declared = {a.name for a in estimator.aovs if a.kind == "segment"}
-    for name, arr in (res.aovs or {}).items():
-        arr = np.asarray(arr)
-        if name not in declared:
-            raise ProbvisError(f"{where} returned AOV '{name}', which the class does not declare in `aovs`")
-        if arr.shape != (n,) or arr.dtype.kind not in "biuf" or not np.all(np.isfinite(arr)):
-            raise ProbvisError(f"{where} returned AOV '{name}' of shape {arr.shape} ({arr.dtype}): it needs one "
-                               f"finite number per segment ({n})")
-    return res
-
-
-@contextmanager
-def plugin_errors(cls, stage):
-    """An exception raised by a plug-in estimator (a class from outside probvis) as one error naming its class
-    and the stage; probvis's own estimators' exceptions pass through (a bug in probvis, with its traceback)."""
-    try:
-        yield
-    except (ProbvisError, MemoryError, KeyboardInterrupt, OSError):  # OSError: the machine's, not the plug-in's
-        raise
-    except Exception as exc:
-        if cls.__module__.split(".")[0] == "probvis":
-            raise
-        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "
-                           f"{type(exc).__name__} in {stage}: {exc} (a bug in the estimator; rerunning will not "
-                           "help)") from None
-
-
-def _checked_cases(estimator, cases, like):
-    """`classify`'s result if it has one int8 CASE_* value per camera sample and emitter (the shape of `like`)."""
-    arr = np.asarray(cases)
-    highest = (N_CASES - 1) | CASE_VERIFIED  # every value from 0 to this is a case, flagged verified or not
-    if arr.shape != like.shape or arr.dtype.kind not in "iu" or arr.size and not 0 <= arr.min() <= arr.max() <= highest:
-        cls = type(estimator)
-        raise ProbvisError(f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): classify returned "
-                           f"{arr.dtype} of shape {arr.shape}; it needs CASE_* values (int8) of shape {like.shape}, "
-                           "one per camera sample and emitter")
-    return arr.astype(np.int8, copy=False)
-
-
-def _checked_stats(cls, stats):
-    """The estimator's `stats()` if JSON can hold it (no NaN, no arrays or sets): the stats file must be JSON."""
-    try:
-        json.dumps(stats, allow_nan=False)
-    except (TypeError, ValueError) as exc:
-        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): stats() returned a value "
-                           f"JSON cannot hold ({exc}); return numbers, strings, lists and dicts") from None
-    return stats
 
 
 def make_path(integrator, estimator, path, n_slots):
@@ -256,7 +187,7 @@ def render_pass(scene, settings, estimator, progress=False):
                                                          np.where(shaded, batch.triangle, -1), batch.keys,
                                                          batch.albedo))
                 if cases is not None:
-                    batch = batch._replace(cases=_checked_cases(estimator, cases, batch.cases))
+                    batch = batch._replace(cases=checked_cases(estimator, cases, batch.cases))
                     film.add_cases(batch)
                     counted = batch.cases[shaded] & CASE_MASK
                     for c in range(N_CASES):
@@ -424,5 +355,5 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     with plugin_errors(type(estimator), "stats"):
         stats = render_stats(scene, settings, estimator, result, image, clamp, seconds, mem)
     if type(estimator).__module__.split(".")[0] != "probvis":
-        _checked_stats(type(estimator), stats["estimator"])
+        checked_stats(type(estimator), stats["estimator"])
     return RenderResult(image, stats, result.film.aovs())

@@ -1,0 +1,81 @@
+"""What a plug-in estimator (a `VisibilityEstimator` from outside probvis) returns, checked at every stage: its
+exceptions become one error naming its class and the stage, and results of the wrong shape, kind or range are
+refused before they reach the film as NaN pixels or the stats file as invalid JSON."""
+import json
+from contextlib import contextmanager
+
+import numpy as np
+
+from .cases import CASE_VERIFIED, N_CASES
+from .errors import ProbvisError
+from .visibility import VisibilityResult
+
+MAX_VISIBILITY = 1e12  # a segment's |estimate| beyond this is a plug-in's mistake (1/q weights stay far below)
+
+
+def checked_result(estimator, res, n):
+    """`res` if it is a `VisibilityResult` of `n` segments with finite values; otherwise an error naming the
+    estimator's class (a plug-in's mistake must not become NaN pixels)."""
+    cls = type(estimator)
+    where = f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): evaluate"
+    if not isinstance(res, VisibilityResult):
+        raise ProbvisError(f"{where} returned a {type(res).__name__}, not a VisibilityResult")
+    for field in ("value", "node_tests", "triangle_tests"):
+        arr = np.asarray(getattr(res, field))
+        if arr.shape != (n,) or arr.dtype.kind not in "biuf":
+            raise ProbvisError(f"{where} returned {field} of shape {arr.shape} ({arr.dtype}) for {n} segments "
+                               "(real numbers, one per segment)")
+    if not np.all(np.isfinite(res.value)) or np.abs(res.value).max(initial=0.0) > MAX_VISIBILITY:
+        bad = int((~(np.abs(res.value) <= MAX_VISIBILITY)).sum())
+        raise ProbvisError(f"{where} returned {bad} values that are not finite or beyond ±{MAX_VISIBILITY:g}")
+    for field in ("node_tests", "triangle_tests"):
+        arr = np.asarray(getattr(res, field))
+        if arr.dtype.kind == "f" and not np.all(np.isfinite(arr) & (arr == np.round(arr))) or np.any(arr < 0):
+            raise ProbvisError(f"{where} returned {field} that are not whole numbers >= 0 (counts of tests)")
+    declared = {a.name for a in estimator.aovs if a.kind == "segment"}
+    for name, arr in (res.aovs or {}).items():
+        arr = np.asarray(arr)
+        if name not in declared:
+            raise ProbvisError(f"{where} returned AOV '{name}', which the class does not declare in `aovs`")
+        if arr.shape != (n,) or arr.dtype.kind not in "biuf" or not np.all(np.isfinite(arr)):
+            raise ProbvisError(f"{where} returned AOV '{name}' of shape {arr.shape} ({arr.dtype}): it needs one "
+                               f"finite number per segment ({n})")
+    return res
+
+
+@contextmanager
+def plugin_errors(cls, stage):
+    """An exception raised by a plug-in estimator (a class from outside probvis) as one error naming its class
+    and the stage; probvis's own estimators' exceptions pass through (a bug in probvis, with its traceback)."""
+    try:
+        yield
+    except (ProbvisError, MemoryError, KeyboardInterrupt, OSError):  # OSError: the machine's, not the plug-in's
+        raise
+    except Exception as exc:
+        if cls.__module__.split(".")[0] == "probvis":
+            raise
+        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "
+                           f"{type(exc).__name__} in {stage}: {exc} (a bug in the estimator; rerunning will not "
+                           "help)") from None
+
+
+def checked_cases(estimator, cases, like):
+    """`classify`'s result if it has one int8 CASE_* value per camera sample and emitter (the shape of `like`)."""
+    arr = np.asarray(cases)
+    highest = (N_CASES - 1) | CASE_VERIFIED  # every value from 0 to this is a case, flagged verified or not
+    if arr.shape != like.shape or arr.dtype.kind not in "iu" or arr.size and not 0 <= arr.min() <= arr.max() <= highest:
+        cls = type(estimator)
+        raise ProbvisError(f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): classify returned "
+                           f"{arr.dtype} of shape {arr.shape}; it needs CASE_* values (int8) of shape {like.shape}, "
+                           "one per camera sample and emitter")
+    return arr.astype(np.int8, copy=False)
+
+
+def checked_stats(cls, stats):
+    """The estimator's `stats()` if JSON can hold it (no NaN, no arrays or sets): the stats file must be JSON."""
+    try:
+        json.dumps(stats, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): stats() returned a value "
+                           f"JSON cannot hold ({exc}); return numbers, strings, lists and dicts") from None
+    return stats
