@@ -73,6 +73,9 @@ def test_defaults_and_baseline():
     ({"table_shadow_rays": 8}, "table_shadow_rays: 8 is not one of shadow_rays"),
     ({"methods": []}, "at least one [[methods]]"),
     ({"seconds": "wall"}, "seconds: expected one of total, render, got 'wall'"),
+    ({"timing_seconds": 0}, "timing_seconds: expected a number of seconds > 0, got 0"),
+    ({"timing_seconds": float("nan")}, "timing_seconds: expected a number of seconds > 0, got nan"),
+    ({"timing_seconds": "2"}, "timing_seconds: expected a number of seconds > 0, got '2'"),
 ])
 def test_mistakes_are_named(change, message):
     with pytest.raises(ProbvisError) as info:

@@ -248,3 +248,10 @@ def test_timing_repeats_take_the_fastest_and_flag_disagreement(tmp_path):
         spread = (max(r["seconds_repeats"]) - r["seconds"]) / r["seconds"]
         assert r["repeats_disagree"] == (spread > 0.25)
     assert "fastest of 3 repeats" in (tmp_path / "index.html").read_text()
+
+
+def test_timing_seconds_stop_the_repeats_once_the_renders_took_that_long(tmp_path):
+    study = dict(TINY, timing_repeats=3, timing_seconds=1e-6, shadow_rays=[1])
+    results, _, run = experiment(parse_experiment(study), tmp_path, progress=False, log=lambda m: None)
+    assert all(len(r["seconds_repeats"]) == 1 for r in results.cells)
+    assert "up to 3 repeats (fewer once they took 1e-06 s together)" in (tmp_path / "results.md").read_text()

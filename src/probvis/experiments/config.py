@@ -3,6 +3,7 @@
 Every key is checked against the schema below, so a typo is an error naming the key, never a silent default.
 Paths inside the file are relative to the file.
 """
+import math
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -17,7 +18,7 @@ from ..visibility import estimator_class
 MAX_RESOLUTION = 1 << 15
 
 TOP_KEYS = {"name", "description", "spp", "shadow_rays", "seeds", "resolution", "target_relmse", "table_shadow_rays",
-            "timing_repeats", "seconds",
+            "timing_repeats", "timing_seconds", "seconds",
             "reference", "scenes", "methods"}
 REFERENCE_KEYS = {"spp", "shadow_rays", "seed", "visibility"}
 SCENE_KEYS = {"name", "source", "defines", "reference", "reference_noise"}
@@ -53,6 +54,14 @@ class ReferenceSettings:
 
 
 @dataclass(frozen=True)
+class Timing:
+    """How a cell's seconds are measured: up to `repeats` renders, fewer once they took `enough_seconds`
+    together; the fastest counts (the image is the same each time)."""
+    repeats: int = 1
+    enough_seconds: float = math.inf
+
+
+@dataclass(frozen=True)
 class Experiment:
     name: str
     description: str
@@ -67,9 +76,14 @@ class Experiment:
     resolution: tuple | None = None
     target_relmse: float | None = None
     timing_repeats: int = 1  # renders of each cell; its seconds are the fastest (the image is the same)
+    timing_seconds: float = math.inf  # a cell stops repeating once its renders took this long together
     seconds: str = "total"  # what a cell's seconds count: "total" (without JIT compile) or "render" (also
     # without scene loading and the scene BVH, which every method shares: the render and the estimator's
     # preparation)
+
+    @property
+    def timing(self):
+        return Timing(self.timing_repeats, self.timing_seconds)
 
 
 def _fail(where, message):
@@ -95,6 +109,12 @@ def _int(where, value, lowest=1, highest=MAX_SEED):
     if value > highest:
         _fail(where, f"expected a whole number <= {highest}, got {value!r}")
     return value
+
+
+def _seconds(where, value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+        _fail(where, f"expected a number of seconds > 0, got {value!r}")
+    return float(value)
 
 
 def _int_list(where, value, lowest=1, distinct=True, highest=MAX_SEED):
@@ -224,6 +244,7 @@ def parse_experiment(data, base=Path("."), source=""):
         reference=reference, baseline=baselines[0] if baselines else method_specs[0].name,
         resolution=resolution, target_relmse=None if target is None else float(target),
         table_shadow_rays=table_rays, timing_repeats=_int("timing_repeats", data.get("timing_repeats", 1), 1, 16),
+        timing_seconds=_seconds("timing_seconds", data.get("timing_seconds", math.inf)),
         seconds=_choice("seconds", data.get("seconds", "total"), ("total", "render")))
 
 

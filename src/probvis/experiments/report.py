@@ -115,6 +115,13 @@ GEOMETRY_NOTE = ("Shadow-ray tests by the geometry they test (the scene's BVH �
                  "every method shares.")
 
 
+def repeats_note(exp):
+    """'3 repeats' or 'up to 5 repeats (fewer once they took 1 s together)': how a cell's seconds were taken."""
+    n = exp.timing_repeats
+    if n == 1 or exp.timing_seconds == math.inf:
+        return f"{n} repeat{'s' if n > 1 else ''}"
+    return f"up to {n} repeats (fewer once they took {exp.timing_seconds:g} s together)"
+
 class Report:
     """Writes the report of one measured study into `folder`."""
 
@@ -283,8 +290,8 @@ class Report:
         exp, rays = self.exp, self.exp.table_shadow_rays
         lines = [f"At {exp.spp} spp × {rays} shadow rays per camera sample; seconds exclude JIT compilation, tests "
                  f"are shadow-ray triangle tests, efficiency = 1/(relMSE × seconds); changes against "
-                 f"{exp.baseline}; seconds = wall time of the render{SECONDS_NOTE[exp.seconds]} (the fastest of {exp.timing_repeats} "
-                 f"repeat(s), median over seeds; † = repeats or seeds differ by more than {UNSTEADY:.0%}), which "
+                 f"{exp.baseline}; seconds = wall time of the render{SECONDS_NOTE[exp.seconds]} (the fastest of "
+                 f"{repeats_note(exp)}, median over seeds; † = repeats or seeds differ by more than {UNSTEADY:.0%}), which "
                  f"efficiency uses; bias = block-bias ratio of two seeds (about 1: converges to the reference; "
                  f"'biased': a shortcut chosen by its options).", "",
                  "| scene | method | seconds | tests | relMSE | bias | efficiency (× baseline) |",
@@ -374,7 +381,7 @@ class Report:
         return (f"<table class=paper id=paper-table><caption>At {exp.spp} spp × {rays} shadow rays: render seconds "
                 f"and shadow-ray triangle tests with their change against the baseline ({e(exp.baseline)}), relMSE "
                 f"against the reference (seconds: the render's wall time without JIT compilation{SECONDS_NOTE[exp.seconds]}, the fastest of "
-                f"{exp.timing_repeats} repeat{'s' if exp.timing_repeats > 1 else ''} (timing_repeats), median over "
+                f"{e(repeats_note(exp))} (timing_repeats), median over "
                 f"the seeds; it also sets the efficiency; † marks a setting whose repeats or seeds differ by more "
                 f"than {UNSTEADY:.0%} — the machine was busy), bias (block means' error against the reference over their "
                 f"seed-to-seed noise, two seeds: about 1 when the image converges to the reference, far more when "

@@ -25,7 +25,7 @@ from ..errors import ProbvisError
 from ..interrupts import deferred_interrupts
 from ..io.image import atomic_path, read_exr, write_exr
 from ..scene import load_scene
-from .config import MethodSpec
+from .config import MethodSpec, Timing
 
 
 @dataclass(frozen=True)
@@ -63,13 +63,14 @@ class RunSummary:
     reference_noise: dict = field(default_factory=dict)  # scene -> the reference's own per-pixel relMSE
 
 
-def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, repeats=1):
-    """Worker side: render one task (`repeats` times, keeping every repeat's seconds without compilation in
-    stats["seconds"]["repeats"]) and return what the driver stores."""
+def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, timing=Timing()):
+    """Worker side: render one task as `timing` says (`Timing`: repeats, fewer once they took long enough),
+    keeping every repeat's seconds without compilation in stats["seconds"]["repeats"]) and return what the
+    driver stores."""
     from ..integrator import render
 
     times = []
-    for _ in range(repeats):
+    for _ in range(timing.repeats):
         try:
             r = render(scene, spp=spp, shadow_rays=shadow_rays, seed=seed, visibility=visibility,
                        visibility_options=dict(options), threads=threads)
@@ -79,6 +80,8 @@ def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, rep
             raise ProbvisError(f"visibility '{visibility}' raised {type(exc).__name__}: {exc} (a bug in the "
                                "estimator or in probvis; rerunning will not help)") from None
         times.append(r.stats["seconds"]["total"] - r.stats["seconds"]["compile"])
+        if sum(times) >= timing.enough_seconds:
+            break
     r.stats["seconds"]["repeats"] = times
     return r.stats, r.image.astype(np.float32), r.aovs["triangle_tests"].astype(np.float32)
 
@@ -105,9 +108,10 @@ def estimator_fingerprint(visibility):
     return hashlib.sha256(Path(path).read_bytes()).hexdigest() if path else ""
 
 
-def task_key(scene_hash, method, spp, shadow_rays, seed, repeats=1):
+def task_key(scene_hash, method, spp, shadow_rays, seed, timing=Timing()):
     blob = json.dumps([code_fingerprint(), estimator_fingerprint(method.visibility), scene_hash, method.visibility,
-                       sorted(method.options.items()), spp, shadow_rays, seed, repeats], default=list)
+                       sorted(method.options.items()), spp, shadow_rays, seed, timing.repeats,
+                       timing.enough_seconds], default=list)
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 
@@ -202,7 +206,7 @@ def plan(exp, scenes):
             for sr in exp.shadow_rays:
                 for seed in exp.seeds:
                     cells.append(Task(spec.name, m, exp.spp, sr, seed,
-                                      task_key(h, m, exp.spp, sr, seed, exp.timing_repeats)))
+                                      task_key(h, m, exp.spp, sr, seed, exp.timing)))
     return refs, cells
 
 
@@ -251,7 +255,7 @@ def _run(exp, scenes, files, cache, workers, scheduler, progress, log):
     log(f"experiment '{exp.name}': {len(cells)} cells ({out.cells_cached} cached), {len(refs)} rendered "
         f"references ({sum(cache.has(t.key) for t in refs)} cached), cache {cache.folder}")
     if todo:
-        _compute(todo, scenes, cache, workers, scheduler, progress, log, exp.timing_repeats)
+        _compute(todo, scenes, cache, workers, scheduler, progress, log, exp.timing)
     for spec in exp.scenes:
         if spec.reference is not None:
             out.reference_images[spec.name] = files[spec.name]
@@ -267,14 +271,14 @@ def _run(exp, scenes, files, cache, workers, scheduler, progress, log):
     return out
 
 
-def _compute(todo, scenes, cache, workers, scheduler, progress, log, repeats=1):
+def _compute(todo, scenes, cache, workers, scheduler, progress, log, timing=Timing()):
     """Render `todo` on Dask and cache each render as it finishes. Ctrl-C and SIGTERM are deferred to the
     polling loop (`deferred_interrupts`): raised inside a Dask client call they leave a half-cancelled call
     whose clean-up logs a traceback."""
     with deferred_interrupts((signal.SIGINT, signal.SIGTERM)) as check_interrupt:
         client, cluster = _open_client(workers, scheduler)
         try:
-            _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt, repeats)
+            _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt, timing)
         except (ProbvisError, KeyboardInterrupt):
             raise
         except Exception as exc:  # Dask's way of saying a worker went away: cancelled futures, lost workers
@@ -292,7 +296,8 @@ def _compute(todo, scenes, cache, workers, scheduler, progress, log, repeats=1):
                     pass
 
 
-def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt, repeats=1):
+def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt,
+               timing=Timing()):
     """Submit the renders and store each as it finishes, checking for an interrupt every POLL_SECONDS."""
     from dask.distributed import wait
     from tqdm import tqdm
@@ -306,7 +311,8 @@ def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, c
     futures = {}
     for t in todo:
         f = client.submit(render_task, shared[t.scene], t.method.visibility, t.method.options, t.spp,
-                          t.shadow_rays, t.seed, threads, 1 if t.reference else repeats, key=f"{'ref' if t.reference else 'cell'}-{t.key}",
+                          t.shadow_rays, t.seed, threads, Timing() if t.reference else timing,
+                          key=f"{'ref' if t.reference else 'cell'}-{t.key}",
                           priority=1 if t.reference else 0, pure=False)
         futures[f] = t
     failures = []
