@@ -193,3 +193,21 @@ def test_exposure_without_a_png_is_said_to_be_ignored(tmp_path, capsys):
     assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "--exposure", "2", "-q",
                  "-o", str(tmp_path / "o.png")]) == 0
     assert "--exposure" not in capsys.readouterr().err
+
+
+def test_an_output_that_is_one_of_the_scene_s_inputs_is_refused(tmp_path, capsys):
+    from probvis.io import write_exr
+
+    texture = tmp_path / "wood.exr"
+    write_exr(texture, np.full((4, 4, 3), 0.5, np.float32))
+    before = texture.read_bytes()
+    body = sensor(w=8, h=8) + """<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap"
+        name="reflectance"><string name="filename" value="wood.exr"/></texture></bsdf></shape>
+        <emitter type="point"><point name="position" x="0" y="0" z="3"/><rgb name="intensity" value="5"/></emitter>"""
+    path = write_scene(tmp_path / "s.xml", body)
+    assert main(["render", str(path), "--spp", "1", "-q", "-o", str(tmp_path / "out.png"), "-o", str(texture)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the scene reads this file" in err[0] and "wood.exr" in err[0], err
+    assert texture.read_bytes() == before and not (tmp_path / "out.png").exists()
+    result = probvis.render(str(path), spp=1)
+    assert result.stats["inputs"] == [str(path.resolve()), str(texture.resolve())]

@@ -208,7 +208,7 @@ def _parser(estimator=None):
 
 def _plan_outputs(outputs, args):
     """Check every file a render will write before it starts: each writable, of its role's format, and no two
-    the same file."""
+    the same file. Returns them by resolved path (the owner's flag and name)."""
     from .io import check_writable
     from .io.image import FORMATS
 
@@ -230,6 +230,16 @@ def _plan_outputs(outputs, args):
             if key.parent == case.parent and per_emitter.fullmatch(key.name):
                 raise ProbvisError(f"--case-image {args.case_image}: with several emitters it writes {key.name}, the "
                                    f"same file as {owner}; give each output its own name")
+    return seen
+
+
+def _refuse_inputs(planned, inputs):
+    """An error if a planned output (`_plan_outputs`) is one of the files the scene was read from (a texture or
+    an environment map given as `-o`): checked after the render, which reads the scene, before any write."""
+    for path in inputs:
+        if (owner := planned.get(Path(path).resolve())) is not None:
+            raise ProbvisError(f"{owner}: the scene reads this file ({path}); writing it would replace the scene's "
+                               "own input: give the output another name")
 
 
 def _cmd_render(args):
@@ -241,7 +251,7 @@ def _cmd_render(args):
         raise ProbvisError(f"--case-image needs an estimator that classifies points (e.g. occlusion-map), not "
                            f"'{cls.name}'")
     outputs = args.output or [f"{Path(args.scene).stem}.exr"]
-    _plan_outputs(outputs, args)
+    planned = _plan_outputs(outputs, args)
     if args.exposure and not any(Path(o).suffix.lower() == ".png" for o in outputs):
         warnings.warn("--exposure applies to PNG outputs only (EXR and PFM keep the radiance): ignored", stacklevel=1)
     options = {o.name: getattr(args, o.name) for o in cls.options if getattr(args, o.name) is not None}
@@ -249,6 +259,7 @@ def _cmd_render(args):
                     visibility=cls, visibility_options=options, defines=_defines(args.defines), strict=args.strict,
                     clamp_negative=args.clamp_negative, progress=not args.quiet,
                     filter_importance=args.filter_importance or None)
+    _refuse_inputs(planned, result.stats["inputs"])
     for path in outputs:
         write_image(path, result.image, args.exposure)
     if args.tests_image:

@@ -23,6 +23,7 @@ def render_stats(scene, settings, estimator, result, image, clamp, seconds, memo
         "probvis_version": __version__,
         "scene": scene.name,
         "source": scene.source,
+        "inputs": [str(p) for p in scene.inputs],
         "width": cam.width,
         "height": cam.height,
         "spp": settings.spp,

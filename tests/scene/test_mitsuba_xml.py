@@ -129,6 +129,9 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
      "</shape>", "wavelengths 5000-6000 nm lie outside 360-830 nm"),
     ("<integrator type='path'><integer name='max_depth' value='1'/></integrator>",
      "max_depth 1 renders no direct illumination in Mitsuba"),
+    ("<shape type='rectangle'><transform name='to_world'><matrix value='1 0 0 0 1 0 0 0 0 0 0 0 0 0 0 1'/>"
+     "</transform><emitter type='area'><rgb name='radiance' value='1'/></emitter></shape>",
+     "an area emitter on a shape without area"),
 ])
 def test_unsupported_input_names_file_line_and_element(tmp_path, body, message):
     path = write_scene(tmp_path / "bad.xml", sensor() + LIGHT + "\n" + body)
@@ -139,6 +142,21 @@ def test_unsupported_input_names_file_line_and_element(tmp_path, body, message):
     assert f"{path}:" in text
     line = int(text.split(f"{path}:")[1].split(":")[0])
     assert body.split()[0].strip("<") in path.read_text().splitlines()[line - 1]
+
+
+@pytest.mark.parametrize("kind, params, message", [
+    ("perspective", "<float name='principal_point_offset_x' value='1e10'/>",
+     "principal_point_offset (1e+10, 0) moves the image more than 1000 film sizes off its axis"),
+    ("thinlens", "<float name='aperture_radius' value='1e20'/><float name='focus_distance' value='4'/>",
+     "aperture_radius 1e+20 is more than 1000 times the focus_distance 4"),
+])
+def test_a_sensor_whose_rays_miss_its_view_is_named_at_its_line(tmp_path, kind, params, message):
+    body = sensor().replace('<sensor type="perspective">', f'<sensor type="{kind}">{params}')
+    path = write_scene(tmp_path / "bad.xml", body + LIGHT)
+    with pytest.raises(ProbvisError, match=re.escape(str(path)) + r":\d+: <sensor>: " + re.escape(message)):
+        probvis.load_scene(path)
+    path = write_scene(tmp_path / "good.xml", body.replace("1e10", "0.5").replace("1e20", "0.1") + LIGHT)
+    probvis.load_scene(path)
 
 
 def test_malformed_xml_reports_the_line(tmp_path):

@@ -17,7 +17,7 @@ from ..settings import RenderSettings
 from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
-from .scene import MAX_FILTER_RADIUS, Camera, SceneBuilder
+from .scene import MAX_FILTER_RADIUS, Camera, SceneBuilder, camera_problem
 from .spectrum import spectrum_to_rgb
 
 MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarters of the samples out
@@ -116,6 +116,7 @@ def _unique_ids(root, fail):
 class _Reader:
     def __init__(self, path, overrides, strict=False):
         self.path = Path(path)
+        self.inputs = [self.path]  # every file the scene reads, for the outputs that must not replace one
         self.strict = strict
         self.approximated = set()  # plugin types already warned about
         self.overrides = {k: str(v) for k, v in overrides.items()}
@@ -373,9 +374,10 @@ class _Reader:
             if wrap not in WRAP_MODES:
                 self.fail(node, f"wrap_mode must be one of {', '.join(WRAP_MODES)}, got '{wrap}'")
             path = Path(props["filename"])
+            path = path if path.is_absolute() else self.path.parent / path
+            self.inputs.append(path)
             try:
-                image = read_linear_rgb(path if path.is_absolute() else self.path.parent / path,
-                                        raw=props.get("raw", False))
+                image = read_linear_rgb(path, raw=props.get("raw", False))
             except ProbvisError as exc:
                 self.fail(node, str(exc))
             out = Texture(BITMAP, self.to_uv(props), image=image, wrap=WRAP_MODES[wrap], bilinear=filt == "bilinear")
@@ -529,6 +531,7 @@ class _Reader:
                 self.fail(node, "envmap needs a 'filename'")
             path = Path(props["filename"])
             path = path if path.is_absolute() else self.path.parent / path
+            self.inputs.append(path)
             try:
                 image = read_linear_rgb(path)
             except ProbvisError as exc:
@@ -610,6 +613,7 @@ class _Reader:
                 self.fail(node, f"mesh file not found: {mesh_path}")
             if not mesh_path.is_file():
                 self.fail(node, f"mesh {mesh_path} is not a regular file (a mesh is an OBJ, PLY or serialized file)")
+            self.inputs.append(mesh_path)
             try:
                 if kind == "serialized":
                     v, f, vnormals, uv = shp.load_serialized(mesh_path, props.get("shape_index", 0))
@@ -642,9 +646,12 @@ class _Reader:
             flip = not flip  # analytic shapes orient by the normal transform, not by the mirrored winding
         name = node.attrs.get("id", f"{kind}@{node.line}")
         try:
-            builder.add_mesh(name, kind, v, f, m, material, radiance, face_normals, vnormals, flip, uv)
+            kept = builder.add_mesh(name, kind, v, f, m, material, radiance, face_normals, vnormals, flip, uv)
         except ProbvisError as exc:
             self.fail(node, str(exc))
+        if radiance is not None and kept == 0:
+            self.fail(node, "an area emitter on a shape without area (every triangle degenerate) emits nothing: "
+                            "check the shape's size and to_world")
 
     def cylinder_frame(self, node, props):
         """Object-to-shape transform of Mitsuba's cylinder from p0 to p1 with a radius (the unit cylinder's z
@@ -718,6 +725,8 @@ class _Reader:
         cam = Camera(m, fov_x, near_clip=near, far_clip=far,
                      principal_x=props.get("principal_point_offset_x", 0.0),
                      principal_y=props.get("principal_point_offset_y", 0.0), **lens, **film)
+        if problem := camera_problem(cam):
+            self.fail(node, problem)
         return cam, spp, seed
 
     def fov_x(self, node, props, aspect):
@@ -880,6 +889,7 @@ class _Reader:
         if unused:
             warnings.warn(f"{self.path}: -D {', '.join(unused)}: the scene declares no such parameter "
                           f"(its parameters: {', '.join(sorted(self.defaults)) or 'none'})", stacklevel=2)
+        builder.inputs = tuple(dict.fromkeys(p.resolve() for p in self.inputs))
         try:
             return builder.build(camera, RenderSettings(spp, shadow_rays, seed))
         except ProbvisError as exc:

@@ -26,6 +26,8 @@ class Environment:
 
 
 MAX_FILTER_RADIUS = 32.0  # pixels a film's reconstruction filter may reach (splatting cost grows with its square)
+MAX_PRINCIPAL_OFFSET = 1e3  # film sizes: beyond, the view's axis is within a thousandth of a radian of the film plane
+MAX_APERTURE_RATIO = 1e3  # lens radius per focus distance: beyond, every ray leaves the lens nearly along its plane
 
 
 @dataclass
@@ -89,6 +91,7 @@ class Scene:
     defaults: RenderSettings = RenderSettings()  # the settings the scene file declares (sampler, integrator)
     name: str = "scene"
     source: str = ""
+    inputs: tuple = ()  # the files it was read from (the XML, meshes, images): no output may replace one
     shapes: list = field(default_factory=list)
     dropped_degenerate: int = 0
     # emitters that are points, not shapes: per emitter its kind (EMITTER_AREA, _POINT, _SPOT), position, the
@@ -159,20 +162,34 @@ class Scene:
         return h.hexdigest()
 
     def validate_camera(self):
-        c = self.camera
-        for what, val in (("width", c.width), ("height", c.height)):
-            if int(val) != val or not 1 <= val <= 1 << 15:
-                raise ProbvisError(f"{what} must be a whole number from 1 to {1 << 15}, got {val}")
-        if not 0.0 < c.fov_x < 180.0:
-            raise ProbvisError(f"field of view must be between 0 and 180 degrees, got {c.fov_x:g}")
-        if not 0.0 < c.near_clip < c.far_clip:
-            raise ProbvisError("near_clip must be positive and smaller than far_clip")
-        fw, fh = c.film_size
-        if not (0 <= c.crop_x and c.crop_x + c.width <= fw and 0 <= c.crop_y and c.crop_y + c.height <= fh):
-            raise ProbvisError(f"the crop window {c.width}x{c.height} at ({c.crop_x}, {c.crop_y}) does not fit the "
-                               f"{fw}x{fh} film")
-        if c.aperture_radius < 0 or (c.aperture_radius > 0 and not c.focus_distance > 0):
-            raise ProbvisError("a thin lens needs aperture_radius >= 0 and a positive focus_distance")
+        if problem := camera_problem(self.camera):
+            raise ProbvisError(problem)
+
+
+def camera_problem(c):
+    """What makes the `Camera` `c` unusable, or None: a size, field of view, clip range, crop window or lens that
+    no render can use, or a principal point or aperture so far beyond the film that its rays miss the view (Mitsuba
+    renders those black)."""
+    for what, val in (("width", c.width), ("height", c.height)):
+        if int(val) != val or not 1 <= val <= 1 << 15:
+            return f"{what} must be a whole number from 1 to {1 << 15}, got {val}"
+    if not 0.0 < c.fov_x < 180.0:
+        return f"field of view must be between 0 and 180 degrees, got {c.fov_x:g}"
+    if not 0.0 < c.near_clip < c.far_clip:
+        return "near_clip must be positive and smaller than far_clip"
+    fw, fh = c.film_size
+    if not (0 <= c.crop_x and c.crop_x + c.width <= fw and 0 <= c.crop_y and c.crop_y + c.height <= fh):
+        return f"the crop window {c.width}x{c.height} at ({c.crop_x}, {c.crop_y}) does not fit the {fw}x{fh} film"
+    if not (c.aperture_radius >= 0 and (c.aperture_radius == 0 or c.focus_distance > 0)):
+        return "a thin lens needs aperture_radius >= 0 and a positive focus_distance"
+    if not max(abs(c.principal_x), abs(c.principal_y)) <= MAX_PRINCIPAL_OFFSET:
+        return (f"principal_point_offset ({c.principal_x:g}, {c.principal_y:g}) moves the image more than "
+                f"{MAX_PRINCIPAL_OFFSET:g} film sizes off its axis, where its rays run along the film plane "
+                "(an offset is a fraction of the film: 0.1 moves it by a tenth)")
+    if c.aperture_radius > MAX_APERTURE_RATIO * c.focus_distance:
+        return (f"aperture_radius {c.aperture_radius:g} is more than {MAX_APERTURE_RATIO:g} times the focus_distance "
+                f"{c.focus_distance:g}: the lens's rays would run along its plane and its image be blur")
+    return None
 
 
 class SceneBuilder:
@@ -180,6 +197,7 @@ class SceneBuilder:
 
     def __init__(self, name="scene", source=""):
         self.name, self.source = name, source
+        self.inputs = ()
         self._tris, self._normals, self._mat, self._emit, self._uv = [], [], [], [], []
         self._materials = {}  # (reflectance, twosided, texture index) -> id
         self.textures = []
@@ -328,6 +346,7 @@ class SceneBuilder:
             defaults=defaults.validate(),
             name=self.name,
             source=self.source,
+            inputs=self.inputs,
             shapes=self.shapes,
             dropped_degenerate=self.dropped,
         )
