@@ -250,6 +250,26 @@ def test_timing_repeats_take_the_fastest_and_flag_disagreement(tmp_path):
     assert "fastest of 3 repeats" in (tmp_path / "index.html").read_text()
 
 
+def test_each_repeat_s_render_seconds_leave_out_its_own_load_and_bvh(monkeypatch):
+    """A repeat's render seconds subtract its own scene load and BVH, not the last repeat's: a heavy scene's
+    BVH time varies by more than a short render takes."""
+    import probvis.integrator
+    from probvis.experiments.runner import Timing, render_task
+
+    class Fake:
+        image = np.zeros((2, 2, 3))
+
+        def __init__(self, total, bvh):
+            self.stats = {"seconds": {"total": total, "compile": 0.0, "load": 0.25, "bvh": bvh}}
+            self.aovs = {"triangle_tests": np.zeros((2, 2))}
+
+    runs = iter([Fake(2.0, 1.5), Fake(1.75, 1.375), Fake(2.5, 2.125)])
+    monkeypatch.setattr(probvis.integrator, "render", lambda *a, **k: next(runs))
+    stats, _, _ = render_task(None, "exact", {}, 1, 1, 0, 1, Timing(3))
+    assert stats["seconds"]["repeats"] == [2.0, 1.75, 2.5]
+    assert stats["seconds"]["repeats_render"] == [0.25, 0.125, 0.125]
+
+
 def test_timing_seconds_stop_the_repeats_once_the_renders_took_that_long(tmp_path):
     study = dict(TINY, timing_repeats=3, timing_seconds=1e-6, shadow_rays=[1])
     results, _, run = experiment(parse_experiment(study), tmp_path, progress=False, log=lambda m: None)

@@ -68,9 +68,11 @@ def cell_row(task, render, reference, baseline_name, counted="total"):
     the render and the estimator's preparation (not the scene load and BVH every method shares)."""
     s = render.stats
     err = metrics.relmse(render.image, reference)
-    repeats = s["seconds"].get("repeats") or [s["seconds"]["total"] - s["seconds"]["compile"]]
-    if counted == "render":
-        repeats = [r - s["seconds"]["load"] - s["seconds"]["bvh"] for r in repeats]
+    sec = s["seconds"]
+    if counted == "render":  # each repeat without its own scene load and BVH (they vary from repeat to repeat)
+        repeats = sec.get("repeats_render") or [sec["total"] - sec["compile"] - sec["load"] - sec["bvh"]]
+    else:
+        repeats = sec.get("repeats") or [sec["total"] - sec["compile"]]
     seconds = min(repeats)  # the fastest repeat: what the render costs when the machine lets it
     cpu = s["seconds"].get("cpu_total", 0.0) - s["seconds"].get("cpu_compile", 0.0)
     tests = s["intersection_tests"]["shadow"]["triangle"]

@@ -65,11 +65,11 @@ class RunSummary:
 
 def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, timing=Timing()):
     """Worker side: render one task as `timing` says (`Timing`: repeats, fewer once they took long enough),
-    keeping every repeat's seconds without compilation in stats["seconds"]["repeats"]) and return what the
-    driver stores."""
+    keeping every repeat's seconds without compilation in stats["seconds"]["repeats"], and without the scene
+    load and BVH too in ["repeats_render"], each from its own render) and return what the driver stores."""
     from ..integrator import render
 
-    times = []
+    times, render_times = [], []
     for _ in range(timing.repeats):
         try:
             r = render(scene, spp=spp, shadow_rays=shadow_rays, seed=seed, visibility=visibility,
@@ -79,10 +79,12 @@ def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, tim
         except Exception as exc:  # a bug, not a lost worker: rerunning would fail the same way
             raise ProbvisError(f"visibility '{visibility}' raised {type(exc).__name__}: {exc} (a bug in the "
                                "estimator or in probvis; rerunning will not help)") from None
-        times.append(r.stats["seconds"]["total"] - r.stats["seconds"]["compile"])
+        sec = r.stats["seconds"]
+        times.append(sec["total"] - sec["compile"])
+        render_times.append(times[-1] - sec["load"] - sec["bvh"])
         if sum(times) >= timing.enough_seconds:
             break
-    r.stats["seconds"]["repeats"] = times
+    r.stats["seconds"]["repeats"], r.stats["seconds"]["repeats_render"] = times, render_times
     return r.stats, r.image.astype(np.float32), r.aovs["triangle_tests"].astype(np.float32)
 
 
