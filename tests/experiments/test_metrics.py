@@ -61,7 +61,7 @@ def test_render_seconds_leave_out_loading_and_the_bvh():
     from probvis.experiments.results import cell_row
 
     stats = {"seconds": {"total": 10.0, "compile": 1.0, "load": 2.0, "bvh": 3.0, "prepare": 0.5, "render": 3.5,
-                         "repeats": [9.0, 8.5]},
+                         "repeats": [9.0, 8.5], "repeats_render": [3.75, 3.5]},
              "intersection_tests": {"shadow": {"triangle": 10, "node": 20}, "triangle": 11, "node": 22},
              "camera_rays": 1, "shadow_rays": 1, "negative_pixels": {"negative_pixel_share": 0.0},
              "negative_estimate_share": 0.0, "bvh": {"bytes": 1000}}
@@ -69,6 +69,10 @@ def test_render_seconds_leave_out_loading_and_the_bvh():
     task = SimpleNamespace(scene="s", method=MethodSpec("e", "exact"), shadow_rays=1, spp=1, seed=0)
     assert cell_row(task, render, np.ones((2, 2, 3)), "e")["seconds"] == 8.5
     assert cell_row(task, render, np.ones((2, 2, 3)), "e", "render")["seconds"] == 3.5
+    for key in ("repeats", "repeats_render"):  # one render, without the repeats' lists
+        del stats["seconds"][key]
+    assert cell_row(task, render, np.ones((2, 2, 3)), "e")["seconds"] == 9.0
+    assert cell_row(task, render, np.ones((2, 2, 3)), "e", "render")["seconds"] == 4.0
 
 
 def test_tests_split_by_geometry_add_up_to_the_shadow_totals():
