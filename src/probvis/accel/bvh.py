@@ -19,6 +19,7 @@ MAX_LEAF = 8
 TRAVERSAL_COST = 1.0  # relative to one ray-triangle test
 PARALLEL_MIN_TRIANGLES = 20000  # smaller meshes build on one thread
 PARALLEL_DEPTH = 3  # subtrees below this depth (up to 8) are built concurrently
+BOX_STACK = 256  # pending ranges whose bounds are kept from their parent (deeper ones, rare, recompute them)
 
 
 @njit(cache=True, error_model="numpy")
@@ -38,13 +39,48 @@ def _swap_rows(tri_lo, tri_hi, cent, idx, a, b):
         cent[a, k], cent[b, k] = cent[b, k], cent[a, k]
 
 
+@njit(cache=True, parallel=True, error_model="numpy")
+def _primitive_bounds(tris, lo, hi, cent, idx):
+    """Each triangle's bounds, their centre and its id, on every thread (the pages first touched in parallel)."""
+    for i in prange(tris.shape[0]):
+        idx[i] = i
+        for k in range(3):
+            a, b, c = tris[i, 0, k], tris[i, 1, k], tris[i, 2, k]
+            lo[i, k] = min(min(a, b), c)
+            hi[i, k] = max(max(a, b), c)
+            cent[i, k] = 0.5 * (lo[i, k] + hi[i, k])
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _gather(tris, idx, out):
+    """out[i] = tris[idx[i]]: the triangles in BVH order."""
+    for i in prange(idx.shape[0]):
+        for v in range(3):
+            for k in range(3):
+                out[i, v, k] = tris[idx[i], v, k]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _bins_union(bin_box, axis, first, last, out, row):
+    """The union of the boxes of bins first..last-1 on `axis`, into out[row, :6]."""
+    for k in range(3):
+        out[row, k] = np.inf
+        out[row, k + 3] = -np.inf
+    for j in range(first, last):
+        for k in range(3):
+            out[row, k] = min(out[row, k], bin_box[axis, j, k])
+            out[row, k + 3] = max(out[row, k + 3], bin_box[axis, j, k + 3])
+
+
 @njit(cache=True, error_model="numpy", nogil=True)
 def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, defer_depth):
     """Build the subtree over positions first..last-1, reordering those rows of the primitives' bounds
     `tri_lo`, `tri_hi`, centroids `cent` and triangle ids `idx` together in place: every pass then reads them in
     order (through `idx` the reads scattered once the top levels had split the ranges). Ranges reached at depth
     `defer_depth` (> 0) are not built but left as placeholder nodes (count -1, range in `deferred`), so that
-    the caller can build them concurrently. Leaves store absolute positions in `idx`."""
+    the caller can build them concurrently. Leaves store absolute positions in `idx`. A child's bounds come
+    from its parent's bins and its centroid bounds from the partition that made it, so a node reads its rows
+    twice (binning, partition) rather than three times; the same bounds bit for bit (min and max are exact)."""
     n = last - first
     max_nodes = 2 * n
     bounds = np.empty((max_nodes, 6))
@@ -53,11 +89,10 @@ def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, 
     deferred = np.empty((max(1, 1 << max(defer_depth, 0)), 3), np.int64)  # node, start, end
     n_deferred = 0
     # pending ranges: start, end, parent (right-child links are patched when the node is created), depth
-    st_start = np.empty(n + 64, np.int64)
-    st_end = np.empty(n + 64, np.int64)
-    st_parent = np.empty(n + 64, np.int64)
-    st_depth = np.empty(n + 64, np.int64)
-    st_start[0], st_end[0], st_parent[0], st_depth[0] = first, last, -1, 0
+    # (start, end, parent, depth, bounds known) of each pending range, grown as the tree deepens
+    st = np.empty((BOX_STACK, 5), np.int64)
+    st_box = np.empty((BOX_STACK, 12))  # a pending range's bounds and centroid bounds, when known
+    st[0, 0], st[0, 1], st[0, 2], st[0, 3], st[0, 4] = first, last, -1, 0, 0
     sp = 1
     n_nodes = 0
     bin_cnt = np.zeros((3, n_bins), np.int64)
@@ -68,7 +103,7 @@ def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, 
     acc = np.empty(6)
     while sp > 0:
         sp -= 1
-        start, end, parent, depth = st_start[sp], st_end[sp], st_parent[sp], st_depth[sp]
+        start, end, parent, depth = st[sp, 0], st[sp, 1], st[sp, 2], st[sp, 3]
         node = n_nodes
         n_nodes += 1
         if parent >= 0:
@@ -78,18 +113,23 @@ def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, 
             deferred[n_deferred, 0], deferred[n_deferred, 1], deferred[n_deferred, 2] = node, start, end
             n_deferred += 1
             continue
-        # node bounds and centroid bounds, accumulated in scalars: min/max into array elements would be a
-        # chain of stores and reloads (LLVM cannot keep them in registers past the loads of tri_lo)
-        lx = ly = lz = cx0 = cy0 = cz0 = np.inf
-        hx = hy = hz = cx1 = cy1 = cz1 = -np.inf
-        for t in range(start, end):
-            lx, ly, lz = min(lx, tri_lo[t, 0]), min(ly, tri_lo[t, 1]), min(lz, tri_lo[t, 2])
-            hx, hy, hz = max(hx, tri_hi[t, 0]), max(hy, tri_hi[t, 1]), max(hz, tri_hi[t, 2])
-            cx0, cy0, cz0 = min(cx0, cent[t, 0]), min(cy0, cent[t, 1]), min(cz0, cent[t, 2])
-            cx1, cy1, cz1 = max(cx1, cent[t, 0]), max(cy1, cent[t, 1]), max(cz1, cent[t, 2])
-        bounds[node, 0], bounds[node, 1], bounds[node, 2] = lx, ly, lz
-        bounds[node, 3], bounds[node, 4], bounds[node, 5] = hx, hy, hz
-        box[0], box[1], box[2], box[3], box[4], box[5] = cx0, cy0, cz0, cx1, cy1, cz1
+        if st[sp, 4]:
+            for k in range(6):
+                bounds[node, k] = st_box[sp, k]
+                box[k] = st_box[sp, 6 + k]
+        else:
+            # node bounds and centroid bounds, accumulated in scalars: min/max into array elements would be a
+            # chain of stores and reloads (LLVM cannot keep them in registers past the loads of tri_lo)
+            lx = ly = lz = cx0 = cy0 = cz0 = np.inf
+            hx = hy = hz = cx1 = cy1 = cz1 = -np.inf
+            for t in range(start, end):
+                lx, ly, lz = min(lx, tri_lo[t, 0]), min(ly, tri_lo[t, 1]), min(lz, tri_lo[t, 2])
+                hx, hy, hz = max(hx, tri_hi[t, 0]), max(hy, tri_hi[t, 1]), max(hz, tri_hi[t, 2])
+                cx0, cy0, cz0 = min(cx0, cent[t, 0]), min(cy0, cent[t, 1]), min(cz0, cent[t, 2])
+                cx1, cy1, cz1 = max(cx1, cent[t, 0]), max(cy1, cent[t, 1]), max(cz1, cent[t, 2])
+            bounds[node, 0], bounds[node, 1], bounds[node, 2] = lx, ly, lz
+            bounds[node, 3], bounds[node, 4], bounds[node, 5] = hx, hy, hz
+            box[0], box[1], box[2], box[3], box[4], box[5] = cx0, cy0, cz0, cx1, cy1, cz1
         count = end - start
         if count <= 1:
             node_index[node], node_count[node] = start, count
@@ -152,27 +192,46 @@ def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, 
         if count <= max_leaf and (best_axis < 0 or split_cost >= count):
             node_index[node], node_count[node] = start, count
             continue
+        mid = -1
+        # the children's centroid bounds, gathered as the partition classifies each row once
+        l0x = l0y = l0z = r0x = r0y = r0z = np.inf
+        l1x = l1y = l1z = r1x = r1y = r1z = -np.inf
         if best_axis >= 0:
             lo, hi = start, end - 1
             while lo <= hi:
+                px, py, pz = cent[lo, 0], cent[lo, 1], cent[lo, 2]
                 j = min(max(int((cent[lo, best_axis] - box[best_axis]) * scale[best_axis]), 0), n_bins - 1)
                 if j <= best_split:
+                    l0x, l0y, l0z = min(l0x, px), min(l0y, py), min(l0z, pz)
+                    l1x, l1y, l1z = max(l1x, px), max(l1y, py), max(l1z, pz)
                     lo += 1
                 else:
+                    r0x, r0y, r0z = min(r0x, px), min(r0y, py), min(r0z, pz)
+                    r1x, r1y, r1z = max(r1x, px), max(r1y, py), max(r1z, pz)
                     _swap_rows(tri_lo, tri_hi, cent, idx, lo, hi)
                     hi -= 1
             mid = lo
-        else:
-            mid = -1
-        if mid <= start or mid >= end:
+        known = start < mid < end and sp + 1 < BOX_STACK
+        if not start < mid < end:
             mid = (start + end) // 2  # all centroids coincide: split by count
         node_count[node] = 0
-        st_start[sp], st_end[sp], st_parent[sp], st_depth[sp] = mid, end, node, depth + 1
+        if sp + 2 > st.shape[0]:
+            grown = np.empty((2 * st.shape[0], 5), np.int64)
+            grown[:sp] = st[:sp]
+            st = grown
+        st[sp, 0], st[sp, 1], st[sp, 2], st[sp, 3], st[sp, 4] = mid, end, node, depth + 1, known
+        if known:  # the right child's bounds: its bins' union
+            _bins_union(bin_box, best_axis, best_split + 1, n_bins, st_box, sp)
+            st_box[sp, 6], st_box[sp, 7], st_box[sp, 8] = r0x, r0y, r0z
+            st_box[sp, 9], st_box[sp, 10], st_box[sp, 11] = r1x, r1y, r1z
         sp += 1
-        st_start[sp], st_end[sp], st_parent[sp], st_depth[sp] = start, mid, -1, depth + 1
+        st[sp, 0], st[sp, 1], st[sp, 2], st[sp, 3], st[sp, 4] = start, mid, -1, depth + 1, known
+        if known:
+            _bins_union(bin_box, best_axis, 0, best_split + 1, st_box, sp)
+            st_box[sp, 6], st_box[sp, 7], st_box[sp, 8] = l0x, l0y, l0z
+            st_box[sp, 9], st_box[sp, 10], st_box[sp, 11] = l1x, l1y, l1z
         sp += 1
-    return bounds[:n_nodes].copy(), node_index[:n_nodes].copy(), node_count[:n_nodes].copy(), \
-        deferred[:n_deferred].copy()
+    return bounds[:n_nodes], node_index[:n_nodes], node_count[:n_nodes], deferred[:n_deferred]
 
 
 @njit(cache=True, error_model="numpy")
@@ -302,11 +361,9 @@ def build_bvh(triangles, n_bins=N_BINS, max_leaf=MAX_LEAF):
     subtrees below them on all threads; the tree is the same as a single-threaded build's."""
     tris = np.ascontiguousarray(triangles, dtype=np.float64)
     t0 = time.perf_counter()
-    lo = np.minimum(np.minimum(tris[:, 0], tris[:, 1]), tris[:, 2])  # 7x faster than tris.min(axis=1)
-    hi = np.maximum(np.maximum(tris[:, 0], tris[:, 1]), tris[:, 2])
-    cent = 0.5 * (lo + hi)
     n = len(tris)
-    idx = np.arange(n, dtype=np.int32)
+    lo, hi, cent, idx = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int32)
+    _primitive_bounds(tris, lo, hi, cent, idx)
     threads = numba.get_num_threads()
     defer = PARALLEL_DEPTH if n >= PARALLEL_MIN_TRIANGLES and threads > 1 else 0
     bounds, node_index, node_count, deferred = _build(lo, hi, cent, idx, 0, n, n_bins, max_leaf, TRAVERSAL_COST,
@@ -316,6 +373,9 @@ def build_bvh(triangles, n_bins=N_BINS, max_leaf=MAX_LEAF):
             subtrees = list(pool.map(lambda d: _build(lo, hi, cent, idx, d[1], d[2], n_bins, max_leaf,
                                                       TRAVERSAL_COST, 0), deferred))
         bounds, node_index, node_count = _splice(bounds, node_index, node_count, deferred, subtrees)
-    tri_v = np.ascontiguousarray(tris[idx])
+    else:  # views of buffers sized for the worst case: keep only what the tree uses
+        bounds, node_index, node_count = bounds.copy(), node_index.copy(), node_count.copy()
+    tri_v = np.empty_like(tris)
+    _gather(tris, idx, tri_v)
     depth = int(_depth_stats(node_index, node_count))
     return BVH(bounds, node_index, node_count, tri_v, idx, depth, time.perf_counter() - t0)
