@@ -13,7 +13,7 @@ from probvis.proxies import build_proxies, decimate
 from probvis.scene import SceneBuilder
 from probvis.scene import shapes as shp
 from probvis.scene import transform as tf
-from probvis.scene.scene import Camera
+from probvis.scene import Camera
 from probvis.settings import RenderSettings
 from probvis.visibility import ShadowQuery
 from probvis.visibility.proxy import ProxyVisibility
@@ -262,7 +262,7 @@ def test_the_pilot_counts_a_camera_samples_variance_once_per_camera_sample():
 
 def test_film_regions_follow_the_crop_window():
     """Regions tile the whole film, so a crop window's pixels fall in the regions of the film they show."""
-    from probvis.scene.scene import Camera
+    from probvis.scene import Camera
 
     full = Camera(np.eye(4), 40.0, 64, 32)
     r = film_regions(full, np.arange(64 * 32))

@@ -9,7 +9,7 @@ from probvis.accel import build_bvh
 from probvis.scene import SceneBuilder
 from probvis.scene import shapes as shp
 from probvis.scene import transform as tf
-from probvis.scene.scene import Camera
+from probvis.scene import Camera
 from probvis.settings import RenderSettings
 from probvis.shells import (FREE, PAD, SOLID, SURFACE, build_shells, classify_segments, heavy_meshes, is_closed,
                             mesh_facts, shell_tests, span)

@@ -4,7 +4,8 @@ from pathlib import Path
 from ..errors import ProbvisError
 from .builtin import BUILTINS, builtin_scene
 from .mitsuba_xml import read_scene
-from .scene import Camera, Scene, SceneBuilder, ShapeInfo
+from .scene import Scene, SceneBuilder, ShapeInfo
+from .sensor import Camera
 
 
 def load_scene(path, strict=False, **defaults):

@@ -9,7 +9,8 @@ from ..errors import ProbvisError
 from ..settings import RenderSettings
 from . import shapes as shp
 from . import transform as tf
-from .scene import Camera, SceneBuilder
+from .scene import SceneBuilder
+from .sensor import Camera
 
 
 def _cornell_walls(b, white, red, green):

@@ -17,7 +17,8 @@ from ..settings import RenderSettings
 from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
-from .scene import MAX_FILTER_RADIUS, Camera, SceneBuilder, camera_problem
+from .scene import SceneBuilder
+from .sensor import MAX_FILTER_RADIUS, Camera, camera_problem
 from .spectrum import spectrum_to_rgb
 
 MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarters of the samples out

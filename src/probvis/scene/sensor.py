@@ -1,0 +1,73 @@
+"""The sensor a scene declares: Mitsuba's perspective or thin-lens camera with its film (`Camera`), and what
+makes one unusable (`camera_problem`)."""
+from dataclasses import dataclass
+
+import numpy as np
+
+
+MAX_FILTER_RADIUS = 32.0  # pixels a film's reconstruction filter may reach (splatting cost grows with its square)
+MAX_PRINCIPAL_OFFSET = 1e3  # film sizes: beyond, the view's axis is within a thousandth of a radian of the film plane
+MAX_APERTURE_RATIO = 1e3  # lens radius per focus distance: beyond, every ray leaves the lens nearly along its plane
+
+
+@dataclass
+class Camera:
+    """A Mitsuba perspective or thin-lens sensor: `to_world` maps camera space (+z forward, +x left, +y up) to
+    the world. `width` x `height` is the image rendered: the film's crop window at (`crop_x`, `crop_y`) of a film
+    of `film_width` x `film_height` (None: the whole film). `principal_x`, `principal_y` shift the principal
+    point by a fraction of the film size; `aperture_radius` > 0 makes a thin lens focused at `focus_distance`;
+    `rfilter` is the reconstruction filter ("box", "tent" with `filter_radius`, "gaussian" with `filter_stddev`)."""
+
+    to_world: np.ndarray
+    fov_x: float
+    width: int
+    height: int
+    near_clip: float = 1e-2
+    far_clip: float = 1e4
+    film_width: int | None = None
+    film_height: int | None = None
+    crop_x: int = 0
+    crop_y: int = 0
+    principal_x: float = 0.0
+    principal_y: float = 0.0
+    aperture_radius: float = 0.0
+    focus_distance: float = 0.0
+    rfilter: str = "box"
+    filter_radius: float = 1.0
+    filter_stddev: float = 0.5
+
+    @property
+    def filter_extent(self):
+        """The reconstruction filter's radius in pixels (Mitsuba's: 0.5 for the box, 4 stddev for a Gaussian)."""
+        return {"box": 0.5, "tent": self.filter_radius}.get(self.rfilter, 4.0 * self.filter_stddev)
+
+    @property
+    def film_size(self):
+        """(width, height) of the whole film."""
+        return (self.film_width or self.width, self.film_height or self.height)
+
+
+def camera_problem(c):
+    """What makes the `Camera` `c` unusable, or None: a size, field of view, clip range, crop window or lens that
+    no render can use, or a principal point or aperture so far beyond the film that its rays miss the view (Mitsuba
+    renders those black)."""
+    for what, val in (("width", c.width), ("height", c.height)):
+        if int(val) != val or not 1 <= val <= 1 << 15:
+            return f"{what} must be a whole number from 1 to {1 << 15}, got {val}"
+    if not 0.0 < c.fov_x < 180.0:
+        return f"field of view must be between 0 and 180 degrees, got {c.fov_x:g}"
+    if not 0.0 < c.near_clip < c.far_clip:
+        return "near_clip must be positive and smaller than far_clip"
+    fw, fh = c.film_size
+    if not (0 <= c.crop_x and c.crop_x + c.width <= fw and 0 <= c.crop_y and c.crop_y + c.height <= fh):
+        return f"the crop window {c.width}x{c.height} at ({c.crop_x}, {c.crop_y}) does not fit the {fw}x{fh} film"
+    if not (c.aperture_radius >= 0 and (c.aperture_radius == 0 or c.focus_distance > 0)):
+        return "a thin lens needs aperture_radius >= 0 and a positive focus_distance"
+    if not max(abs(c.principal_x), abs(c.principal_y)) <= MAX_PRINCIPAL_OFFSET:
+        return (f"principal_point_offset ({c.principal_x:g}, {c.principal_y:g}) moves the image more than "
+                f"{MAX_PRINCIPAL_OFFSET:g} film sizes off its axis, where its rays run along the film plane "
+                "(an offset is a fraction of the film: 0.1 moves it by a tenth)")
+    if c.aperture_radius > MAX_APERTURE_RATIO * c.focus_distance:
+        return (f"aperture_radius {c.aperture_radius:g} is more than {MAX_APERTURE_RATIO:g} times the focus_distance "
+                f"{c.focus_distance:g}: the lens's rays would run along its plane and its image be blur")
+    return None
