@@ -122,6 +122,7 @@ def repeats_note(exp):
         return f"{n} repeat{'s' if n > 1 else ''}"
     return f"up to {n} repeats (fewer once they took {exp.timing_seconds:g} s together)"
 
+
 class Report:
     """Writes the report of one measured study into `folder`."""
 
