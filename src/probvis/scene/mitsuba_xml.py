@@ -374,9 +374,7 @@ class _Reader:
                 self.fail(node, f"filter_type must be bilinear or nearest, got '{filt}'")
             if wrap not in WRAP_MODES:
                 self.fail(node, f"wrap_mode must be one of {', '.join(WRAP_MODES)}, got '{wrap}'")
-            path = Path(props["filename"])
-            path = path if path.is_absolute() else self.path.parent / path
-            self.inputs.append(path)
+            path = self.input_file(props["filename"])
             try:
                 image = read_linear_rgb(path, raw=props.get("raw", False))
             except ProbvisError as exc:
@@ -530,9 +528,7 @@ class _Reader:
                                           "mis_compensation": ("boolean",)})
             if "filename" not in props:
                 self.fail(node, "envmap needs a 'filename'")
-            path = Path(props["filename"])
-            path = path if path.is_absolute() else self.path.parent / path
-            self.inputs.append(path)
+            path = self.input_file(props["filename"])
             try:
                 image = read_linear_rgb(path)
             except ProbvisError as exc:
@@ -609,12 +605,11 @@ class _Reader:
             fname = props.get("filename")
             if fname is None:
                 self.fail(node, "missing 'filename'")
-            mesh_path = (self.path.parent / fname) if not Path(fname).is_absolute() else Path(fname)
+            mesh_path = self.input_file(fname)
             if not mesh_path.exists():
                 self.fail(node, f"mesh file not found: {mesh_path}")
             if not mesh_path.is_file():
                 self.fail(node, f"mesh {mesh_path} is not a regular file (a mesh is an OBJ, PLY or serialized file)")
-            self.inputs.append(mesh_path)
             try:
                 if kind == "serialized":
                     v, f, vnormals, uv = shp.load_serialized(mesh_path, props.get("shape_index", 0))
@@ -847,6 +842,12 @@ class _Reader:
         if sr < 1:
             self.fail(node, f"emitter_samples must be at least 1, got {sr}")
         return sr
+
+    def input_file(self, name):
+        """The file a scene parameter names, relative to the scene file's folder, recorded among the inputs."""
+        path = Path(name) if Path(name).is_absolute() else self.path.parent / name
+        self.inputs.append(path)
+        return path
 
     def read(self):
         root = parse_tree(self.path)
