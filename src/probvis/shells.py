@@ -214,16 +214,14 @@ def heavy_meshes(scene, min_triangles):
     return [s for s in scene.shapes if s.n_triangles >= min_triangles and s.emitter < 0]
 
 
-def mesh_facts(tris, use_cache=True):
-    """(lo, hi, closed): a mesh's bounds and whether it is closed (`is_closed`), cached on disk by the
-    triangles' content. A hash takes 3 ms for a million triangles, their bounds 12 ms and the closedness test
-    a quarter of a second."""
+def mesh_closed(tris, use_cache=True):
+    """Whether a mesh is closed (`is_closed`), cached on disk by the triangles' content: the hash takes 3 ms for
+    a million triangles, the test a quarter of a second."""
     def build():
-        lo, hi = bounds(tris)
-        return {"lo": lo, "hi": hi, "closed": np.array(is_closed(tris))}
+        return {"closed": np.array(is_closed(tris))}
 
-    out, _ = load_or_build("closed", content_key(f"mesh facts v{CACHE_VERSION}", tris), build, use_cache)
-    return out["lo"], out["hi"], bool(out["closed"])
+    out, _ = load_or_build("closed", content_key(f"mesh closed v{CACHE_VERSION}", tris), build, use_cache)
+    return bool(out["closed"])
 
 
 def span(scene, shape):
@@ -233,7 +231,7 @@ def span(scene, shape):
 
 def emitter_boxes(scene):
     """Bounds of the emitting shapes and of the point and spot lights (as empty boxes), (n, 2, 3)."""
-    boxes = np.array([bounds(span(scene, s)) for s in scene.shapes if s.emitter >= 0]).reshape(-1, 2, 3)
+    boxes = np.array([(s.lo, s.hi) for s in scene.shapes if s.emitter >= 0]).reshape(-1, 2, 3)
     points = scene.emitter_position[np.isin(scene.emitter_kind, (EMITTER_POINT, EMITTER_SPOT))]
     return np.concatenate([boxes, np.stack([points, points], axis=1)])
 

@@ -12,7 +12,7 @@ from probvis.scene import transform as tf
 from probvis.scene import Camera
 from probvis.settings import RenderSettings
 from probvis.shells import (FREE, PAD, SOLID, SURFACE, build_shells, classify_segments, heavy_meshes, is_closed,
-                            mesh_facts, shell_tests, span)
+                            mesh_closed, shell_tests, span)
 
 
 @pytest.fixture(autouse=True)
@@ -97,10 +97,10 @@ def test_open_meshes_get_no_shells_by_default(cache):
     leaves_only = dict(min_triangles=6000)  # of the sphere's 5,120 triangles and 8,000 leaves: only the leaves
     heavy = heavy_meshes(scene, 1000)
     assert [s.name for s in heavy] == ["sphere", "leaves"]
-    assert [s.name for s in heavy if mesh_facts(span(scene, s))[2]] == ["sphere"]
+    assert [s.name for s in heavy if mesh_closed(span(scene, s))] == ["sphere"]
     open_scene = sphere_scene(leaves=8000)
     assert [s.name for s in heavy_meshes(open_scene, **leaves_only)] == ["leaves"]
-    assert [s.name for s in heavy_meshes(open_scene, **leaves_only) if mesh_facts(span(open_scene, s))[2]] == []
+    assert [s.name for s in heavy_meshes(open_scene, **leaves_only) if mesh_closed(span(open_scene, s))] == []
     for setting in ("auto", "off", False):
         r = probvis.render(open_scene, spp=1, shadow_rays=2, visibility_options=dict(leaves_only, shells=setting))
         assert "shells" not in r.stats["estimator"] and r.stats["estimator"]["memory_bytes"] == {}
@@ -175,7 +175,23 @@ def test_the_heavy_builtins_open_and_closed():
                                   (heavy_open_scan, False, False)):
         scene = make(res=32, subdivisions=3)
         scan = next(s for s in scene.shapes if s.name == "scan")
-        assert is_closed(span(scene, scan)) == closed == mesh_facts(span(scene, scan))[2]
+        assert is_closed(span(scene, scan)) == closed == mesh_closed(span(scene, scan))
         r = probvis.render(scene, spp=1, shadow_rays=2, visibility_options={"min_triangles": 1000})
         assert [m["name"] for m in (r.stats["estimator"].get("shells") or {}).get("meshes", [])] == \
             (["scan"] if shelled else [])
+
+
+def test_the_survey_asks_closedness_only_of_crossed_meshes(cache):
+    """The survey decides from the cheapest evidence first: a heavy mesh few pilot segments cross (heavy-small's
+    scan) costs no closedness test and leaves no cache entry; a crossed one (heavy-scan's) is tested once. A
+    shape's bounds, which the crossing test uses, are those of its triangles."""
+    from probvis.scene.builtin import heavy_scan, heavy_small
+
+    for make, crossed in ((heavy_small, False), (heavy_scan, True)):
+        scene = make(res=32, subdivisions=3)
+        scan = next(s for s in scene.shapes if s.name == "scan")
+        lo, hi = span(scene, scan).reshape(-1, 3).min(axis=0), span(scene, scan).reshape(-1, 3).max(axis=0)
+        np.testing.assert_array_equal(np.stack([scan.lo, scan.hi]), np.stack([lo, hi]))
+        before = len(list(cache.glob("closed/*.npz")))
+        probvis.render(scene, spp=1, shadow_rays=2, visibility_options={"min_triangles": 1000})
+        assert len(list(cache.glob("closed/*.npz"))) - before == int(crossed)

@@ -8,6 +8,7 @@ from numba import njit, prange
 
 from ..errors import ProbvisError
 from ..settings import RenderSettings
+from ..voxels import bounds
 
 from . import transform as tf
 from .sensor import Camera, camera_problem
@@ -33,6 +34,8 @@ class ShapeInfo:
     first_triangle: int
     n_triangles: int
     emitter: int  # -1 when the shape does not emit
+    lo: np.ndarray = field(default_factory=lambda: np.zeros(3), compare=False)  # the box of its vertices in world
+    hi: np.ndarray = field(default_factory=lambda: np.zeros(3), compare=False)  # space, as Mitsuba's shape bbox
 
 
 @dataclass
@@ -85,8 +88,7 @@ class Scene:
         return len(self.emitter_radiance)
 
     def bounds(self):
-        flat = self.triangles.reshape(-1, 3)  # per coordinate: numpy's reduction over axis 0 is 8x slower
-        return np.array([flat[:, a].min() for a in range(3)]), np.array([flat[:, a].max() for a in range(3)])
+        return bounds(self.triangles)
 
     def with_resolution(self, width=None, height=None):
         """A copy whose film has another size, uncropped (geometry arrays are shared, not copied)."""
@@ -172,7 +174,8 @@ class SceneBuilder:
         if flip_normals:
             f = f[:, ::-1]
         tris, cross, area2 = _triangles(wv, f)
-        scale = max(float(np.abs(wv).max()), 1e-300) if len(wv) else 1.0
+        lo, hi = bounds(wv) if len(wv) else (np.zeros(3), np.zeros(3))
+        scale = max(float(np.abs(lo).max()), float(np.abs(hi).max()), 1e-300) if len(wv) else 1.0
         keep = area2 > 1e-14 * scale * scale
         self.dropped += int((~keep).sum())
         if not keep.all():
@@ -202,7 +205,7 @@ class SceneBuilder:
         if radiance is not None:
             emitter = len(self.emitter_radiance)
             self.emitter_radiance.append(np.asarray(radiance, dtype=np.float64) * np.ones(3))
-        self.shapes.append(ShapeInfo(name, kind, self._n, len(tris), emitter))
+        self.shapes.append(ShapeInfo(name, kind, self._n, len(tris), emitter, lo, hi))
         self._tris.append(tris)
         self._normals.append(normals)
         self._mat.append(np.full(len(tris), material, dtype=np.int32))

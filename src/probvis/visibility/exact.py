@@ -16,7 +16,7 @@ from ..accel import occluded_segments
 from ..proxies import MIN_TRIANGLES
 from ..shading import ShadedBatch
 from ..settings import MAX_SEED
-from ..shells import (crossing_share, emitter_boxes, heavy_meshes, mesh_facts, overlaps, shell_memory, shell_tests,
+from ..shells import (crossing_share, emitter_boxes, heavy_meshes, mesh_closed, overlaps, shell_memory, shell_tests,
                       span)
 from ..transmittance import ExtinctionGrid
 from .base import Option, Phase, RenderPath, Switch, VisibilityEstimator, VisibilityResult
@@ -92,13 +92,15 @@ class HeavyMesh(NamedTuple):
 
     shape: object  # its `ShapeInfo`
     crossed: bool  # at least CROSSING_SHARE of the pilot's shadow segments cross its bounds
-    solid: bool  # closed, with no emitter in its bounds: it can get an inner shell
+    solid: bool  # crossed, closed and with no emitter in its bounds: it can get an inner shell
 
 
 def survey_heavy_meshes(scene, integrator, settings, min_triangles, use_cache):
     """A `HeavyMesh` for each of the scene's heavy meshes (`heavy_meshes`), from a pilot of the render's own
-    shadow segments (PILOT_SIDE² shading points, PILOT_RAYS segments each) and the meshes' cached facts
-    (`mesh_facts`): the cheapest evidence of where testing less geometry can pay, a few milliseconds."""
+    shadow segments (PILOT_SIDE² shading points, PILOT_RAYS segments each), in stages from the cheapest
+    evidence: the share of the segments that cross the mesh's bounds (the shape's box, known from the load),
+    then only for a crossed mesh whether it is closed (`mesh_closed`: a content hash and a cache read, a few
+    milliseconds for a million triangles). A mesh few segments meet costs the pilot alone."""
     heavy = heavy_meshes(scene, min_triangles)
     if not heavy:
         return []
@@ -110,9 +112,9 @@ def survey_heavy_meshes(scene, integrator, settings, min_triangles, use_cache):
     q = integrator.shadow_query(batch)
     boxes, out = emitter_boxes(scene), []
     for shape in heavy:
-        lo, hi, closed = mesh_facts(span(scene, shape), use_cache)
-        out.append(HeavyMesh(shape, crossing_share(q.origin, q.direction, q.tmax, lo, hi) >= CROSSING_SHARE,
-                             closed and not overlaps(boxes, lo, hi)))
+        crossed = crossing_share(q.origin, q.direction, q.tmax, shape.lo, shape.hi) >= CROSSING_SHARE
+        solid = crossed and not overlaps(boxes, shape.lo, shape.hi) and mesh_closed(span(scene, shape), use_cache)
+        out.append(HeavyMesh(shape, crossed, solid))
     return out
 
 
