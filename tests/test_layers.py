@@ -134,3 +134,15 @@ def test_modules_of_the_render_path_stay_short():
             if (n := len(p.read_text().splitlines())) > MAX_LINES
             and not any(matches(module_name(p), pat) for pat in LONG_ALLOWED)]
     assert not long, f"modules over {MAX_LINES} lines: {long}"
+
+
+def test_the_command_line_imports_scipy_only_where_used():
+    """`probvis render` with exact visibility (the default) never needs scipy's kd-tree, sparse graphs or image
+    labelling, which take a fifth of a second to import: importing the command line leaves them out."""
+    import subprocess
+    import sys
+
+    code = ("import sys, probvis.cli; print(sorted(m for m in sys.modules if m.startswith(("
+            "'scipy.spatial', 'scipy.sparse', 'scipy.ndimage'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

@@ -24,7 +24,6 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
-from scipy import ndimage
 
 from .disk_cache import content_key, load_or_build
 from .scene.scene import EMITTER_POINT, EMITTER_SPOT
@@ -184,6 +183,8 @@ def _inside_regions(labels, n_labels, lo, pitch, bvh, first, count):
     """Labels of the empty regions (`labels` of the unmarked voxels) inside the mesh of scene triangles
     first..first+count: not touching the grid's border, and every parity ray from three of their voxels crosses
     it an odd number of times."""
+    from scipy import ndimage  # scipy is imported where used: a render without shells never needs it
+
     from .accel import all_hits
 
     border = np.unique(np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(),
@@ -257,6 +258,8 @@ def build_shells(scene, bvh, heavy, resolution=RESOLUTION, use_cache=True):
             ok = not overlaps(boxes, mesh_lo, mesh_hi) and is_closed(tris)
             inside = np.zeros(dims, bool)
             if ok:
+                from scipy import ndimage
+
                 labels, n_labels = ndimage.label(~marked)
                 inside = np.isin(labels, _inside_regions(labels, n_labels, lo, pitch, bvh,
                                                          shape.first_triangle, shape.n_triangles))

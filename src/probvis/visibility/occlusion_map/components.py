@@ -8,8 +8,6 @@ need a ray-triangle test: only those facing it can be the first blocker found on
 from typing import NamedTuple
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 
 def components(scene):
@@ -17,6 +15,9 @@ def components(scene):
 
     Vertices are merged where they coincide exactly within a shape (never across shapes); triangles are
     connected through shared vertices."""
+    from scipy.sparse import coo_matrix  # imported where used: a render without lists never needs scipy
+    from scipy.sparse.csgraph import connected_components
+
     n = scene.n_triangles
     shape_of = np.zeros(n, np.float64)
     for k, shape in enumerate(scene.shapes):

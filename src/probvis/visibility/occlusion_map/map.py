@@ -3,7 +3,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .lookup import classify_points
 from .photons import MAX_HITS, Photons
@@ -59,6 +58,8 @@ class OcclusionMap:
         self.ids = [np.flatnonzero(photons.emitter == e) for e in range(n_emitters)]
         # sliding-midpoint splits without shrunk boxes: built in less than half the time of scipy's default
         # (median splits), queries as fast; only ties in distance (photons at one position) may resolve differently
+        from scipy.spatial import cKDTree  # imported where used: scipy takes 0.2 s to import
+
         self.trees = [cKDTree(photons.position[ids], balanced_tree=False, compact_nodes=False) if len(ids) else None
                       for ids in self.ids]
         self.radius = float(radius) if radius is not None else self._auto_radius()
