@@ -7,6 +7,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import ProbvisError
+from .obj import read_obj
 
 
 class MeshData(NamedTuple):
@@ -207,10 +208,9 @@ def _read(path):
 
 
 def load_mesh(path, flip_tex_coords=None):
-    """Read an OBJ or PLY file with trimesh as `MeshData`, order preserved. Texture coordinates are flipped
-    vertically (v -> 1 - v) by default for OBJ and not for PLY, as Mitsuba's `flip_tex_coords` defaults."""
-    import trimesh
-
+    """Read an OBJ or PLY file as `MeshData`, order preserved: an OBJ by `read_obj` where its layout allows
+    (trimesh's reader otherwise, and for PLY). Texture coordinates are flipped vertically (v -> 1 - v) by
+    default for OBJ and not for PLY, as Mitsuba's `flip_tex_coords` defaults."""
     path = Path(path)
     if not path.exists():
         raise ProbvisError(f"mesh file not found: {path}")
@@ -219,6 +219,33 @@ def load_mesh(path, flip_tex_coords=None):
     if path.stat().st_size > MAX_MESH_BYTES:
         raise ProbvisError(f"mesh {path} is {path.stat().st_size / 2**30:.0f} GiB, more than probvis reads (at most "
                            f"{MAX_MESH_BYTES >> 30} GiB)")
+    obj = path.suffix.lower() == ".obj"
+    try:
+        read = read_obj(path.read_bytes()) if obj else None
+    except OSError as exc:
+        raise ProbvisError(f"cannot read mesh {path}: {exc.strerror or exc}") from None
+    v, f, n, uv = read if read is not None else _read_general(path)
+    if len(f) == 0:
+        raise ProbvisError(f"mesh {path} contains no triangles")
+    v = np.asarray(v, dtype=np.float64)
+    f = np.asarray(f, dtype=np.int64)
+    n = None if n is None or np.shape(n) != v.shape else np.asarray(n, dtype=np.float64)  # else from the faces
+    if n is not None and not (np.all(np.isfinite(n)) and np.all(np.einsum("ij,ij->i", n, n) > 0.0)):
+        raise ProbvisError(f"mesh {path} has NaN, infinite or zero vertex normals")
+    if uv is not None and len(uv) == len(v):
+        uv = np.asarray(uv, dtype=np.float64).copy()
+        if obj if flip_tex_coords is None else flip_tex_coords:
+            uv[:, 1] = 1.0 - uv[:, 1]
+    else:
+        uv = None
+    return MeshData(v, f, n, uv)
+
+
+def _read_general(path):
+    """(vertices, faces, normals, uv) by trimesh's reader, with its failures and misreadings named (file:line
+    for an OBJ)."""
+    import trimesh
+
     ply = _ply_elements(path) if path.suffix.lower() == ".ply" else {}
     try:
         mesh, n = _read(path)
@@ -232,19 +259,7 @@ def load_mesh(path, flip_tex_coords=None):
         raise ProbvisError(problem)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ProbvisError(f"mesh {path} contains no triangles")
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    f = np.asarray(mesh.faces, dtype=np.int64)
-    n = None if n is None or np.shape(n) != v.shape else np.asarray(n, dtype=np.float64)  # else from the faces
-    if n is not None and not (np.all(np.isfinite(n)) and np.all(np.einsum("ij,ij->i", n, n) > 0.0)):
-        raise ProbvisError(f"mesh {path} has NaN, infinite or zero vertex normals")
-    uv = getattr(mesh.visual, "uv", None)
-    if uv is not None and len(uv) == len(v):
-        uv = np.asarray(uv, dtype=np.float64).copy()
-        if path.suffix.lower() == ".obj" if flip_tex_coords is None else flip_tex_coords:
-            uv[:, 1] = 1.0 - uv[:, 1]
-    else:
-        uv = None
-    return MeshData(v, f, n, uv)
+    return mesh.vertices, mesh.faces, n, getattr(mesh.visual, "uv", None)
 
 
 DISK_SEGMENTS = 256  # a tessellated disk's area is (n / 2 pi) sin(2 pi / n) of the disk's: 0.99990 at 256

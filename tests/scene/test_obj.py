@@ -1,0 +1,104 @@
+"""The OBJ reader (`scene.obj.read_obj`) against trimesh's reader, corner by corner, on every face form; a
+vertex per distinct index triple at uv seams, as Mitsuba's reader; the layouts it leaves to the general reader."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from probvis.scene import shapes
+from probvis.scene.obj import read_obj
+
+GRID = "".join(f"v {x} {y} {0.1 * x * y}\n" for y in range(3) for x in range(3))
+UV = "".join(f"vt {x / 2} {y / 2}\n" for y in range(3) for x in range(3))
+NORMALS = "".join(f"vn {0.1 * x} {0.1 * y} 1\n" for y in range(3) for x in range(3))
+
+
+def quad_faces(form, quads):
+    """The grid's four cells as faces in the given corner form (`{v}` etc.), as quads or two triangles."""
+    out = []
+    for y in range(2):
+        for x in range(2):
+            a, b, c, d = (1 + x + 3 * y, 2 + x + 3 * y, 5 + x + 3 * y, 4 + x + 3 * y)
+            polys = [(a, b, c, d)] if quads else [(a, b, c), (a, c, d)]
+            for p in polys:
+                out.append("f " + " ".join(form.format(v=i) for i in p) + "\n")
+    return "".join(out)
+
+
+def corners(v, f, *attributes):
+    """Per triangle its corners' positions (and attributes), each triangle rotated to start at its
+    lexicographically smallest position (winding kept): readers may split a quad at another corner."""
+    pos = np.asarray(v)[np.asarray(f)]
+    key = pos[..., 0] * 1e6 + pos[..., 1] * 1e3 + pos[..., 2]
+    roll = (np.arange(3) + np.argmin(key, axis=1)[:, None]) % 3
+    rows = np.arange(len(f))[:, None]
+    return [pos[rows, roll]] + [np.asarray(a)[np.asarray(f)][rows, roll] for a in attributes]
+
+
+@pytest.mark.parametrize("quads", [False, True])
+@pytest.mark.parametrize("form, extra", [("{v}", ""), ("{v}/{v}", UV), ("{v}//{v}", NORMALS),
+                                         ("{v}/{v}/{v}", UV + NORMALS)])
+def test_every_face_form_reads_as_trimesh_reads_it(tmp_path, form, extra, quads):
+    """Positions, uv and normals of every triangle corner equal the general reader's; comments, grouping
+    statements change nothing; quads split into fans around their first corner."""
+    text = ("# a grid\no grid\n" + GRID + extra + "usemtl a\ng part\n"
+            + quad_faces(form, quads) + "f " + " ".join(form.format(v=i) for i in (1, 2, 3)) + "\n")
+    path = tmp_path / "m.obj"
+    path.write_text(text)
+    fast = read_obj(path.read_bytes())
+    assert fast is not None
+    v1, f1, n1, uv1 = fast
+    v2, f2, n2, uv2 = shapes._read_general(path)
+    v2, f2 = np.asarray(v2), np.asarray(f2)
+    assert len(f1) == 9  # eight triangles of the grid (four quads split or given as such) and one more
+    assert (uv1 is not None) == ("vt" in extra) and (n1 is not None) == ("vn" in extra)
+    ours = corners(v1, f1, *(a for a in (uv1, n1) if a is not None))
+    theirs = corners(v2, f2, *(a for a, b in ((uv2, uv1), (n2, n1)) if b is not None))
+    for a, b in zip(ours, theirs):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_uv_seam_gets_a_vertex_per_index_triple():
+    """Two faces share a position but not its texture coordinate: the position is split into two vertices,
+    numbered in order of first use, each with its own uv (trimesh's reader keeps one uv per position)."""
+    data = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvt 0.5 0.5\nf 1/1 2/2 3/3\nf 2/4 4/2 3/3\n"
+    v, f, n, uv = read_obj(data)
+    assert n is None and len(v) == 5
+    np.testing.assert_array_equal(f, [[0, 1, 2], [3, 4, 2]])
+    np.testing.assert_array_equal(v[f[1]], [[1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(uv[f[1]], [[0.5, 0.5], [1, 0], [0, 1]])
+
+
+def test_a_w_coordinate_a_vertex_colour_or_a_trailing_comment_is_ignored():
+    """(trimesh's reader refuses a comment after a face's corners.)"""
+    v, f, _, _ = read_obj(b"v 0 0 0 1\nv 1 0 0 0.5 0.5 0.5 # red\nv 0 1 0\nf 1 2 3 # one\nf 3 2 1\n")
+    np.testing.assert_array_equal(v, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(f, [[0, 1, 2], [2, 1, 0]])
+
+
+def test_a_polygon_is_a_fan_around_its_first_corner():
+    v, f, _, _ = read_obj(b"v 0 0 0\nv 1 0 0\nv 2 1 0\nv 1 2 0\nv 0 1 0\nf 1 2 3 4 5\nf 1 2 3\n")
+    np.testing.assert_array_equal(f, [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 1, 2]])
+
+
+@pytest.mark.parametrize("data", [
+    b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n",  # relative indices
+    b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2 3\n",  # corners of different forms
+    b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n",  # too few corners
+    b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n",  # beyond the vertices
+    b"v 0 0 0\nv 1 0 0\nv 0 x 0\nf 1 2 3\n",  # not a number
+    b"v 0 0 0\nv 1 0 0\n",  # no faces
+])
+def test_layouts_it_cannot_read_exactly_go_to_the_general_reader(data):
+    assert read_obj(data) is None
+
+
+def test_reading_a_plain_obj_does_not_import_trimesh(tmp_path):
+    """trimesh takes half a second to import; an OBJ the reader reads never needs it."""
+    path = tmp_path / "m.obj"
+    path.write_text(GRID + quad_faces("{v}", True))
+    code = (f"import sys; from probvis.scene.shapes import load_mesh; m = load_mesh({str(path)!r}); "
+            "print(len(m.faces), 'trimesh' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["8", "False"]
