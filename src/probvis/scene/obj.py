@@ -44,7 +44,7 @@ def _numbers(bodies, dtype, width):
     return flat[first[:, None] + np.arange(width)]
 
 
-def _fans(counts):
+def fans(counts):
     """Corner indices (into the faces' corners in file order) of the fan triangles of faces of `counts` corners."""
     first = np.concatenate([[0], np.cumsum(counts)[:-1]])
     n_tri = counts - 2
@@ -87,7 +87,7 @@ def read_obj(data):
     for k, kind in enumerate(kinds):
         if idx[:, k].min() < 0 or idx[:, k].max() >= sizes[kind]:  # negative (relative) or out of range
             return None
-    tri = _fans(counts) if counts.max() > 3 else np.arange(n_corners).reshape(-1, 3)
+    tri = fans(counts) if counts.max() > 3 else np.arange(n_corners).reshape(-1, 3)
     if fields == 1:
         return v, idx[:, 0][tri], None, None
     # a vertex per distinct index triple, in order of first use (as Mitsuba's reader numbers them)

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..errors import ProbvisError
 from .obj import read_obj
+from .ply import read_ply
 
 
 class MeshData(NamedTuple):
@@ -208,8 +209,8 @@ def _read(path):
 
 
 def load_mesh(path, flip_tex_coords=None):
-    """Read an OBJ or PLY file as `MeshData`, order preserved: an OBJ by `read_obj` where its layout allows
-    (trimesh's reader otherwise, and for PLY). Texture coordinates are flipped vertically (v -> 1 - v) by
+    """Read an OBJ or PLY file as `MeshData`, order preserved: by `read_obj` or `read_ply` where the file's
+    layout allows, by trimesh's reader otherwise. Texture coordinates are flipped vertically (v -> 1 - v) by
     default for OBJ and not for PLY, as Mitsuba's `flip_tex_coords` defaults."""
     path = Path(path)
     if not path.exists():
@@ -221,7 +222,7 @@ def load_mesh(path, flip_tex_coords=None):
                            f"{MAX_MESH_BYTES >> 30} GiB)")
     obj = path.suffix.lower() == ".obj"
     try:
-        read = read_obj(path.read_bytes()) if obj else None
+        read = read_obj(path.read_bytes()) if obj else read_ply(path) if path.suffix.lower() == ".ply" else None
     except OSError as exc:
         raise ProbvisError(f"cannot read mesh {path}: {exc.strerror or exc}") from None
     v, f, n, uv = read if read is not None else _read_general(path)

@@ -1,0 +1,78 @@
+"""Binary PLY files of triangles read by memory-mapping them (`plyfile` with the faces' list length known).
+
+A scanned mesh is almost always one: a vertex element of scalar properties and a face element whose only list
+holds three indices. Polygons are read row by row and split into fans around their first corner, as Mitsuba
+does. Anything else (ASCII, other list properties, a file shorter than its header says) returns None, and the
+caller falls back to the general reader, which also names what is wrong.
+"""
+import numpy as np
+
+from .obj import fans
+
+UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
+HEADER_LINES = 1000  # a header longer than this is left to the general reader
+
+
+def _header(fh):
+    """(format, {element: [(property, is_list)]}) of a PLY header, or None if it is not one this reader takes."""
+    if fh.readline(16).strip() != b"ply":
+        return None
+    fmt, elements, current = None, {}, None
+    for _ in range(HEADER_LINES):
+        words = fh.readline(1024).split()
+        if not words or words[0] in (b"comment", b"obj_info"):
+            continue
+        if words[0] == b"end_header":
+            return fmt, elements
+        if words[0] == b"format" and len(words) == 3:
+            fmt = words[1].decode("ascii", "replace")
+        elif words[0] == b"element" and len(words) == 3:
+            current = elements.setdefault(words[1].decode("ascii", "replace"), [])
+        elif words[0] == b"property" and current is not None:
+            current.append((words[-1].decode("ascii", "replace"), words[1] == b"list"))
+    return None
+
+
+def read_ply(path):
+    """(vertices, faces, normals or None, uv or None) of a binary PLY of triangles, or None where the general
+    reader must read it."""
+    from plyfile import PlyData, PlyElementParseError, PlyHeaderParseError
+
+    with open(path, "rb") as fh:
+        header = _header(fh)
+    if header is None or header[0] not in ("binary_little_endian", "binary_big_endian"):
+        return None
+    elements = header[1]
+    vertex, face = elements.get("vertex", []), elements.get("face", [])
+    lists = [name for name, is_list in face if is_list]
+    if len(lists) != 1 or any(is_list for _, is_list in vertex):
+        return None
+    try:
+        with open(path, "rb") as fh:
+            try:
+                ply = PlyData.read(fh, known_list_len={"face": {lists[0]: 3}})
+                f = np.asarray(ply["face"].data[lists[0]], dtype=np.int64)
+            except PlyElementParseError as exc:
+                if "unexpected list length" not in str(exc):
+                    return None
+                fh.seek(0)
+                ply = PlyData.read(fh)  # polygons: plyfile reads the faces row by row, split into fans here
+                rows = ply["face"].data[lists[0]]
+                counts = np.array([len(r) for r in rows], dtype=np.int64)
+                if counts.min() < 3:
+                    return None
+                f = np.concatenate(rows).astype(np.int64)[fans(counts)]
+            vert = ply["vertex"].data
+            names = set(vert.dtype.names)
+            if not {"x", "y", "z"} <= names:
+                return None
+            v = np.column_stack([vert["x"], vert["y"], vert["z"]]).astype(np.float64)
+            n = (np.column_stack([vert["nx"], vert["ny"], vert["nz"]]).astype(np.float64)
+                 if {"nx", "ny", "nz"} <= names else None)
+            uv = next((np.column_stack([vert[a], vert[b]]).astype(np.float64) for a, b in UV_NAMES
+                       if {a, b} <= names), None)
+    except (PlyElementParseError, PlyHeaderParseError, KeyError, ValueError):
+        return None
+    if len(f) and (f.min() < 0 or f.max() >= len(v)):
+        return None
+    return v, f, n, uv

@@ -1,0 +1,67 @@
+"""The binary PLY reader (`scene.ply.read_ply`) against trimesh's reader, and the files it leaves to it."""
+import numpy as np
+import pytest
+
+from probvis.scene import shapes
+from probvis.scene.ply import read_ply
+
+RNG = np.random.default_rng(3)
+V = RNG.normal(size=(40, 3))
+N = V / np.linalg.norm(V, axis=1, keepdims=True)
+UV = RNG.uniform(size=(40, 2))
+F = RNG.integers(0, 40, size=(60, 3))
+
+
+def write_ply(path, order="<", normals=True, uv=("u", "v"), faces=F, fmt=None, truncate=0, index="vertex_indices"):
+    """A binary PLY of V (float32) and `faces` (uchar counts, int32 indices) in byte order `order`."""
+    props = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals else []) + (list(uv) if uv else [])
+    cols = [V] + ([N] if normals else []) + ([UV] if uv else [])
+    fmt = fmt or ("binary_little_endian" if order == "<" else "binary_big_endian")
+    head = (f"ply\nformat {fmt} 1.0\ncomment made by a test\nelement vertex {len(V)}\n"
+            + "".join(f"property float {p}\n" for p in props)
+            + f"element face {len(faces)}\nproperty list uchar int {index}\nend_header\n").encode()
+    verts = np.hstack(cols).astype(order + "f4").tobytes()
+    rows = b"".join(np.array([len(f)], "u1").tobytes() + np.asarray(f, order + "i4").tobytes() for f in faces)
+    data = head + verts + rows
+    path.write_bytes(data[:len(data) - truncate])
+    return path
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+@pytest.mark.parametrize("normals, uv", [(True, ("u", "v")), (False, ("s", "t")), (True, None)])
+def test_binary_triangles_read_as_trimesh_reads_them(tmp_path, order, normals, uv):
+    path = write_ply(tmp_path / "m.ply", order, normals, uv)
+    v, f, n, t = read_ply(path)
+    v2, f2, n2, t2 = shapes._read_general(path)
+    np.testing.assert_array_equal(v, np.asarray(v2))
+    np.testing.assert_array_equal(f, np.asarray(f2))
+    np.testing.assert_array_equal(f, F)
+    np.testing.assert_array_equal(v, V.astype(np.float32))
+    if normals:
+        np.testing.assert_array_equal(n, np.asarray(n2))
+    else:
+        assert n is None
+    if uv:
+        np.testing.assert_array_equal(t, UV.astype(np.float32))
+        np.testing.assert_array_equal(t, np.asarray(t2))
+    else:
+        assert t is None
+    mesh = shapes.load_mesh(path)
+    np.testing.assert_array_equal(mesh.faces, F)
+
+
+def test_polygons_are_split_into_fans(tmp_path):
+    """(trimesh's reader refuses a binary PLY with a quad among triangles.)"""
+    faces = [[0, 1, 2, 3, 4]] + list(F[1:])
+    v, f, _, _ = read_ply(write_ply(tmp_path / "m.ply", faces=faces))
+    np.testing.assert_array_equal(f, np.vstack([[[0, 1, 2], [0, 2, 3], [0, 3, 4]], F[1:]]))
+
+
+@pytest.mark.parametrize("kind", ["ascii", "truncated", "index out of range"])
+def test_files_it_cannot_map_go_to_the_general_reader(tmp_path, kind):
+    faces = F
+    if kind == "index out of range":
+        faces = np.vstack([F, [[0, 1, 40]]])
+    path = write_ply(tmp_path / "m.ply", faces=faces, truncate=5 if kind == "truncated" else 0,
+                     fmt="ascii" if kind == "ascii" else None)
+    assert read_ply(path) is None
