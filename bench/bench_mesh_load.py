@@ -1,11 +1,12 @@
 """Mesh-file loading, run by hand: `python3 bench/bench_mesh_load.py [--runs 5] [--subdivisions 8]`.
 
 Writes a binary PLY of a subdivided icosphere (8 subdivisions: 1,310,720 triangles) to a temporary folder and
-times, alternately in this process, probvis's reader (`probvis.scene.shapes.load_mesh`: trimesh) and the whole
-scene load of an XML file around it (reader + transform + normals + validation), next to Mitsuba 3 loading the
-same file (`scalar_rgb`, `mi.load_dict`). Medians of `--runs`. Then, where ../shared is beside the project, the
-city's OBJ (30k triangles in 329 material groups) the same way, and the peak memory (max RSS) of a fresh process
-that imports probvis and loads the city scene.
+times, alternately in this process, probvis's reader (`probvis.scene.shapes.load_mesh`: `scene.ply`,
+memory-mapped) and the whole scene load of an XML file around it (reader + transform + normals + validation), next
+to Mitsuba 3 loading the same file (`scalar_rgb`, `mi.load_dict`), and a fresh process that imports probvis and
+loads the scene (what a command pays: imports included). Medians of `--runs`. Then, where ../shared is beside the
+project, the city's OBJ (30k triangles in 329 material groups; `scene.obj`) the same way, and the peak memory
+(max RSS) of a fresh process that imports probvis and loads the city scene.
 """
 import argparse
 import statistics
@@ -36,6 +37,12 @@ def timed(fn):
     return time.perf_counter() - t
 
 
+def fresh_process(xml):
+    """Seconds of a new interpreter that imports probvis and loads the scene."""
+    return timed(lambda: subprocess.run([sys.executable, "-c", f"import probvis; probvis.load_scene({str(xml)!r})"],
+                                        check=True))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=5)
@@ -54,9 +61,11 @@ def main():
             mi.set_variant("scalar_rgb")
         except ImportError:
             mi = None
-        times = {"probvis load_mesh (trimesh)": [], "probvis load_scene (XML)": [], "Mitsuba 3 load_dict": []}
+        times = {"probvis load_mesh": [], "probvis load_scene (XML)": [], "Mitsuba 3 load_dict": [],
+                 "fresh process: import probvis + load_scene": []}
         for _ in range(args.runs):
-            times["probvis load_mesh (trimesh)"].append(timed(lambda: load_mesh(folder / "heavy.ply")))
+            times["probvis load_mesh"].append(timed(lambda: load_mesh(folder / "heavy.ply")))
+            times["fresh process: import probvis + load_scene"].append(fresh_process(folder / "heavy.xml"))
             times["probvis load_scene (XML)"].append(timed(lambda: probvis.load_scene(folder / "heavy.xml")))
             if mi is not None:
                 times["Mitsuba 3 load_dict"].append(
@@ -70,8 +79,9 @@ def main():
     if city.exists():
         obj = city.parent.parent / "data" / "meshes" / "microcity.obj"
         times = {"city OBJ: probvis load_mesh": [], "city: probvis load_scene (XML)": [],
-                 "city: Mitsuba 3 load_file": []}
+                 "city: Mitsuba 3 load_file": [], "city: fresh process: import probvis + load_scene": []}
         for _ in range(args.runs):
+            times["city: fresh process: import probvis + load_scene"].append(fresh_process(city))
             times["city OBJ: probvis load_mesh"].append(timed(lambda: load_mesh(obj)))
             times["city: probvis load_scene (XML)"].append(timed(lambda: probvis.load_scene(city)))
             if mi is not None:

@@ -290,13 +290,14 @@ class SceneBuilder:
         return scene
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def _triangles(wv, f):
     """Each face's corners (n, 3, 3), the cross product of its edges from the first corner and that product's
-    length (twice its area): one pass, no temporaries (numpy's `wv[f]`, `np.cross` and `norm` made five)."""
+    length (twice its area): one pass, no temporaries (numpy's `wv[f]`, `np.cross` and `norm` made five), the
+    faces split over the threads."""
     n = f.shape[0]
     tris, cross, area2 = np.empty((n, 3, 3)), np.empty((n, 3)), np.empty(n)
-    for i in range(n):
+    for i in prange(n):
         for c in range(3):
             for d in range(3):
                 tris[i, c, d] = wv[f[i, c], d]
