@@ -80,6 +80,9 @@ CASES = [
      "--case-image c.exr: with several emitters it writes c-e1.exr, the same file as -o c-e1.exr"),
     (["render", "quad-shadow", "--visibility", "occlusion-map", "--radius", "1e-300"],
      "radius 1e-300 is below a billionth of the scene"),
+    (["render", "quad-shadow", "--stats", "a.json", "--stats", "b.json"], "--stats given twice (a.json, b.json)"),
+    (["render", "quad-shadow", "--tests-image", "a.exr", "--tests-image", "b.exr"], "--tests-image given twice"),
+    (["render", "quad-shadow", "-o", "x.exr/"], "the name ends in '/'"),
 ]
 
 
@@ -154,6 +157,30 @@ def test_a_file_size_limit_is_one_line_and_leaves_nothing(tmp_path, output):
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert r.stderr.startswith(f"probvis: error: cannot write '{output}': File too large"), r.stderr
     assert not list(tmp_path.iterdir())
+
+
+def test_one_failing_output_leaves_none_of_the_others(tmp_path):
+    """Outputs appear together or not at all: under `ulimit -f` the small PNG is written, the EXR is not, and
+    neither is left."""
+    def limits():
+        _limits()
+        resource.setrlimit(resource.RLIMIT_FSIZE, (8192, 8192))
+
+    r = subprocess.run([sys.executable, "-m", "probvis.cli", "render", "quad-shadow", "-D", "res=48", "--spp", "1",
+                        "--shadow-rays", "1", "-o", "small.png", "-o", "big.exr"], capture_output=True, text=True,
+                       cwd=tmp_path, timeout=TIME_LIMIT, preexec_fn=limits)
+    assert r.returncode == 2 and r.stderr.startswith("probvis: error: cannot write 'big.exr'"), r.stderr
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_symbolic_link_is_written_through_and_a_pipe_refused(tmp_path):
+    (tmp_path / "real").mkdir()
+    (tmp_path / "link.exr").symlink_to(tmp_path / "real" / "image.exr")
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "-q", "-o", str(tmp_path / "link.exr")]) == 0
+    assert (tmp_path / "link.exr").is_symlink() and (tmp_path / "real" / "image.exr").is_file()
+    os.mkfifo(tmp_path / "pipe.exr")
+    r, _ = run(["render", "quad-shadow", "-o", "pipe.exr"], tmp_path)
+    assert r.returncode == 2 and "it is not a regular file" in r.stderr and r.stderr.count("\n") == 1, r.stderr
 
 
 def test_a_texture_too_large_to_read_is_one_line(tmp_path, monkeypatch):

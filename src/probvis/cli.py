@@ -93,6 +93,16 @@ _positive = _int_at_least(1)
 _non_negative = _int_at_least(0)
 
 
+class _Once(argparse.Action):
+    """A flag naming one output file: given twice, it is refused (only the last would be written)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if getattr(namespace, self.dest) is not None:
+            raise ProbvisError(f"{option_string} given twice ({getattr(namespace, self.dest)}, {values}): it writes "
+                               "one file; give it once")
+        setattr(namespace, self.dest, values)
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with the project's one-line error format."""
 
@@ -156,7 +166,7 @@ def _parser(estimator=None):
     r.add_argument("--visibility", default="exact", metavar="NAME",
                    help=f"visibility estimator: {', '.join(available_names())} or module:Class (default exact; "
                         "`probvis estimators` lists each one's options)")
-    r.add_argument("--case-image", metavar="OUT", help="write the per-pixel case shares (R penumbra, G lit, "
+    r.add_argument("--case-image", metavar="OUT", action=_Once, help="write the per-pixel case shares (R penumbra, G lit, "
                                                       "B shadowed, grey unknown), one image per emitter (for "
                                                       "estimators that classify points)")
     if estimator is not None:
@@ -168,8 +178,8 @@ def _parser(estimator=None):
                         "splatting each over the pixels the filter covers as Mitsuba does (noisier)")
     r.add_argument("--clamp-negative", action="store_true",
                    help="clamp negative pixels to zero (biased: too bright on average; the bias is reported)")
-    r.add_argument("--stats", metavar="OUT.json", help="write the statistics as JSON")
-    r.add_argument("--tests-image", metavar="OUT.exr", help="write per-pixel ray-triangle and ray-node test counts")
+    r.add_argument("--stats", metavar="OUT.json", action=_Once, help="write the statistics as JSON")
+    r.add_argument("--tests-image", metavar="OUT.exr", action=_Once, help="write per-pixel ray-triangle and ray-node test counts")
     r.add_argument("--threads", type=_positive, help="worker threads (default: all cores)")
     r.add_argument("--exposure", type=_exposure, default=0.0, help="PNG exposure in stops (default 0)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
@@ -244,7 +254,7 @@ def _refuse_inputs(planned, inputs):
 
 def _cmd_render(args):
     from .integrator import render
-    from .io import summary, write_case_images, write_exr, write_image, write_stats
+    from .io import staged_writes, summary, write_case_images, write_exr, write_image, write_stats
 
     cls = args.estimator_class
     if args.case_image and not any(a.kind == "cases" for a in cls.aovs):
@@ -260,17 +270,18 @@ def _cmd_render(args):
                     clamp_negative=args.clamp_negative, progress=not args.quiet,
                     filter_importance=args.filter_importance or None)
     _refuse_inputs(planned, result.stats["inputs"])
-    for path in outputs:
-        write_image(path, result.image, args.exposure)
-    if args.tests_image:
-        write_exr(args.tests_image, None, channels={"triangle": result.aovs["triangle_tests"],
-                                                    "node": result.aovs["node_tests"]})
-    written = outputs + [x for x in (args.tests_image,) if x]
-    if args.case_image:
-        written += write_case_images(args.case_image, result.aovs["cases"])
-    if args.stats:
-        write_stats(args.stats, result.stats)
-        written.append(args.stats)
+    with staged_writes():  # every output or none
+        for path in outputs:
+            write_image(path, result.image, args.exposure)
+        if args.tests_image:
+            write_exr(args.tests_image, None, channels={"triangle": result.aovs["triangle_tests"],
+                                                        "node": result.aovs["node_tests"]})
+        written = outputs + [x for x in (args.tests_image,) if x]
+        if args.case_image:
+            written += write_case_images(args.case_image, result.aovs["cases"])
+        if args.stats:
+            write_stats(args.stats, result.stats)
+            written.append(args.stats)
     if not args.quiet:
         print(summary(result.stats))
         print("wrote       " + ", ".join(written))

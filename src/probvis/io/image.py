@@ -21,6 +21,8 @@ MAX_IMAGE_BYTES = 4 << 30  # an image file larger than this is refused before re
 def check_writable(path, formats=FORMATS, role="an image"):
     """Fail early, before a long render, when `path` cannot be written or its extension is not one of `formats`
     (`role` names what it is for in the message)."""
+    if str(path).endswith(os.sep):
+        raise ProbvisError(f"cannot write '{path}': the name ends in '{os.sep}' (a folder's name); give a file name")
     path = Path(path)
     if path.suffix.lower() not in formats:
         raise ProbvisError(f"cannot write '{path}': {role} must be a {', '.join(formats)} file")
@@ -32,6 +34,9 @@ def check_writable(path, formats=FORMATS, role="an image"):
             raise ProbvisError(f"cannot write '{path}': folder '{parent}' is not writable")
         if path.is_dir():
             raise ProbvisError(f"cannot write '{path}': it is a folder")
+        if path.exists() and not path.resolve().is_file():
+            raise ProbvisError(f"cannot write '{path}': it is not a regular file (a pipe, socket or device); "
+                               "give a file name")
         # what the atomic write will do: a temporary file named after the output, in its folder, renamed
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=parent)
         os.close(fd)
@@ -45,10 +50,35 @@ def check_writable(path, formats=FORMATS, role="an image"):
 MAX_IMAGE_PIXELS = 1 << 27  # a PNG or JPEG larger than this (3 GiB as linear RGB) is refused from its header
 
 
+_staged = None  # (temporary, destination, name given) of the writes `staged_writes` holds back; None when it is not active
+
+
+@contextmanager
+def staged_writes():
+    """Hold back the renames of every `atomic_path` write inside the block until all of them succeeded: a
+    command's outputs appear together or not at all (one failing write leaves none of the others)."""
+    global _staged
+    outer, _staged = _staged, []
+    try:
+        yield
+        for tmp, path, shown in _staged:
+            try:
+                os.replace(tmp, path)
+            except OSError as exc:
+                raise ProbvisError(f"cannot write '{shown}': {exc.strerror or exc}") from None
+    finally:
+        for tmp, _, _ in _staged:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        _staged = outer
+
+
 @contextmanager
 def atomic_path(path):
-    """Yield a temporary path beside `path`; rename it over `path` only when the block succeeds."""
-    path = Path(path)
+    """Yield a temporary path beside `path` (beside its target, for a symbolic link: the link is written
+    through, as a plain write would); rename it over `path` only when the block succeeds (inside
+    `staged_writes`, when all of them did)."""
+    shown, path = path, Path(os.path.realpath(path))
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent or ".")
     os.close(fd)
     try:
@@ -56,13 +86,16 @@ def atomic_path(path):
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the file the usual permissions
+        if _staged is not None:
+            _staged.append((tmp, path, shown))
+            return
         os.replace(tmp, path)
     except OSError as exc:
-        raise ProbvisError(f"cannot write '{path}': {exc.strerror or exc}") from None
+        raise ProbvisError(f"cannot write '{shown}': {exc.strerror or exc}") from None
     except RuntimeError as exc:  # OpenEXR's writer: "Failed to write ... image file "<tmp>". File too large."
-        raise ProbvisError(f"cannot write '{path}': {str(exc).rsplit(chr(34) + '. ', 1)[-1].rstrip('.')}") from None
+        raise ProbvisError(f"cannot write '{shown}': {str(exc).rsplit(chr(34) + '. ', 1)[-1].rstrip('.')}") from None
     finally:
-        if os.path.exists(tmp):
+        if os.path.exists(tmp) and (_staged is None or all(tmp != t for t, _, _ in _staged)):
             os.unlink(tmp)
 
 
