@@ -82,15 +82,29 @@ def test_a_polygon_is_a_fan_around_its_first_corner():
     np.testing.assert_array_equal(f, [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 1, 2]])
 
 
+def test_relative_indices_and_mixed_corner_forms_are_read_statement_by_statement():
+    """Negative indices count back from the statements before the face; a corner without uv gets (0, 0) and
+    without a normal leaves the mesh's normals to the faces (as Mitsuba, which loads such a face); `vt u`
+    alone has v = 0."""
+    v, f, n, uv = read_obj(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 5 5 5\nf -4 -3 -2\n")
+    np.testing.assert_array_equal(f, [[0, 1, 2], [0, 1, 2]])
+    assert n is None and uv is None
+    v, f, n, uv = read_obj(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0.5\nvn 0 0 1\nf 1/1/1 2//1 3\n")
+    np.testing.assert_array_equal(v[f[0]], [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(uv[f[0]], [[0.5, 0], [0, 0], [0, 0]])
+    assert n is None
+
+
 @pytest.mark.parametrize("data", [
-    b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n",  # relative indices
-    b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2 3\n",  # corners of different forms
     b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n",  # too few corners
+    b"v 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",  # a vertex with two coordinates
+    b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/0 2/1 3/1\n",  # an index 0
+    b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 2 3\n",  # back beyond the first vertex
     b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n",  # beyond the vertices
     b"v 0 0 0\nv 1 0 0\nv 0 x 0\nf 1 2 3\n",  # not a number
     b"v 0 0 0\nv 1 0 0\n",  # no faces
 ])
-def test_layouts_it_cannot_read_exactly_go_to_the_general_reader(data):
+def test_files_it_cannot_read_go_to_the_general_reader(data):
     assert read_obj(data) is None
 
 
@@ -102,3 +116,17 @@ def test_reading_a_plain_obj_does_not_import_trimesh(tmp_path):
             "print(len(m.faces), 'trimesh' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["8", "False"]
+
+
+@pytest.mark.parametrize("text, message", [
+    ("v 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "m.obj:1: 'v' needs 3 numbers: 'v 0 0'"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 x\nf 1 2 3\n", "m.obj:3: malformed 'v' statement 'v 0 1 x'"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt\nf 1/1 2/1 3/1\n", "m.obj:4: 'vt' needs 1 number: 'vt'"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 1\nf 1//1 2//1 3//1\n", "m.obj:4: 'vn' needs 3 numbers"),
+])
+def test_a_statement_short_of_numbers_is_named_with_its_line(tmp_path, text, message):
+    from probvis.errors import ProbvisError
+
+    (tmp_path / "m.obj").write_text(text)
+    with pytest.raises(ProbvisError, match=message.replace(".", r"\.")):
+        shapes.load_mesh(tmp_path / "m.obj")

@@ -3,8 +3,8 @@
 One mesh in file order (grouping and material statements ignored), polygons split into fans around their first
 corner, and where faces name texture coordinates or normals a vertex per distinct (position, uv, normal) index
 triple, numbered in order of first use. The statements are gathered by regular expressions and their numbers
-parsed in one call each; what this layout cannot read exactly (corners of different forms, negative indices, a
-statement it cannot parse) returns None, and the caller falls back to a general reader.
+parsed in one call each; faces whose corners are not all of one form, or that count back (negative indices),
+are read statement by statement. A file it cannot read returns None: the caller names the line.
 """
 import re
 
@@ -24,14 +24,18 @@ def _tokens_per_line(bodies):
     return np.bincount(np.searchsorted(ends, starts), minlength=len(bodies))
 
 
-def _numbers(bodies, dtype, width):
-    """The statements' numbers as an (n, width) array of their first `width` values (None if any statement has
-    fewer, or a token is not a number; a `w` or colour after them is ignored, as Mitsuba does)."""
+def _numbers(bodies, dtype, width, minimum=None):
+    """The statements' numbers as an (n, width) array of their first `width` values, missing ones zero where a
+    statement has at least `minimum` (None if one has fewer, or a token is not a number; a `w` or colour after
+    them is ignored, as Mitsuba does)."""
     if not bodies:
         return np.zeros((0, width), dtype)
     counts = _tokens_per_line(bodies)
-    if counts.min() < width:
+    if counts.min() < (minimum or width):
         return None
+    if counts.min() < width:  # pad the short statements, then read as usual
+        bodies = [b + b" 0" * (width - c) if c < width else b for b, c in zip(bodies, counts)]
+        counts = np.maximum(counts, width)
     try:
         flat = np.fromstring(b" ".join(bodies), dtype=dtype, sep=" ")
     except ValueError:
@@ -54,41 +58,88 @@ def fans(counts):
     return np.column_stack([base, base + j + 1, base + j + 2])
 
 
-def read_obj(data):
-    """(vertices, faces, normals or None, uv or None) of an OBJ file's bytes, uv as stored (not flipped); None
-    where the layout needs the general reader, or the file has a face this reader would misread (the caller
-    names its line)."""
-    bodies = {kind.decode(): _STATEMENT[kind].findall(data) for kind in _STATEMENT}
-    v = _numbers(bodies["v"], np.float64, 3)
-    vt = _numbers(bodies["vt"], np.float64, 2)
-    vn = _numbers(bodies["vn"], np.float64, 3)
-    faces = bodies["f"]
-    if v is None or vt is None or vn is None or not faces:
-        return None
+def _uniform_corners(faces):
+    """Per corner its (v, vt, vn) indices as written (-1 where the form has none) and per face its corner count,
+    where every face has at least three corners of one form; None otherwise."""
     first = faces[0].split(None, 1)[0] if faces[0].strip() else b""
     slashes, doubled = first.count(b"/"), b"//" in first
     if slashes > 2 or first.startswith(b"/"):
         return None
-    fields = 1 + slashes - doubled  # numbers per corner: v, v/vt, v//vn, v/vt/vn
     counts = _tokens_per_line(faces)
     joined = b" ".join(faces)
     n_corners = int(counts.sum())
     if counts.min() < 3 or joined.count(b"/") != slashes * n_corners or joined.count(b"//") != doubled * n_corners:
         return None
+    columns = [0] + ([1] if slashes and not doubled else []) + ([2] if slashes == 2 else [])
     try:
         idx = np.fromstring(joined.replace(b"/", b" "), dtype=np.int64, sep=" ")
     except ValueError:
         return None
-    if len(idx) != fields * n_corners:
+    if len(idx) != len(columns) * n_corners or not idx.all():  # an index 0 is invalid (they start at 1)
         return None
-    idx = idx.reshape(n_corners, fields) - 1
-    kinds = ["v"] + (["vt"] if slashes and not doubled else []) + (["vn"] if slashes == 2 else [])
-    sizes = {"v": len(v), "vt": len(vt), "vn": len(vn)}
-    for k, kind in enumerate(kinds):
-        if idx[:, k].min() < 0 or idx[:, k].max() >= sizes[kind]:  # negative (relative) or out of range
+    out = np.zeros((n_corners, 3), np.int64)  # 0: none (OBJ indices start at 1)
+    out[:, columns] = idx.reshape(n_corners, len(columns))
+    return out, counts
+
+
+def _corners_by_line(data):
+    """`_uniform_corners` of any layout, statement by statement: corners of different forms, and relative
+    (negative) indices counted back from the statements before the face. None if a face cannot be read."""
+    defined = {b"v": 0, b"vt": 0, b"vn": 0}
+    corners, counts = [], []
+    for line in data.split(b"\n"):
+        words = line.split(b"#", 1)[0].split()
+        if not words:
+            continue
+        if words[0] in defined:
+            defined[words[0]] += 1
+        elif words[0] == b"f":
+            if len(words) < 4:
+                return None
+            for word in words[1:]:
+                parts = word.split(b"/")
+                if len(parts) > 3 or not parts[0]:
+                    return None
+                row = []
+                for kind, text in zip((b"v", b"vt", b"vn"), parts + [b""] * (3 - len(parts))):
+                    try:
+                        k = int(text) if text else 0
+                    except ValueError:
+                        return None
+                    if text and k == 0:
+                        return None
+                    row.append(k if k >= 0 else defined[kind] + k + 1 if defined[kind] + k >= 0 else -1)
+                corners.append(row)
+            counts.append(len(words) - 1)
+    if not counts:
+        return None
+    return np.array(corners, np.int64), np.array(counts, np.int64)
+
+
+def read_obj(data):
+    """(vertices, faces, normals or None, uv or None) of an OBJ file's bytes, uv as stored (not flipped); None
+    where the file has a statement or face this reader cannot read (the caller names its line). A texture
+    coordinate without v has v = 0; corners without uv get (0, 0); normals are kept only where every corner
+    has one (else computed from the faces)."""
+    bodies = {kind.decode(): _STATEMENT[kind].findall(data) for kind in _STATEMENT}
+    v = _numbers(bodies["v"], np.float64, 3)
+    vt = _numbers(bodies["vt"], np.float64, 2, minimum=1)
+    vn = _numbers(bodies["vn"], np.float64, 3)
+    if v is None or vt is None or vn is None or not bodies["f"]:
+        return None
+    read = _uniform_corners(bodies["f"])
+    if read is None or read[0].min() < 0:
+        read = _corners_by_line(data)
+    if read is None:
+        return None
+    idx, counts = read
+    idx = idx - 1  # -1: none
+    for k, size in enumerate((len(v), len(vt), len(vn))):
+        if idx[:, k].max() >= size or idx[:, k].min() < -1 or (k == 0 and idx[:, 0].min() < 0):
             return None
-    tri = fans(counts) if counts.max() > 3 else np.arange(n_corners).reshape(-1, 3)
-    if fields == 1:
+    tri = fans(counts) if counts.max() > 3 else np.arange(len(idx)).reshape(-1, 3)
+    has_uv, has_normals = bool((idx[:, 1] >= 0).any()), bool((idx[:, 2] >= 0).all())
+    if not has_uv and not (idx[:, 2] >= 0).any():
         return v, idx[:, 0][tri], None, None
     # a vertex per distinct index triple, in order of first use (as Mitsuba's reader numbers them)
     keys, first_use, corner_vertex = np.unique(idx, axis=0, return_index=True, return_inverse=True)
@@ -96,7 +147,6 @@ def read_obj(data):
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     keys = keys[order]
-    faces_out = rank[corner_vertex.reshape(-1)][tri]
-    uv = vt[keys[:, kinds.index("vt")]] if "vt" in kinds else None
-    normals = vn[keys[:, kinds.index("vn")]] if "vn" in kinds else None
-    return v[keys[:, 0]], faces_out, normals, uv
+    uv = np.where(keys[:, 1:2] >= 0, vt[keys[:, 1]], 0.0) if has_uv else None
+    normals = vn[keys[:, 2]] if has_normals else None
+    return v[keys[:, 0]], rank[corner_vertex.reshape(-1)][tri], normals, uv

@@ -108,6 +108,13 @@ def _obj_problem(path):
                     continue
                 if parts[0] in counts:
                     counts[parts[0]] += 1
+                    need = 1 if parts[0] == "vt" else 3  # numbers a statement needs: vt u [v [w]], v/vn x y z
+                    if len(parts) <= need:
+                        return f"{path}:{line_no}: '{parts[0]}' needs {need} number{'s' * (need > 1)}: '{line.strip()}'"
+                    try:
+                        [float(x) for x in parts[1:need + 1]]
+                    except ValueError:
+                        return f"{path}:{line_no}: malformed '{parts[0]}' statement '{line.strip()}'"
                 elif parts[0] == "f":
                     if len(parts) < 4:
                         return f"{path}:{line_no}: a face needs at least 3 vertices: '{line.strip()}'"
@@ -248,6 +255,8 @@ def _read_general(path):
     import trimesh
 
     ply = _ply_elements(path) if path.suffix.lower() == ".ply" else {}
+    if path.suffix.lower() == ".obj" and (problem := _obj_problem(path)):
+        raise ProbvisError(problem)
     try:
         mesh, n = _read(path)
     except Exception:  # trimesh raises many types (and leaks its own dependencies' errors) for malformed files
