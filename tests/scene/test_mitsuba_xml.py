@@ -134,7 +134,8 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
      "an area emitter on a shape without area"),
 ])
 def test_unsupported_input_names_file_line_and_element(tmp_path, body, message):
-    path = write_scene(tmp_path / "bad.xml", sensor() + LIGHT + "\n" + body)
+    head = sensor() if "<integrator" not in body else re.sub(r"<integrator.*?</integrator>", "", sensor(), flags=re.S)
+    path = write_scene(tmp_path / "bad.xml", head + LIGHT + "\n" + body)
     with pytest.raises(ProbvisError) as exc:
         probvis.load_scene(path)
     text = str(exc.value)
@@ -301,3 +302,45 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
     with pytest.warns(UserWarning, match="<default> of 'res' declared again"):
         scene = probvis.load_scene(path)
     assert scene.camera.width == 8
+
+
+
+@pytest.mark.parametrize("body, message", [
+    ("<emitter type='point'><point name='position' x='0' y='0' z='1e300'/></emitter>",
+     "<emitter>: the light's position 0, 0, 1e+300 is beyond ±1e+30"),
+    ("<emitter type='spot'><transform name='to_world'><scale value='0'/></transform></emitter>",
+     "<emitter>: the spot light's to_world is singular"),
+    ("<shape type='rectangle'><bsdf type='dielectric'><float name='int_ior' value='-1.5'/></bsdf></shape>",
+     "<bsdf>: int_ior and ext_ior must be positive (got -1.5 and 1.00028)"),
+    ("<shape type='rectangle'><bsdf type='diffuse'><spectrum name='reflectance' value='400:5, 700:5'/></bsdf>"
+     "</shape>", "<spectrum>: reflectance must be within [0, 1] at every wavelength"),
+    ("<shape type='rectangle'><bsdf type='diffuse'><texture type='checkerboard' name='reflectance'>"
+     "<transform name='to_uv'><scale value='1e300'/></transform></texture></bsdf></shape>",
+     "<texture>: to_uv has entries beyond ±1e+09"),
+    ("<shape type='rectangle'><transform name='to_world'><translate z='1e39'/></transform></shape>",
+     "has vertices beyond ±1e+30 once transformed"),
+    ("<integrator type='direct'/><integrator type='direct'/>", "<integrator>: only one integrator per scene"),
+])
+def test_values_that_parse_but_would_render_nonsense_are_named_at_their_line(tmp_path, body, message):
+    """Values Mitsuba would refuse, or that overflow probvis's arithmetic (NaN or black images before)."""
+    path = write_scene(tmp_path / "bad.xml", sensor() + body + LIGHT)
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.load_scene(path)
+
+
+def test_a_second_film_is_refused(tmp_path):
+    body = sensor().replace("</sensor>", "<film type='hdrfilm'/></sensor>")
+    with pytest.raises(ProbvisError, match=re.escape("<film>: only one film per sensor")):
+        probvis.load_scene(write_scene(tmp_path / "bad.xml", body + LIGHT))
+
+
+def test_a_reflectance_texture_outside_the_unit_range_warns(tmp_path):
+    """Mitsuba renders such a bitmap as given; probvis does too, with a warning naming the file and line."""
+    from probvis.io import write_pfm
+
+    write_pfm(tmp_path / "t.pfm", np.full((4, 4, 3), -5.0))
+    body = sensor() + ("<shape type='rectangle'><bsdf type='diffuse'><texture type='bitmap' name='reflectance'>"
+                       "<string name='filename' value='t.pfm'/></texture></bsdf></shape>") + LIGHT
+    path = write_scene(tmp_path / "s.xml", body)
+    with pytest.warns(UserWarning, match=re.escape(f"{path}:") + r"\d+: the reflectance texture has values from -5"):
+        probvis.load_scene(path)

@@ -17,13 +17,14 @@ from ..settings import RenderSettings
 from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
-from .scene import SceneBuilder
+from .scene import MAX_COORDINATE, SceneBuilder
 from .sensor import MAX_FILTER_RADIUS, Camera, camera_problem
 from .spectrum import spectrum_to_rgb
 
 MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarters of the samples out
 MAX_NESTING = 64  # elements deep: real scenes nest a handful
 MAX_EMISSION = 1e30  # radiance, intensity or scale: beyond, power sums overflow
+MAX_UV_SCALE = 1e9  # a texture's to_uv entries
 MAX_SCENE_BYTES = 256 << 20  # a scene file larger than this is not a scene (meshes live in their own files)
 
 
@@ -130,6 +131,13 @@ class _Reader:
     def fail(self, node, msg):
         raise ProbvisError(f"{self.path}:{node.line}: <{node.tag}>: {msg}")
 
+    def checked(self, node, fn, *args):
+        """fn(*args), its ProbvisError located at the node's line."""
+        try:
+            return fn(*args)
+        except ProbvisError as exc:
+            self.fail(node, str(exc))
+
     def attr(self, node, key, default=None, required=True):
         if key not in node.attrs:
             if required and default is None:
@@ -225,6 +233,8 @@ class _Reader:
         if len(w) < 2 or np.any(np.diff(w) <= 0) or not np.all(np.isfinite(v)):
             self.fail(node, "a sampled spectrum needs two or more finite values at increasing wavelengths")
         emission = node.attrs.get("name") in ("radiance", "intensity", "irradiance")
+        if node.attrs.get("name") == "reflectance" and (np.any(v < 0) or np.any(v > 1)):
+            self.fail(node, "reflectance must be within [0, 1] at every wavelength")
         rgb = spectrum_to_rgb(w, v, reflectance=not emission)
         if emission and np.any(v > 0) and not np.any(rgb > 0):
             self.fail(node, f"wavelengths {w.min():g}-{w.max():g} nm lie outside 360-830 nm: this emission would be "
@@ -311,6 +321,12 @@ class _Reader:
                     self.fail(ch, "a diffuse bsdf takes only a 'reflectance' texture")
                 texture = self.texture(ch)
                 refl = texture.mean() if texture is not None else np.full(3, 0.5)
+                if texture is not None and texture.image is not None and (texture.image.min() < 0
+                                                                            or texture.image.max() > 1):
+                    warnings.warn(f"{self.path}:{ch.line}: the reflectance texture has values from "
+                                  f"{texture.image.min():g} to {texture.image.max():g}, outside [0, 1]: those texels "
+                                  "reflect negative light or more than they receive (Mitsuba renders them as given)",
+                                  stacklevel=2)
             if texture is None and (np.any(refl < 0) or np.any(refl > 1)):
                 self.fail(node, "reflectance must be within [0, 1]")
             out = (refl, False, texture)
@@ -379,13 +395,13 @@ class _Reader:
                 image = read_linear_rgb(path, raw=props.get("raw", False))
             except ProbvisError as exc:
                 self.fail(node, str(exc))
-            out = Texture(BITMAP, self.to_uv(props), image=image, wrap=WRAP_MODES[wrap], bilinear=filt == "bilinear")
+            out = Texture(BITMAP, self.checked(node, self.to_uv, props), image=image, wrap=WRAP_MODES[wrap], bilinear=filt == "bilinear")
         elif kind == "checkerboard":
             props, _ = self.params(node, {"color0": colour, "color1": colour, "to_uv": ("transform",)})
             colours = np.array([props.get("color0", 0.4) * np.ones(3), props.get("color1", 0.2) * np.ones(3)])
             if np.any(colours < 0) or np.any(colours > 1):
                 self.fail(node, "checkerboard colours are reflectances: each must be within [0, 1]")
-            out = Texture(CHECKERBOARD, self.to_uv(props), colours=colours)
+            out = Texture(CHECKERBOARD, self.checked(node, self.to_uv, props), colours=colours)
         else:
             self.approximate(node, f"texture '{kind}'", "rendered as grey 0.5")
             out = None
@@ -396,8 +412,11 @@ class _Reader:
     @staticmethod
     def to_uv(props):
         """The (2, 3) affine map of a texture's `to_uv` (the 4x4 transform's x and y rows, without z)."""
-        m = props.get("to_uv", np.eye(4))
-        return m[np.ix_([0, 1], [0, 1, 3])]
+        m = props.get("to_uv", np.eye(4))[np.ix_([0, 1], [0, 1, 3])]
+        if not np.all(np.abs(m) <= MAX_UV_SCALE):
+            raise ProbvisError(f"to_uv has entries beyond ±{MAX_UV_SCALE:g} (a texture repeated that often is "
+                               "uniform, and its coordinates lose all precision)")
+        return m
 
     def texture_colour(self, node):
         """Mean colour of a texture nested in a BSDF probvis approximates."""
@@ -425,6 +444,8 @@ class _Reader:
             ior_in, ior_out = props.get("int_ior", 1.5046), props.get("ext_ior", 1.000277)
             ior_in = ior_in if isinstance(ior_in, float) else 1.5046  # a named material: taken as BK7
             ior_out = ior_out if isinstance(ior_out, float) else 1.000277  # ... and air
+            if not (0.0 < ior_in < np.inf and 0.0 < ior_out < np.inf):
+                self.fail(node, f"int_ior and ext_ior must be positive (got {ior_in:g} and {ior_out:g})")
             eta = ior_in / ior_out
             return np.full(3, ((eta - 1.0) / (eta + 1.0)) ** 2)  # Fresnel reflectance at normal incidence
         if kind == "blendbsdf" and len(nested) == 2:
@@ -503,10 +524,14 @@ class _Reader:
         props, _ = self.params(node, allowed)
         intensity = self.emission(node, "intensity", props.get("intensity", np.ones(3)))
         m = props.get("to_world", np.eye(4))
+        position = props.get("position", m[:3, 3])
+        if not np.all(np.abs(position) <= MAX_COORDINATE):
+            self.fail(node, f"the light's position {', '.join(f'{x:g}' for x in position)} is beyond ±"
+                            f"{MAX_COORDINATE:g} (or not a number): rescale the scene")
         if kind == "point":
             if "position" in props and "to_world" in props:
                 self.fail(node, "give either 'position' or 'to_world', not both")
-            builder.add_point_emitter(intensity, props.get("position", m[:3, 3]))
+            builder.add_point_emitter(intensity, position)
             return
         cutoff = props.get("cutoff_angle", 20.0)
         beam = props.get("beam_width", 0.75 * cutoff)
@@ -515,6 +540,8 @@ class _Reader:
         if not 0.0 <= beam <= cutoff:
             self.fail(node, f"beam_width must be in [0, cutoff_angle], got {beam:g}")
         axis = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        if not np.linalg.norm(axis) > 0 or not np.all(np.isfinite(axis)):
+            self.fail(node, "the spot light's to_world is singular: it maps its +z axis to no direction")
         builder.add_point_emitter(intensity, m[:3, 3], axis, cutoff, beam)
 
     def environment(self, node, kind, builder):
@@ -697,6 +724,8 @@ class _Reader:
                                          "scramble_seed": ("integer",)})
                 spp, seed = sp.get("sample_count", spp), sp.get("seed", seed)
             else:
+                if film is not None:
+                    self.fail(ch, "only one film per sensor")
                 film = self.film(ch)
         film = film or self.film(None)
         fw, fh = film["film_width"], film["film_height"]
@@ -857,6 +886,7 @@ class _Reader:
         self.id_nodes = _unique_ids(root, self.fail)
         builder = SceneBuilder(self.path.stem, str(self.path))
         camera, spp, seed, shadow_rays = None, 4, 0, 1
+        integrator_line = None
         for ch in root.children:
             if ch.tag == "default":
                 self.check_attrs(ch, ("name", "value"))
@@ -870,6 +900,9 @@ class _Reader:
                 self.default_lines[name] = ch.line
                 self.defaults[name] = ch.attrs["value"]
             elif ch.tag == "integrator":
+                if integrator_line is not None:
+                    self.fail(ch, f"only one integrator per scene (the first on line {integrator_line})")
+                integrator_line = ch.line
                 shadow_rays = self.integrator(ch)
             elif ch.tag == "sensor":
                 if camera is not None:

@@ -13,6 +13,7 @@ from ..voxels import bounds
 from . import transform as tf
 from .sensor import Camera, camera_problem
 
+MAX_COORDINATE = 1e30  # a position beyond this is refused: squared distances would overflow
 EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT = 0, 1, 2, 3, 4
 
 
@@ -171,6 +172,9 @@ class SceneBuilder:
         if not np.all(np.isfinite(m)):
             raise ProbvisError(f"shape '{name}' has a non-finite to_world transform")
         wv = tf.apply_points(m, v)
+        if not np.all(np.abs(wv) <= MAX_COORDINATE):
+            raise ProbvisError(f"shape '{name}' has vertices beyond ±{MAX_COORDINATE:g} once transformed (or not a "
+                               "number): rescale the scene")
         if flip_normals:
             f = f[:, ::-1]
         tris, cross, area2 = _triangles(wv, f)
