@@ -1,5 +1,7 @@
 """Direct illumination against closed forms, determinism, and the stats contract."""
 import numba
+import re
+
 import numpy as np
 import pytest
 
@@ -142,6 +144,8 @@ def test_stats_and_test_count_image_add_up():
     ({"settings": "fast"}, "settings must be a RenderSettings"),
     ({"filter_importance": "yes"}, "filter_importance must be True or False"),
     ({"visibility_options": {1: 2}}, "visibility_options must be a dict with names"),
+    ({"strict": "no"}, "strict must be True or False, got 'no'"),
+    ({"clamp_negative": "no"}, "clamp_negative must be True or False"),
 ])
 def test_bad_render_settings(kwargs, message):
     with pytest.raises(ProbvisError, match=message):
@@ -173,3 +177,26 @@ def test_shared_scenes_within_noise_floor(shared):
         err = np.mean([relmse(probvis.render(shared / "scenes" / f"{name}.xml", spp=16, shadow_rays=16,
                                              seed=s, defines={"res": 128}).image, ref) for s in (1, 2)])
         assert err <= 1.5 * np.mean(floors[name]["relmse_16spp_16sr"]), name
+
+
+@pytest.mark.parametrize("args, kwargs, message", [
+    ((None,), {}, "path must be a scene file path or a built-in name, got NoneType"),
+    ((42,), {}, "path must be a scene file path or a built-in name, got int"),
+    (("quad-shadow", "yes"), {}, "strict must be True or False, got 'yes'"),
+    (("quad-shadow",), {"res": True}, "parameter res must be an integer, got 'True'"),
+    (("quad-shadow",), {"res": 8.5}, "parameter res must be an integer"),
+])
+def test_load_scene_names_arguments_of_the_wrong_type(args, kwargs, message):
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.load_scene(*args, **kwargs)
+
+
+def test_a_number_for_a_text_option_is_its_text():
+    """`verify` takes auto, off or a probability: 0.5 in the API (or a TOML file) means what `--verify 0.5` does."""
+    as_number = probvis.render("quad-shadow", spp=1, shadow_rays=2, resolution=(8, 8), visibility="occlusion-map",
+                               visibility_options={"verify": 0.5})
+    as_text = probvis.render("quad-shadow", spp=1, shadow_rays=2, resolution=(8, 8), visibility="occlusion-map",
+                             visibility_options={"verify": "0.5"})
+    np.testing.assert_array_equal(as_number.image, as_text.image)
+    with pytest.raises(ProbvisError, match="verify expects string, got True"):
+        probvis.render("quad-shadow", visibility="occlusion-map", visibility_options={"verify": True})

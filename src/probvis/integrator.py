@@ -257,7 +257,7 @@ def _warm_up(cls, options, progress):
     return time.perf_counter() - t0
 
 
-def _check_arguments(scene, settings, resolution, defines, options, numbers):
+def _check_arguments(scene, settings, resolution, defines, options, numbers, flags):
     """The API's arguments of the wrong type, as one ProbvisError naming the argument (ranges are checked where
     the values are used)."""
     if not isinstance(scene, (Scene, str, Path)):
@@ -273,6 +273,9 @@ def _check_arguments(scene, settings, resolution, defines, options, numbers):
             raise ProbvisError(f"{name} must be a dict of name: value, got {type(value).__name__}")
         if value is not None and not all(isinstance(k, str) for k in value):
             raise ProbvisError(f"{name} must be a dict with names (strings) as keys, got {sorted(map(repr, value))}")
+    for name, value in flags.items():
+        if not isinstance(value, (bool, np.bool_)) and value is not None:
+            raise ProbvisError(f"{name} must be True or False, got {value!r}")
     for name, value in numbers.items():
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))):
             raise ProbvisError(f"{name} must be a whole number, got {value!r} (a {type(value).__name__})")
@@ -298,7 +301,9 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     """
     t_start, cpu_start = time.perf_counter(), time.process_time()
     _check_arguments(scene, settings, resolution, defines, visibility_options,
-                     dict(spp=spp, shadow_rays=shadow_rays, seed=seed, threads=threads))
+                     dict(spp=spp, shadow_rays=shadow_rays, seed=seed, threads=threads),
+                     dict(strict=strict, progress=progress, clamp_negative=clamp_negative,
+                          filter_importance=filter_importance))
     early = threads if threads is not None else getattr(settings, "threads", None)
     if early is not None and 1 <= early <= numba.config.NUMBA_NUM_THREADS:  # loading keeps to the budget too
         numba.set_num_threads(early)

@@ -14,6 +14,10 @@ def load_scene(path, strict=False, **defaults):
     Keyword arguments override the scene's `<default>` parameters, like Mitsuba's `-D name=value`; with `strict`
     appearance probvis would approximate (a non-diffuse BSDF) is an error instead of a warning.
     """
+    if not isinstance(path, (str, Path)):
+        raise ProbvisError(f"path must be a scene file path or a built-in name, got {type(path).__name__}")
+    if not isinstance(strict, bool):
+        raise ProbvisError(f"strict must be True or False, got {strict!r}")
     if isinstance(path, str) and path in BUILTINS:
         return builtin_scene(path, **defaults)
     p = Path(path)

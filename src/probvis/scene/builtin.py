@@ -192,6 +192,8 @@ def builtin_scene(name, **defaults):
         if key not in PARAMETERS:
             raise ProbvisError(f"built-in scene '{name}' has no parameter '{key}' ({', '.join(PARAMETERS)})")
         try:
+            if isinstance(val, bool) or isinstance(val, float) and not val.is_integer():
+                raise TypeError
             kwargs[key] = int(val)
         except (TypeError, ValueError):
             raise ProbvisError(f"parameter {key} must be an integer, got '{val}'") from None

@@ -103,9 +103,11 @@ class Option:
             if word is None:
                 raise bad
             return word
-        if self.type is str:
+        if self.type is str:  # a number for a text option (a probability or a keyword): its text, as typed
             if isinstance(value, str):
                 return value
+            if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)):
+                return repr(float(value)) if isinstance(value, (float, np.floating)) else str(int(value))
             raise bad
         if self.type is tuple:
             items = value.split(",") if isinstance(value, str) else value
