@@ -1,7 +1,7 @@
 """Direct illumination against closed forms, determinism, and the stats contract."""
-import numba
 import re
 
+import numba
 import numpy as np
 import pytest
 
