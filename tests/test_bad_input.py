@@ -122,6 +122,20 @@ def test_broken_pipe_exits_quietly(monkeypatch, capsys):
     assert capsys.readouterr().err == ""
 
 
+def test_an_interrupt_inside_a_compiled_kernel_s_return_is_an_interrupt(monkeypatch, capsys):
+    """A signal handled as a compiled kernel returns reaches Python as a SystemError caused by the
+    KeyboardInterrupt (seen during the occlusion map's photon pass): one line and exit 130, as any interrupt."""
+    import probvis.cli as cli
+
+    def interrupted(args):
+        raise SystemError("CPUDispatcher(<function all_hits>) returned a result with an exception set") \
+            from KeyboardInterrupt()
+
+    monkeypatch.setattr(cli, "_cmd_scenes", interrupted)
+    assert main(["scenes"]) == 130
+    assert capsys.readouterr().err == "probvis: interrupted, nothing written\n"
+
+
 def test_ctrl_c_to_the_process_group_of_an_experiment(tmp_path):
     """What Ctrl-C in a terminal sends: SIGINT to the driver and its Dask workers alike. One line, exit 130,
     the finished renders kept."""

@@ -227,6 +227,7 @@ def _raise(*args, **kwargs):
     ({"memory_estimate": lambda self, *a: {"x": "lots"}}, "memory_estimate\\(\\) must return a dict of byte counts"),
     ({"memory_estimate": lambda self, *a: {"x": -10 ** 12}}, "memory_estimate\\(\\) must return a dict of byte counts"),
     ({"classify": lambda self, points: np.zeros(3, np.int8)}, "classify returned int8 of shape \\(3,\\)"),
+    ({"evaluate": lambda self, query: sys.exit(5)}, "raised SystemExit in the render .*: 5"),
 ])
 def test_a_plugin_s_every_method_is_checked(methods, message):
     cls = type("Faulty", (_Exact,), methods)
@@ -243,11 +244,23 @@ def test_a_plugin_s_every_method_is_checked(methods, message):
      "the default of option 'p' is invalid: p must be from 0 to 1, got 5.0"),
     ((probvis.visibility.Option("kind", str, "c", "not a choice", choices=("a", "b")),),
      "the default of option 'kind' is invalid: kind must be one of a, b, got 'c'"),
+    ((probvis.visibility.Option("k", list, [1], "a list"),), "option 'k' has type 'list', which an option cannot take"),
 ])
 def test_a_plugin_s_options_are_checked_when_it_loads(options, message):
     cls = type("Declared", (_Exact,), {"options": options})
     with pytest.raises(ProbvisError, match=re.escape(message)):
         estimator_class(cls)
+
+
+@pytest.mark.parametrize("declared, message", [
+    ({"name": "exact"}, "name 'exact' is a built-in estimator's"),
+    ({"name": 42}, "name must be one word"), ({"name": "has space"}, "name must be one word"),
+    ({"phases": (probvis.visibility.Phase("p", "sometimes"),)}, "phase 'p' has stage 'sometimes'"),
+    ({"aovs": (probvis.visibility.Aov("a", "h", "weird"),)}, "AOV 'a' has kind 'weird'"),
+])
+def test_a_plugin_s_name_phases_and_aovs_are_checked_when_it_loads(declared, message):
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        estimator_class(type("Declared", (_Exact,), declared))
 
 
 def test_a_plugin_file_that_raises_is_one_line_and_writes_nothing(tmp_path):

@@ -533,6 +533,11 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("probvis: interrupted, nothing written", file=sys.stderr)
         return 130
+    except SystemError as exc:  # Ctrl-C or SIGTERM while a compiled kernel returned: Python chains it as the cause
+        if not isinstance(exc.__cause__, KeyboardInterrupt):
+            raise
+        print("probvis: interrupted, nothing written", file=sys.stderr)
+        return 130
     except BrokenPipeError:  # `probvis tables | head`: the reader left; say nothing more
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())

@@ -4,13 +4,14 @@ entry-point group `probvis.visibility`, and any importable class given as `packa
 import importlib
 import importlib.util
 import inspect
+import re
 import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 
 from ..errors import ProbvisError
-from .base import (CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES, Aov, Option, Phase,
-                   RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult)
+from .base import (CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES, OPTION_TYPES, Aov,
+                   Option, Phase, RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult)
 
 ENTRY_POINT_GROUP = "probvis.visibility"
 BUILTIN = {
@@ -90,8 +91,24 @@ def _check_declarations(cls, what):
     """A plug-in's options as the command line and `parse` will take them: distinct names, none of probvis's own
     flags, defaults their own checks accept."""
     where = f"{what}: {cls.__module__}.{cls.__qualname__}"
+    own = cls.__module__.split(".")[0] == "probvis"
+    if not isinstance(cls.name, str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.+-]*", cls.name):
+        raise ProbvisError(f"{where}: name must be one word (letters, digits, '-', '_', '.', '+'), got "
+                           f"{cls.name!r}")
+    if not own and cls.name in BUILTIN:
+        raise ProbvisError(f"{where}: name '{cls.name}' is a built-in estimator's: choose another, so its stats and "
+                           "reports are not taken for the built-in's")
+    for phase in cls.phases:
+        if phase.stage not in ("prepare", "batch"):
+            raise ProbvisError(f"{where}: phase '{phase.name}' has stage {phase.stage!r} (prepare or batch)")
+    for aov in cls.aovs:
+        if aov.kind not in ("cases", "segment"):
+            raise ProbvisError(f"{where}: AOV '{aov.name}' has kind {aov.kind!r} (cases or segment)")
     names = [o.name for o in cls.options]
     for o in cls.options:
+        if o.type not in OPTION_TYPES:
+            raise ProbvisError(f"{where}: option '{o.name}' has type {getattr(o.type, '__name__', o.type)!r}, which "
+                               "an option cannot take (int, float, str, bool, Switch or tuple)")
         if names.count(o.name) > 1:
             raise ProbvisError(f"{where} declares option '{o.name}' twice")
         if o.name in RESERVED_OPTIONS:

@@ -34,6 +34,7 @@ class Switch:
 
 _TYPE_NAMES = {int: "integer", float: "number", str: "string", bool: "true/false", tuple: "numbers",
                Switch: " | ".join(Switch.CHOICES)}
+OPTION_TYPES = tuple(_TYPE_NAMES)  # the types an `Option` can take
 
 
 @dataclass(frozen=True)
