@@ -90,6 +90,7 @@ def _seed_list(text):
 
 
 _positive = _int_at_least(1)
+MAX_WORKERS = 4 * (os.cpu_count() or 1)  # each worker is a process with its own kernels and scene
 _non_negative = _int_at_least(0)
 
 
@@ -210,7 +211,8 @@ def _parser(estimator=None):
     e.add_argument("-o", "--output", metavar="DIR", help="report folder (default: experiment-NAME)")
     e.add_argument("--cache", metavar="DIR", help="render cache folder (default: DIR/cache)")
     e.add_argument("--seeds", type=_seed_list, metavar="S1,S2,...", help="render these seeds instead of the file's")
-    e.add_argument("--workers", type=_positive, default=1, help="LocalCluster worker processes (default 1)")
+    e.add_argument("--workers", type=_int_at_least(1, MAX_WORKERS), default=1,
+                   help=f"LocalCluster worker processes (default 1, at most {MAX_WORKERS}: four per core)")
     e.add_argument("--scheduler", metavar="ADDRESS", help="use the Dask scheduler at ADDRESS (tcp://host:port)")
     e.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     return p

@@ -1,4 +1,5 @@
 """Experiment files: the shipped ones parse; every mistake is one clear error naming what is wrong."""
+import os
 import re
 
 import pytest
@@ -76,6 +77,7 @@ def test_defaults_and_baseline():
     ({"timing_seconds": 0}, "timing_seconds: expected a number of seconds > 0, got 0"),
     ({"timing_seconds": float("nan")}, "timing_seconds: expected a number of seconds > 0, got nan"),
     ({"timing_seconds": "2"}, "timing_seconds: expected a number of seconds > 0, got '2'"),
+    ({"description": 5}, "description: expected a string, got 5"),
 ])
 def test_mistakes_are_named(change, message):
     with pytest.raises(ProbvisError) as info:
@@ -93,6 +95,9 @@ def test_files(tmp_path):
     bad.write_text("name = 'x'\n[[scenes]\n")
     with pytest.raises(ProbvisError, match=r"bad.toml: malformed TOML: .*line 2"):
         load_experiment(bad)
+    bad.write_text("name = 'x'\n", encoding="utf-16")
+    with pytest.raises(ProbvisError, match=r"bad.toml: not UTF-8 text"):
+        load_experiment(bad)
     rel = tmp_path / "rel.toml"
     rel.write_text("[[scenes]]\nname = 'a'\nsource = 'scene.xml'\n[[methods]]\nname = 'e'\nvisibility = 'exact'\n")
     with pytest.raises(ProbvisError, match=r"looked for .*scene.xml"):
@@ -105,10 +110,12 @@ def test_command_line_mistakes_exit_2_with_one_line(tmp_path, capsys):
     assert main(["experiment"]) == 2
     assert main(["experiment", str(tmp_path / "missing.toml")]) == 2
     assert main(["experiment", "--quick", "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"]) == 2
+    assert main(["experiment", "--quick", "--workers", "100000"]) == 2
     err = capsys.readouterr().err.splitlines()
     assert err == ["probvis: error: give an experiment file or --quick (not both)",
                    f"probvis: error: experiment file not found: {tmp_path / 'missing.toml'}",
-                   "probvis: error: --workers applies to the embedded LocalCluster, not to --scheduler"]
+                   "probvis: error: --workers applies to the embedded LocalCluster, not to --scheduler",
+                   f"probvis: error: argument --workers: must be at most {4 * (os.cpu_count() or 1)}, got 100000"]
 
 
 @pytest.mark.parametrize("change, message", [

@@ -232,13 +232,15 @@ def parse_experiment(data, base=Path("."), source=""):
     if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float))
                                or not 0 < target < float("inf")):
         _fail("target_relmse", f"expected a positive number, got {target!r}")
+    if not isinstance(data.get("description", ""), str):
+        _fail("description", f"expected a string, got {data['description']!r}")
     table_rays = data.get("table_shadow_rays", 16 if 16 in shadow_rays else max(shadow_rays))
     if _int("table_shadow_rays", table_rays) not in shadow_rays:
         _fail("table_shadow_rays", f"{table_rays} is not one of shadow_rays {list(shadow_rays)}")
     return Experiment(
         name=_plain_name("name", data["name"]) if "name" in data else
         re.sub(r"[^A-Za-z0-9._-]", "-", Path(source).stem).lstrip(".") or "experiment",
-        description=str(data.get("description", "")),
+        description=data.get("description", ""),
         scenes=scene_specs, methods=method_specs, shadow_rays=tuple(sorted(shadow_rays)),
         spp=_int("spp", data.get("spp", 4), 1, MAX_SPP), seeds=_int_list("seeds", data.get("seeds", [0]), 0),
         reference=reference, baseline=baselines[0] if baselines else method_specs[0].name,
@@ -270,7 +272,9 @@ def load_experiment(path):
     if not path.is_file():
         raise ProbvisError(f"experiment file not found: {path}")
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise ProbvisError(f"{path}: not UTF-8 text (a TOML file is UTF-8): save it as UTF-8") from None
     except tomllib.TOMLDecodeError as exc:
         raise ProbvisError(f"{path}: malformed TOML: {exc}") from None
     return parse_experiment(data, path.resolve().parent, str(path))
