@@ -25,3 +25,18 @@ def test_unwritable_outputs_are_caught_early(tmp_path):
         check_writable(tmp_path / "out.jpg")
     with pytest.raises(ProbvisError, match="is a folder"):
         check_writable(tmp_path / "dir.exr") if (tmp_path / "dir.exr").mkdir() is None else None
+
+
+def test_an_hdr_header_too_large_and_a_truncated_pfm_are_named(tmp_path):
+    """An HDR's declared size is checked from its header before decoding (as a PNG's); a PFM shorter than its
+    header says is called truncated."""
+    from probvis.io.image import read_linear_rgb, write_pfm
+
+    (tmp_path / "t.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 100000 +X 100000\n" + bytes(20))
+    with pytest.raises(ProbvisError, match=r"t.hdr: image is 100000x100000 \(10000 Mpixel\), above the 134 Mpixel"):
+        read_linear_rgb(tmp_path / "t.hdr")
+    write_pfm(tmp_path / "t.pfm", np.ones((10, 10, 3)))
+    (tmp_path / "u.pfm").write_bytes((tmp_path / "t.pfm").read_bytes()[:-20])
+    with pytest.raises(ProbvisError, match="truncated: 1,180 bytes of pixels where its 10x10 header needs 1,200"):
+        read_linear_rgb(tmp_path / "u.pfm")
+    assert read_linear_rgb(tmp_path / "t.pfm").shape == (10, 10, 3)

@@ -6,6 +6,7 @@ interrupted or failed write never leaves a partial file under the requested name
 """
 import errno
 import os
+import re
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -152,6 +153,14 @@ def srgb_to_linear(v):
     return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
 
 
+def _hdr_size(path):
+    """(width, height) a Radiance HDR file's header declares ((0, 0) if it has none readable)."""
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)
+    found = re.search(rb"\n\n[-+]Y (\d{1,12}) [-+]X (\d{1,12})", head)
+    return (int(found.group(2)), int(found.group(1))) if found else (0, 0)
+
+
 def read_linear_rgb(path, raw=False):
     """An image file as linear RGB (h, w, 3) float64, as Mitsuba's bitmap loader gives it: EXR, HDR and PFM as
     stored, PNG and JPEG decoded from sRGB (unless `raw`); grey images are repeated over the channels and alpha
@@ -179,7 +188,14 @@ def read_linear_rgb(path, raw=False):
     elif ext == ".hdr":
         import cv2
 
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        w, h = _hdr_size(path)
+        if w * h > MAX_IMAGE_PIXELS:
+            raise ProbvisError(f"{path}: image is {w}x{h} ({w * h / 1e6:.0f} Mpixel), above the "
+                               f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads (scale it down)")
+        try:
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            img = None
         if img is None:
             raise ProbvisError(f"cannot read Radiance HDR image {path}")
         img = img[..., ::-1] if img.ndim == 3 else img
@@ -240,7 +256,13 @@ def read_pfm(path):
         scale = float(f.readline())
         dtype = "<f4" if scale < 0 else ">f4"
         ch = 3 if kind == b"PF" else 1
-        data = np.frombuffer(f.read(), dtype=dtype).reshape(h, w, ch)
+        if w <= 0 or h <= 0 or w * h > MAX_IMAGE_PIXELS:
+            raise ValueError(f"its header gives {w}x{h} pixels")
+        body = f.read()
+        if len(body) < 4 * w * h * ch:
+            raise ValueError(f"truncated: {len(body):,} bytes of pixels where its {w}x{h} header needs "
+                             f"{4 * w * h * ch:,}")
+        data = np.frombuffer(body, dtype=dtype, count=w * h * ch).reshape(h, w, ch)
     return data[::-1].astype(np.float32)
 
 
