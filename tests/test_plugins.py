@@ -228,6 +228,10 @@ def _raise(*args, **kwargs):
     ({"memory_estimate": lambda self, *a: {"x": -10 ** 12}}, "memory_estimate\\(\\) must return a dict of byte counts"),
     ({"classify": lambda self, points: np.zeros(3, np.int8)}, "classify returned int8 of shape \\(3,\\)"),
     ({"evaluate": lambda self, query: sys.exit(5)}, "raised SystemExit in the render .*: 5"),
+    ({"evaluate": lambda self, q: probvis.visibility.VisibilityResult(np.ones(len(q.tmax)), np.zeros(len(q.tmax)),
+                                                                      np.full(len(q.tmax), 2 ** 62))},
+     "returned triangle_tests above 2,147,483,648 for one segment"),
+    ({"stats": lambda self: [1]}, "stats\\(\\) returned a list, not a dict"),
 ])
 def test_a_plugin_s_every_method_is_checked(methods, message):
     cls = type("Faulty", (_Exact,), methods)

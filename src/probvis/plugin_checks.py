@@ -11,6 +11,7 @@ from .errors import ProbvisError
 from .visibility import VisibilityResult
 
 MAX_VISIBILITY = 1e12  # a segment's |estimate| beyond this is a plug-in's mistake (1/q weights stay far below)
+MAX_TESTS = 1 << 31  # node or triangle tests one segment can report (the per-pixel sums are int64)
 
 
 def checked_result(estimator, res, n):
@@ -32,6 +33,9 @@ def checked_result(estimator, res, n):
         arr = np.asarray(getattr(res, field))
         if arr.dtype.kind == "f" and not np.all(np.isfinite(arr) & (arr == np.round(arr))) or np.any(arr < 0):
             raise ProbvisError(f"{where} returned {field} that are not whole numbers >= 0 (counts of tests)")
+        if np.any(arr > MAX_TESTS):
+            raise ProbvisError(f"{where} returned {field} above {MAX_TESTS:,} for one segment (the sums would "
+                               "overflow): count the tests a segment made")
     declared = {a.name for a in estimator.aovs if a.kind == "segment"}
     for name, arr in (res.aovs or {}).items():
         arr = np.asarray(arr)
@@ -73,6 +77,9 @@ def checked_cases(estimator, cases, like):
 
 def checked_stats(cls, stats):
     """The estimator's `stats()` if JSON can hold it (no NaN, no arrays or sets): the stats file must be JSON."""
+    if not isinstance(stats, dict):
+        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): stats() returned a "
+                           f"{type(stats).__name__}, not a dict")
     try:
         json.dumps(stats, allow_nan=False)
     except (TypeError, ValueError) as exc:

@@ -320,6 +320,10 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
     ("<shape type='rectangle'><transform name='to_world'><translate z='1e39'/></transform></shape>",
      "has vertices beyond ±1e+30 once transformed"),
     ("<integrator type='direct'/><integrator type='direct'/>", "<integrator>: only one integrator per scene"),
+    ("<shape type='rectangle'><bsdf type='diffuse'><texture type='noise' name='reflectance'/></bsdf></shape>",
+     "<texture>: unsupported texture type 'noise'"),
+    ("<emitter type='spot'><transform name='to_world'><lookat origin='0, 0, 1e300' target='0, 0, 0'/></transform>"
+     "</emitter>", "<lookat>: lookat's origin and target must lie within ±1e+30"),
 ])
 def test_values_that_parse_but_would_render_nonsense_are_named_at_their_line(tmp_path, body, message):
     """Values Mitsuba would refuse, or that overflow probvis's arithmetic (NaN or black images before)."""

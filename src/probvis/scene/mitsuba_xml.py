@@ -25,6 +25,7 @@ MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarter
 MAX_NESTING = 64  # elements deep: real scenes nest a handful
 MAX_EMISSION = 1e30  # radiance, intensity or scale: beyond, power sums overflow
 MAX_UV_SCALE = 1e9  # a texture's to_uv entries
+_APPROXIMATED_TEXTURES = ("mesh_attribute", "volume")  # Mitsuba 3's other textures
 MAX_SCENE_BYTES = 256 << 20  # a scene file larger than this is not a scene (meshes live in their own files)
 
 
@@ -274,6 +275,8 @@ class _Reader:
             o = self.numbers(op, self.attr(op, "origin"), (3,))
             tg = self.numbers(op, self.attr(op, "target"), (3,))
             up = self.numbers(op, self.attr(op, "up", "0, 1, 0", required=False), (3,))
+            if not (np.all(np.abs(o) <= MAX_COORDINATE) and np.all(np.abs(tg) <= MAX_COORDINATE)):
+                self.fail(op, f"lookat's origin and target must lie within ±{MAX_COORDINATE:g}: rescale the scene")
             return tf.look_at(o, tg, up)
         if t == "matrix":
             self.check_attrs(op, ("value",))
@@ -402,9 +405,12 @@ class _Reader:
             if np.any(colours < 0) or np.any(colours > 1):
                 self.fail(node, "checkerboard colours are reflectances: each must be within [0, 1]")
             out = Texture(CHECKERBOARD, self.checked(node, self.to_uv, props), colours=colours)
-        else:
+        elif kind in _APPROXIMATED_TEXTURES:
             self.approximate(node, f"texture '{kind}'", "rendered as grey 0.5")
             out = None
+        else:
+            self.fail(node, f"unsupported texture type '{kind}' (supported: bitmap, checkerboard; approximated as "
+                            f"grey: {', '.join(sorted(_APPROXIMATED_TEXTURES))})")
         if "id" in node.attrs:
             self.define(node, "texture", out)
         return out
