@@ -89,6 +89,8 @@ def test_mistakes_are_named(change, message):
 def test_files(tmp_path):
     with pytest.raises(ProbvisError, match="experiment file not found"):
         load_experiment(tmp_path / "missing.toml")
+    with pytest.raises(ProbvisError, match="path must be an experiment file's path, got int"):
+        load_experiment(5)
     with pytest.raises(ProbvisError, match="is a folder, not an experiment file"):
         load_experiment(tmp_path)
     bad = tmp_path / "bad.toml"

@@ -324,6 +324,8 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
      "<texture>: unsupported texture type 'noise'"),
     ("<emitter type='spot'><transform name='to_world'><lookat origin='0, 0, 1e300' target='0, 0, 0'/></transform>"
      "</emitter>", "<lookat>: lookat's origin and target must lie within ±1e+30"),
+    ("<shape type='sphere'><float name='radius' value='1e100'/></shape>",
+     "<shape>: sphere radius must be positive and at most 1e+30, got 1e+100"),
 ])
 def test_values_that_parse_but_would_render_nonsense_are_named_at_their_line(tmp_path, body, message):
     """Values Mitsuba would refuse, or that overflow probvis's arithmetic (NaN or black images before)."""

@@ -266,6 +266,8 @@ def _choice(where, value, choices):
 
 def load_experiment(path):
     """Read and validate an experiment TOML file."""
+    if not isinstance(path, (str, Path)):
+        raise ProbvisError(f"path must be an experiment file's path, got {type(path).__name__}")
     path = Path(path)
     if path.is_dir():
         raise ProbvisError(f"{path} is a folder, not an experiment file (.toml)")

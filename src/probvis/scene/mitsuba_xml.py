@@ -665,8 +665,8 @@ class _Reader:
         else:
             v, f, vnormals = shp.uv_sphere()
             r = props.get("radius", 1.0)
-            if r <= 0:
-                self.fail(node, "sphere radius must be positive")
+            if not 0 < r <= MAX_COORDINATE:
+                self.fail(node, f"sphere radius must be positive and at most {MAX_COORDINATE:g}, got {r:g}")
             m = m @ tf.translate(props.get("center", np.zeros(3))) @ tf.scale([r, r, r])
             face_normals = False
         if kind in ("disk", "sphere", "cylinder"):
