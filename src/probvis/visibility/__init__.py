@@ -95,7 +95,7 @@ def _check_declarations(cls, what):
     if not isinstance(cls.name, str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.+-]*", cls.name):
         raise ProbvisError(f"{where}: name must be one word (letters, digits, '-', '_', '.', '+'), got "
                            f"{cls.name!r}")
-    if not own and cls.name in BUILTIN:
+    if not own and cls.name in BUILTIN and "name" in vars(cls):  # a subclass may keep its built-in parent's
         raise ProbvisError(f"{where}: name '{cls.name}' is a built-in estimator's: choose another, so its stats and "
                            "reports are not taken for the built-in's")
     for phase in cls.phases:
