@@ -10,7 +10,7 @@ import xxhash
 
 
 def cache_dir(kind):
-    """Where entries of `kind` ("proxies", "shells", "closed", "parts") are cached."""
+    """Where entries of `kind` ("proxies", "shells", "closed", "parts", "structure") are cached."""
     return Path(os.environ.get("PROBVIS_CACHE_DIR") or Path.home() / ".cache" / "probvis") / kind
 
 

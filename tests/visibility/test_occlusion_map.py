@@ -183,3 +183,22 @@ def test_no_photon_hits_anything_falls_back_to_exact(tmp_path):
     ex = probvis.render(path, visibility="exact")
     np.testing.assert_array_equal(om.image, ex.image)
     assert om.stats["cases"]["unknown"]["share"] == 1.0
+
+
+def test_the_scene_structure_is_cached_by_content(tmp_path, monkeypatch):
+    """Components and closed orientation come from the disk cache on the second render, equal to a fresh
+    computation; another scene gets its own entry."""
+    from probvis.visibility.occlusion_map.components import closed_orientation, components, structure
+
+    monkeypatch.setenv("PROBVIS_CACHE_DIR", str(tmp_path))
+    scene = probvis.load_scene("cornell-box", res=8)
+    first, again = structure(scene), structure(scene)
+    label, _, n = components(scene)
+    for st in (first, again):
+        np.testing.assert_array_equal(st.label, label)
+        np.testing.assert_array_equal(st.orientation, closed_orientation(scene))
+        assert st.n_components == n
+    assert len(list((tmp_path / "structure").glob("*.npz"))) == 1
+    structure(probvis.load_scene("box-city", res=8))
+    assert len(list((tmp_path / "structure").glob("*.npz"))) == 2
+    assert structure(scene, use_cache=False).n_components == n

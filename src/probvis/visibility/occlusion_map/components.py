@@ -9,6 +9,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ...disk_cache import content_key, load_or_build
+
+CACHE_VERSION = 1  # bump when what `structure` derives changes
+
 
 def components(scene):
     """Connected components of the scene's meshes: (label per triangle, merged vertex ids (n, 3), count).
@@ -84,3 +88,26 @@ def blocker_groups(label, n_comp, max_size):
     order = np.argsort(group, kind="stable").astype(np.int32)
     off = np.concatenate([[0], np.cumsum(np.bincount(group, minlength=len(used)))]).astype(np.int64)
     return BlockerGroups(group.astype(np.int32), off, order)
+
+
+class Structure(NamedTuple):
+    """What the occlusion map needs of the scene's connectivity: per triangle its component and orientation."""
+
+    label: np.ndarray  # (triangles,) component of each triangle
+    n_components: int
+    orientation: np.ndarray  # (triangles,) int8, `closed_orientation`
+
+
+def structure(scene, use_cache=True):
+    """The scene's `Structure`, cached on disk by its triangles and shapes' spans (a tenth of a second on every
+    render of a 70k-triangle mesh, a few milliseconds from the cache)."""
+    spans = np.array([(s.first_triangle, s.n_triangles) for s in scene.shapes], np.int64).reshape(-1, 2)
+
+    def build():
+        comps = components(scene)
+        return {"label": comps[0], "n_components": np.array(comps[2]),
+                "orientation": closed_orientation(scene, comps)}
+
+    key = content_key(f"occlusion map structure v{CACHE_VERSION}", scene.triangles, spans)
+    out, _ = load_or_build("structure", key, build, use_cache)
+    return Structure(out["label"], int(out["n_components"]), out["orientation"])

@@ -22,7 +22,7 @@ from ..probabilistic.kernels import GroupedLists, TermTables
 from . import kernel as mk
 from . import verification
 from .adaptive_photons import refine
-from .components import BlockerGroups, blocker_groups, closed_orientation, components
+from .components import BlockerGroups, blocker_groups, structure
 from .map import OcclusionMap
 from .photons import MAX_HITS, shoot_photons
 
@@ -48,6 +48,8 @@ MAP_OPTIONS = (
                                   "against the whole scene with an unbiased correction term: auto (per pair from "
                                   "its photons), a probability in (0, 1], or off (biased)",
            check=verification.parse_verify, metavar="auto|Q|off"),
+    Option("cache", bool, True, "cache the scene's connected components and closed meshes' orientation on disk "
+                                "($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
 )
 MAP_PHASES = (
     Phase("photons", "prepare", "tracing the first pass of photon rays"),
@@ -132,11 +134,11 @@ class OcclusionMapVisibility(VisibilityEstimator):
         n_tri = scene.n_triangles
         self.orientation = np.zeros(n_tri, np.int8)
         if self.with_lists:
-            comps = components(scene)
+            st = structure(scene, p.cache)
             if p.volumetric:  # only where the list holds the whole component, so its exit face too
-                whole = np.bincount(comps[0])[comps[0]] <= GROUP_COMPONENTS
-                self.orientation = np.where(whole, closed_orientation(scene, comps), 0).astype(np.int8)
-            groups = blocker_groups(comps[0], comps[2], GROUP_COMPONENTS)
+                whole = np.bincount(st.label)[st.label] <= GROUP_COMPONENTS
+                self.orientation = np.where(whole, st.orientation, 0).astype(np.int8)
+            groups = blocker_groups(st.label, st.n_components, GROUP_COMPONENTS)
         else:  # lists are not used: each triangle stands for itself
             groups = BlockerGroups.singletons(n_tri)
         self.seconds["map_build"] += time.perf_counter() - t_geom
