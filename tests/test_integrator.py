@@ -200,3 +200,17 @@ def test_a_number_for_a_text_option_is_its_text():
     np.testing.assert_array_equal(as_number.image, as_text.image)
     with pytest.raises(ProbvisError, match="verify expects string, got True"):
         probvis.render("quad-shadow", visibility="occlusion-map", visibility_options={"verify": True})
+
+
+def test_a_scene_whose_camera_was_changed_is_checked_again():
+    scene = probvis.load_scene("quad-shadow", res=8)
+    scene.camera.width = -5
+    with pytest.raises(ProbvisError, match="width must be a whole number from 1 to 32768, got -5"):
+        probvis.render(scene, spp=1)
+
+
+def test_a_file_named_like_a_built_in_scene_is_said(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "quad-shadow").write_text("garbage")
+    with pytest.warns(UserWarning, match=r"'quad-shadow' names a built-in scene and a file here"):
+        probvis.load_scene("quad-shadow", res=8)

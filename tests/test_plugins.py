@@ -232,6 +232,7 @@ def _raise(*args, **kwargs):
                                                                       np.full(len(q.tmax), 2 ** 62))},
      "returned triangle_tests above 2,147,483,648 for one segment"),
     ({"stats": lambda self: [1]}, "stats\\(\\) returned a list, not a dict"),
+    ({"memory_bytes": lambda self: {"x": "lots"}}, "memory_bytes\\(\\) must return a dict of byte counts"),
 ])
 def test_a_plugin_s_every_method_is_checked(methods, message):
     cls = type("Faulty", (_Exact,), methods)

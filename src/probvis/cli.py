@@ -429,6 +429,9 @@ def _cmd_experiment(args):
         raise ProbvisError("give an experiment file or --quick (not both)")
     if args.scheduler and args.workers != 1:
         raise ProbvisError("--workers applies to the embedded LocalCluster, not to --scheduler")
+    if args.scheduler and not re.fullmatch(r"(?:(?:tcp|tls|ws|wss|ucx|inproc)://)?[\w.\-\[\]]+(?::\d{1,5})?/?",
+                                           args.scheduler):
+        raise ProbvisError(f"--scheduler '{args.scheduler}' is not a scheduler address (tcp://host:port)")
     exp = quick_experiment() if args.quick else load_experiment(args.file)
     if args.seeds:
         exp = dataclasses.replace(exp, seeds=args.seeds)

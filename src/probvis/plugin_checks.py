@@ -80,6 +80,11 @@ def checked_stats(cls, stats):
     if not isinstance(stats, dict):
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): stats() returned a "
                            f"{type(stats).__name__}, not a dict")
+    memory = stats.get("memory_bytes", {})
+    if not isinstance(memory, dict) or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0
+                                               for v in memory.values()):
+        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_bytes() must "
+                           f"return a dict of byte counts (whole numbers >= 0), got {memory!r}")
     try:
         json.dumps(stats, allow_nan=False)
     except (TypeError, ValueError) as exc:

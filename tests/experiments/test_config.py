@@ -113,11 +113,13 @@ def test_command_line_mistakes_exit_2_with_one_line(tmp_path, capsys):
     assert main(["experiment", str(tmp_path / "missing.toml")]) == 2
     assert main(["experiment", "--quick", "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"]) == 2
     assert main(["experiment", "--quick", "--workers", "100000"]) == 2
+    assert main(["experiment", "--quick", "--scheduler", "not a url"]) == 2
     err = capsys.readouterr().err.splitlines()
     assert err == ["probvis: error: give an experiment file or --quick (not both)",
                    f"probvis: error: experiment file not found: {tmp_path / 'missing.toml'}",
                    "probvis: error: --workers applies to the embedded LocalCluster, not to --scheduler",
-                   f"probvis: error: argument --workers: must be at most {4 * (os.cpu_count() or 1)}, got 100000"]
+                   f"probvis: error: argument --workers: must be at most {4 * (os.cpu_count() or 1)}, got 100000",
+                   "probvis: error: --scheduler 'not a url' is not a scheduler address (tcp://host:port)"]
 
 
 @pytest.mark.parametrize("change, message", [

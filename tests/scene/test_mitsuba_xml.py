@@ -350,3 +350,11 @@ def test_a_reflectance_texture_outside_the_unit_range_warns(tmp_path):
     path = write_scene(tmp_path / "s.xml", body)
     with pytest.warns(UserWarning, match=re.escape(f"{path}:") + r"\d+: the reflectance texture has values from -5"):
         probvis.load_scene(path)
+
+
+def test_a_scene_version_that_is_not_a_number_is_refused(tmp_path):
+    path = tmp_path / "v.xml"
+    path.write_text('<scene version="banana">\n' + sensor() + LIGHT + "</scene>\n")
+    with pytest.raises(ProbvisError, match=re.escape(f"{path}:1: <scene>: version must be a version number such "
+                                                     "as 3.0.0, got 'banana'")):
+        probvis.load_scene(path)

@@ -65,3 +65,12 @@ def test_files_it_cannot_map_go_to_the_general_reader(tmp_path, kind):
     path = write_ply(tmp_path / "m.ply", faces=faces, truncate=5 if kind == "truncated" else 0,
                      fmt="ascii" if kind == "ascii" else None)
     assert read_ply(path) is None
+
+
+def test_a_negative_element_count_is_named(tmp_path):
+    from probvis.errors import ProbvisError
+
+    path = write_ply(tmp_path / "m.ply")
+    path.write_bytes(path.read_bytes().replace(b"element vertex 40", b"element vertex -4", 1))
+    with pytest.raises(ProbvisError, match="malformed PLY header \\(a negative element count"):
+        shapes.load_mesh(path)

@@ -1,4 +1,5 @@
 """Scenes: Mitsuba XML files or built-in procedural scenes, loaded into flat triangle arrays."""
+import warnings
 from pathlib import Path
 
 from ..errors import ProbvisError
@@ -19,6 +20,9 @@ def load_scene(path, strict=False, **defaults):
     if not isinstance(strict, bool):
         raise ProbvisError(f"strict must be True or False, got {strict!r}")
     if isinstance(path, str) and path in BUILTINS:
+        if Path(path).is_file():
+            warnings.warn(f"'{path}' names a built-in scene and a file here: rendering the built-in (give "
+                          f"./{path} for the file)", stacklevel=2)
         return builtin_scene(path, **defaults)
     p = Path(path)
     if p.suffix.lower() != ".xml" and not p.exists():

@@ -889,6 +889,8 @@ class _Reader:
         if root.tag != "scene":
             self.fail(root, "the root element must be <scene>")
         self.check_attrs(root, ("version",))
+        if "version" in root.attrs and not re.fullmatch(r"\d+(\.\d+){0,2}", root.attrs["version"].strip()):
+            self.fail(root, f"version must be a version number such as 3.0.0, got '{root.attrs['version']}'")
         self.id_nodes = _unique_ids(root, self.fail)
         builder = SceneBuilder(self.path.stem, str(self.path))
         camera, spp, seed, shadow_rays = None, 4, 0, 1

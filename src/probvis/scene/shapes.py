@@ -172,7 +172,7 @@ def _ply_elements(path):
                 line = fh.readline(1024).decode("ascii", "replace").split()
                 if not line or line[0] == "end_header":
                     break
-                if line[0] == "element" and len(line) == 3 and line[2].isdigit():
+                if line[0] == "element" and len(line) == 3 and line[2].lstrip("-").isdigit():
                     counts[line[1]] = int(line[2])
     except OSError:
         return {}
@@ -183,6 +183,8 @@ def _ply_truncated(path, declared, mesh):
     """A message if the PLY file holds fewer vertices or faces than its header declares (None otherwise)."""
     if not declared:
         return None
+    if any(n < 0 for n in declared.values()):
+        return f"mesh {path}: malformed PLY header (a negative element count: {declared})"
     got_v = 0 if mesh is None else len(getattr(mesh, "vertices", ()))
     got_f = 0 if mesh is None else len(getattr(mesh, "faces", ()))
     if got_v < declared.get("vertex", 0) or got_f < declared.get("face", 0) or mesh is None:
