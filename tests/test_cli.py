@@ -85,7 +85,7 @@ def test_occlusion_map_options_and_case_image(tmp_path, capsys):
     s = json.loads(stats.read_text())
     assert s["visibility"] == {"name": "occlusion-map", "photons": 20000, "neighbours": 16, "radius": 0.2,
                                "penumbra": "list", "adaptive_photons": False, "volumetric": True,
-                               "verify": "auto"}
+                               "verify": "auto", "cache": True}
     assert abs(sum(c["share"] for c in s["cases"].values()) - 1) < 1e-9
     assert s["estimator"]["list_length"]["max"] >= 2
     capsys.readouterr()
