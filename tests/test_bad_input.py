@@ -193,6 +193,9 @@ def test_a_symbolic_link_is_written_through_and_a_pipe_refused(tmp_path):
     (tmp_path / "link.exr").symlink_to(tmp_path / "real" / "image.exr")
     assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "-q", "-o", str(tmp_path / "link.exr")]) == 0
     assert (tmp_path / "link.exr").is_symlink() and (tmp_path / "real" / "image.exr").is_file()
+    (tmp_path / "dangling.exr").symlink_to(tmp_path / "nowhere" / "image.exr")
+    r, _ = run(["render", "quad-shadow", "-o", "dangling.exr"], tmp_path)
+    assert r.returncode == 2 and "folder" in r.stderr and "does not exist" in r.stderr, r.stderr
     os.mkfifo(tmp_path / "pipe.exr")
     r, _ = run(["render", "quad-shadow", "-o", "pipe.exr"], tmp_path)
     assert r.returncode == 2 and "it is not a regular file" in r.stderr and r.stderr.count("\n") == 1, r.stderr

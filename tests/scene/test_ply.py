@@ -12,10 +12,11 @@ UV = RNG.uniform(size=(40, 2))
 F = RNG.integers(0, 40, size=(60, 3))
 
 
-def write_ply(path, order="<", normals=True, uv=("u", "v"), faces=F, fmt=None, truncate=0, index="vertex_indices"):
+def write_ply(path, order="<", normals=True, uv=("u", "v"), faces=F, fmt=None, truncate=0, index="vertex_indices",
+              uv_values=UV):
     """A binary PLY of V (float32) and `faces` (uchar counts, int32 indices) in byte order `order`."""
     props = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals else []) + (list(uv) if uv else [])
-    cols = [V] + ([N] if normals else []) + ([UV] if uv else [])
+    cols = [V] + ([N] if normals else []) + ([uv_values] if uv else [])
     fmt = fmt or ("binary_little_endian" if order == "<" else "binary_big_endian")
     head = (f"ply\nformat {fmt} 1.0\ncomment made by a test\nelement vertex {len(V)}\n"
             + "".join(f"property float {p}\n" for p in props)
@@ -73,4 +74,14 @@ def test_a_negative_element_count_is_named(tmp_path):
     path = write_ply(tmp_path / "m.ply")
     path.write_bytes(path.read_bytes().replace(b"element vertex 40", b"element vertex -4", 1))
     with pytest.raises(ProbvisError, match="malformed PLY header \\(a negative element count"):
+        shapes.load_mesh(path)
+
+
+def test_non_finite_texture_coordinates_are_named(tmp_path):
+    from probvis.errors import ProbvisError
+
+    bad = UV.copy()
+    bad[3, 0] = np.nan
+    path = write_ply(tmp_path / "m.ply", uv_values=bad)
+    with pytest.raises(ProbvisError, match="has NaN or infinite texture coordinates"):
         shapes.load_mesh(path)

@@ -27,7 +27,8 @@ def check_writable(path, formats=FORMATS, role="an image"):
     path = Path(path)
     if path.suffix.lower() not in formats:
         raise ProbvisError(f"cannot write '{path}': {role} must be a {', '.join(formats)} file")
-    parent = path.parent if str(path.parent) else Path(".")
+    target = Path(os.path.realpath(path))  # a symbolic link is written through: its target's folder counts
+    parent = target.parent if path.is_symlink() else path.parent if str(path.parent) else Path(".")
     try:
         if not parent.is_dir():
             raise ProbvisError(f"cannot write '{path}': folder '{parent}' does not exist")

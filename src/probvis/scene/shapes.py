@@ -244,6 +244,8 @@ def load_mesh(path, flip_tex_coords=None):
         raise ProbvisError(f"mesh {path} has NaN, infinite or zero vertex normals")
     if uv is not None and len(uv) == len(v):
         uv = np.asarray(uv, dtype=np.float64).copy()
+        if not np.all(np.isfinite(uv)):
+            raise ProbvisError(f"mesh {path} has NaN or infinite texture coordinates")
         if obj if flip_tex_coords is None else flip_tex_coords:
             uv[:, 1] = 1.0 - uv[:, 1]
     else:
