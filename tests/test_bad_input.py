@@ -128,9 +128,10 @@ def test_an_interrupt_inside_a_compiled_kernel_s_return_is_an_interrupt(monkeypa
     KeyboardInterrupt (seen during the occlusion map's photon pass): one line and exit 130, as any interrupt."""
     import probvis.cli as cli
 
-    def interrupted(args):
-        raise SystemError("CPUDispatcher(<function all_hits>) returned a result with an exception set") \
-            from KeyboardInterrupt()
+    def interrupted(args):  # one SystemError per compiled frame the interrupt crossed, each the next's cause
+        inner = SystemError("<function _numba_unpickle> returned a result with an exception set")
+        inner.__cause__ = KeyboardInterrupt()
+        raise SystemError("CPUDispatcher(<function all_hits>) returned a result with an exception set") from inner
 
     monkeypatch.setattr(cli, "_cmd_scenes", interrupted)
     assert main(["scenes"]) == 130

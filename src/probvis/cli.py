@@ -468,6 +468,15 @@ def _visibility_arg(argv):
     return given[0] if given else "exact"
 
 
+def _caused_by_interrupt(exc):
+    """Whether a KeyboardInterrupt is among the causes of `exc` (a SystemError per compiled frame it crossed)."""
+    while exc is not None:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def _terminate(signum, frame):
     """SIGTERM stops a command as Ctrl-C does: between batches, nothing half-written."""
     raise KeyboardInterrupt
@@ -538,8 +547,8 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("probvis: interrupted, nothing written", file=sys.stderr)
         return 130
-    except SystemError as exc:  # Ctrl-C or SIGTERM while a compiled kernel returned: Python chains it as the cause
-        if not isinstance(exc.__cause__, KeyboardInterrupt):
+    except SystemError as exc:  # Ctrl-C or SIGTERM while compiled code returned: Python chains it as a cause
+        if not _caused_by_interrupt(exc):
             raise
         print("probvis: interrupted, nothing written", file=sys.stderr)
         return 130
