@@ -27,9 +27,10 @@ def check_writable(path, formats=FORMATS, role="an image"):
     path = Path(path)
     if path.suffix.lower() not in formats:
         raise ProbvisError(f"cannot write '{path}': {role} must be a {', '.join(formats)} file")
-    target = Path(os.path.realpath(path))  # a symbolic link is written through: its target's folder counts
-    parent = target.parent if path.is_symlink() else path.parent if str(path.parent) else Path(".")
     try:
+        # a symbolic link is written through: its target's folder counts
+        parent = (Path(os.path.realpath(path)).parent if path.is_symlink() else
+                  path.parent if str(path.parent) else Path("."))
         if not parent.is_dir():
             raise ProbvisError(f"cannot write '{path}': folder '{parent}' does not exist")
         if not os.access(parent, os.W_OK):
