@@ -38,9 +38,7 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=
         "process": psutil.Process().memory_info().rss,  # what is already resident: Python, Numba, the scene
     }
     own = estimator.memory_estimate(scene, settings, per_batch)
-    bad = [k for k, v in (own.items() if isinstance(own, dict) else [("", own)])
-           if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not 0 <= v < 2 ** 63]
-    if bad:
+    if not is_byte_counts(own):
         from .errors import ProbvisError
 
         cls = type(estimator)
@@ -48,6 +46,14 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=
                            f"return a dict of byte counts (whole numbers >= 0), got {own!r:.200}")
     parts.update(own)
     return parts
+
+
+def is_byte_counts(value):
+    """Whether `value` is what an estimator's `memory_estimate()` and `memory_bytes()` return: a dict of byte
+    counts (numbers from 0 to 2^63)."""
+    number = (int, float, np.integer, np.floating)
+    return isinstance(value, dict) and all(not isinstance(v, (bool, np.bool_)) and isinstance(v, number)
+                                           and 0 <= v < 2 ** 63 for v in value.values())
 
 
 def available():

@@ -8,6 +8,7 @@ import numpy as np
 
 from .cases import CASE_VERIFIED, N_CASES
 from .errors import ProbvisError
+from .memory import is_byte_counts
 from .visibility import VisibilityResult
 
 MAX_VISIBILITY = 1e12  # a segment's |estimate| beyond this is a plug-in's mistake (1/q weights stay far below)
@@ -81,8 +82,7 @@ def checked_stats(cls, stats):
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): stats() returned a "
                            f"{type(stats).__name__}, not a dict")
     memory = stats.get("memory_bytes", {})
-    if not isinstance(memory, dict) or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0
-                                               for v in memory.values()):
+    if not is_byte_counts(memory):
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_bytes() must "
                            f"return a dict of byte counts (whole numbers >= 0), got {memory!r}")
     try:
