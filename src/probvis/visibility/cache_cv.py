@@ -3,7 +3,6 @@ Correlation in Direct Illumination", EGSR 2008, with NEE++'s voxel-pair cache as
 segment's estimate is c + B (V − c) / q: c its voxel pair's cached unoccluded share, B a coin of probability q.
 E = V whatever c and q. Where the cache is certain (a voxel pair fully lit or fully shadowed) the correction is
 rarely traced and c stands in for V; in penumbra it nearly always is."""
-from ..errors import ProbvisError
 from .base import Option
 from .cache import CACHE_OPTIONS, CachedVisibility
 from .cache_kernel import RULE_UNCERTAINTY, CachePlan
@@ -21,14 +20,7 @@ class CacheControlVariateVisibility(CachedVisibility):
     )
 
     def __init__(self, **options):
-        min_q = options.get("min_q")  # settings() hands back the default min_q beside q: that one is fine
-        default = next(o for o in self.options if o.name == "min_q").default
-        try:
-            custom = min_q is not None and float(min_q) != default
-        except (TypeError, ValueError):
-            custom = False  # parse_options names the bad value
-        if custom and options.get("q") is not None:
-            raise ProbvisError("visibility 'cache-cv': give q or min_q, not both (min_q bounds the automatic q)")
+        self.refuse_both(options, "q", "min_q")  # min_q bounds the automatic q
         super().__init__(**options)
 
     def plan(self):

@@ -72,13 +72,7 @@ class ProxyVisibility(VisibilityEstimator):
     )
 
     def __init__(self, **options):
-        ratio = options.get("ratio")  # settings() hands back the default ratio beside triangles: that one is fine
-        try:
-            custom = ratio is not None and float(ratio) != self.options[0].default
-        except (TypeError, ValueError):
-            custom = False  # parse_options names the bad value
-        if custom and options.get("triangles") is not None:
-            raise ProbvisError("visibility 'proxy': give ratio or triangles, not both")
+        self.refuse_both(options, "ratio", "triangles")
         super().__init__(**options)
 
     def prepare(self, scene, bvh, emitters, settings, integrator):
