@@ -302,8 +302,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     t_start, cpu_start = time.perf_counter(), time.process_time()
     _check_arguments(scene, settings, resolution, defines, visibility_options,
                      dict(spp=spp, shadow_rays=shadow_rays, seed=seed, threads=threads),
-                     dict(strict=strict, progress=progress, clamp_negative=clamp_negative,
-                          filter_importance=filter_importance))
+                     dict(strict=strict, progress=progress, clamp_negative=clamp_negative))
     early = threads if threads is not None else getattr(settings, "threads", None)
     if early is not None and 1 <= early <= numba.config.NUMBA_NUM_THREADS:  # loading keeps to the budget too
         numba.set_num_threads(early)
