@@ -83,7 +83,8 @@ CASES = [
     (["render", "quad-shadow", "--stats", "a.json", "--stats", "b.json"], "--stats given twice (a.json, b.json)"),
     (["render", "quad-shadow", "--tests-image", "a.exr", "--tests-image", "b.exr"], "--tests-image given twice"),
     (["render", "quad-shadow", "-o", "x.exr/"], "the name ends in '/'"),
-    (["render", "quad-shadow", "--visibility", "cache-cv", "--q", "0.1", "--min-q", "0.9"], "give q or min_q, not both"),
+    (["render", "quad-shadow", "--visibility", "cache-cv", "--q", "0.1", "--min-q", "0.9"],
+     "give q or min_q, not both"),
 ]
 
 

@@ -1,10 +1,10 @@
 """Images, AOVs and test counts of every estimator on the built-in scenes, against stored hashes.
 
-The hashes were made before the code was reorganised into plug-in estimators and named stages (the occlusion
-map without verification, as it was then) and kept through the render paths' reorganisation and the occlusion
-map's own kernel; probvis's split of whole blocker groups into A and B (instead of single triangles) changed
-the `pv-*` hashes of the scenes with small closed components, and numbering the shared look-ups by one packed
-key (another order of the pairs) changed `pv-cells`, whose random grouping draws by pair index. A change that alters any number here (on
+The hashes were made before the code was reorganised into plug-in estimators and named stages (the occlusion map
+without verification, as it was then) and kept through the render paths' reorganisation and the occlusion map's own
+kernel; probvis's split of whole blocker groups into A and B (instead of single triangles) changed the `pv-*` hashes
+of the scenes with small closed components, and numbering the shared look-ups by one packed key (another order of
+the pairs) changed `pv-cells`, whose random grouping draws by pair index. A change that alters any number here (on
 purpose) must say so and store new hashes (`python3 tests/test_golden.py --store`).
 """
 import hashlib

@@ -167,9 +167,9 @@ def _parser(estimator=None):
     r.add_argument("--visibility", default="exact", metavar="NAME",
                    help=f"visibility estimator: {', '.join(available_names())} or module:Class (default exact; "
                         "`probvis estimators` lists each one's options)")
-    r.add_argument("--case-image", metavar="OUT", action=_Once, help="write the per-pixel case shares (R penumbra, G lit, "
-                                                      "B shadowed, grey unknown), one image per emitter (for "
-                                                      "estimators that classify points)")
+    r.add_argument("--case-image", metavar="OUT", action=_Once,
+                   help="write the per-pixel case shares (R penumbra, G lit, B shadowed, grey unknown), one image "
+                        "per emitter (for estimators that classify points)")
     if estimator is not None:
         group = r.add_argument_group(f"options of --visibility {estimator.name}")
         for opt in estimator.options:
@@ -180,7 +180,8 @@ def _parser(estimator=None):
     r.add_argument("--clamp-negative", action="store_true",
                    help="clamp negative pixels to zero (biased: too bright on average; the bias is reported)")
     r.add_argument("--stats", metavar="OUT.json", action=_Once, help="write the statistics as JSON")
-    r.add_argument("--tests-image", metavar="OUT.exr", action=_Once, help="write per-pixel ray-triangle and ray-node test counts")
+    r.add_argument("--tests-image", metavar="OUT.exr", action=_Once,
+                   help="write per-pixel ray-triangle and ray-node test counts")
     r.add_argument("--threads", type=_positive, help="worker threads (default: all cores)")
     r.add_argument("--exposure", type=_exposure, default=0.0, help="PNG exposure in stops (default 0)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")

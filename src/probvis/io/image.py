@@ -53,7 +53,7 @@ def check_writable(path, formats=FORMATS, role="an image"):
 MAX_IMAGE_PIXELS = 1 << 27  # a PNG or JPEG larger than this (3 GiB as linear RGB) is refused from its header
 
 
-_staged = None  # (temporary, destination, name given) of the writes `staged_writes` holds back; None when it is not active
+_staged = None  # (temporary, destination, name given) of the writes `staged_writes` holds back (None: inactive)
 
 
 @contextmanager

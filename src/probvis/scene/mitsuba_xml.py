@@ -398,7 +398,8 @@ class _Reader:
                 image = read_linear_rgb(path, raw=props.get("raw", False))
             except ProbvisError as exc:
                 self.fail(node, str(exc))
-            out = Texture(BITMAP, self.checked(node, self.to_uv, props), image=image, wrap=WRAP_MODES[wrap], bilinear=filt == "bilinear")
+            out = Texture(BITMAP, self.checked(node, self.to_uv, props), image=image, wrap=WRAP_MODES[wrap],
+                          bilinear=filt == "bilinear")
         elif kind == "checkerboard":
             props, _ = self.params(node, {"color0": colour, "color1": colour, "to_uv": ("transform",)})
             colours = np.array([props.get("color0", 0.4) * np.ones(3), props.get("color1", 0.2) * np.ones(3)])
