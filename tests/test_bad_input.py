@@ -226,3 +226,41 @@ def test_a_texture_too_large_to_read_is_one_line(tmp_path, monkeypatch):
     monkeypatch.setattr(sys, "stderr", err)
     assert main(["render", "quad-shadow", "-o", str(tmp_path / "o.exr")]) == 2
     assert err.getvalue().startswith("probvis: error: out of memory") and err.getvalue().count("\n") == 1
+
+
+def test_a_start_that_cannot_load_its_libraries_is_one_line(tmp_path):
+    """Under a tiny address-space limit (ulimit -v) the compiled libraries cannot load: one line naming the limit,
+    before the command line exists."""
+    def limits():
+        resource.setrlimit(resource.RLIMIT_AS, (300 << 20, 300 << 20))
+
+    r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-o", "o.exr"], capture_output=True,
+                       text=True, cwd=tmp_path, timeout=TIME_LIMIT, preexec_fn=limits)
+    assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
+    assert r.stderr.startswith("probvis: error: cannot load its libraries under the address-space limit of 300 MiB")
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupt_while_the_libraries_load_is_one_line(tmp_path, signum):
+    """Ctrl-C or SIGTERM in the first tenth of a second, while numpy and Numba load: one line, exit 130."""
+    proc = subprocess.Popen([sys.executable, "-m", "probvis", "render", "quad-shadow", "-o", "o.exr"], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(0.1)
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=TIME_LIMIT)
+    assert proc.returncode == 130 and err == "probvis: interrupted, nothing written\n", err
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_stack_too_small_to_start_is_one_line(tmp_path):
+    """A stack limit (ulimit -s) below what a render needs is refused at the start, in one line, before numpy
+    loads (below about 90 KiB its import crashes the interpreter; below about 76 KiB the interpreter itself)."""
+    def limits():
+        resource.setrlimit(resource.RLIMIT_STACK, (256 << 10, resource.getrlimit(resource.RLIMIT_STACK)[1]))
+
+    r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-o", "o.exr"], capture_output=True,
+                       text=True, cwd=tmp_path, timeout=TIME_LIMIT, preexec_fn=limits)
+    assert r.returncode == 1 and r.stderr == ("probvis: error: the stack limit of 256 KiB (ulimit -s) is too small: "
+                                              "probvis needs at least 1024 KiB (the usual default is 8192)\n")
+    assert not list(tmp_path.iterdir())

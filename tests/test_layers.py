@@ -146,3 +146,13 @@ def test_the_command_line_imports_scipy_only_where_used():
             "'scipy.spatial', 'scipy.sparse', 'scipy.ndimage'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_the_console_command_starts_light():
+    """The console command imports neither numpy nor Numba before it can report a failed start in one line."""
+    import subprocess
+    import sys
+
+    code = "import sys, probvis.__main__; print(sorted(m for m in sys.modules if m in ('numpy', 'numba')))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

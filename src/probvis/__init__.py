@@ -7,10 +7,22 @@ import os
 os.environ.setdefault("GOMP_SPINCOUNT", "1000")
 
 from .errors import ProbvisError  # noqa: E402
-from .scene import BUILTINS, Scene, load_scene  # noqa: E402
-from .settings import RenderSettings  # noqa: E402
 
 __version__ = "0.1.0"
+
+_LAZY = {"BUILTINS": ".scene", "Scene": ".scene", "load_scene": ".scene", "RenderSettings": ".settings"}
+
+
+def __getattr__(name):
+    """The API's names load their modules (numpy, Numba) on first use, so `import probvis` and the console
+    command start light and can report a failed start in one line (`probvis.__main__`)."""
+    if name not in _LAZY:
+        raise AttributeError(f"module 'probvis' has no attribute '{name}'")
+    import importlib
+
+    value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+    globals()[name] = value
+    return value
 
 
 def render(scene, settings=None, **kwargs):

@@ -102,9 +102,11 @@ def test_unreachable_scheduler_is_one_clear_error(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]  # closed again when the block ends: nothing listens there
+    said = []
     with pytest.raises(ProbvisError, match=f"cannot reach the Dask scheduler at tcp://127.0.0.1:{port}"):
         experiment(parse_experiment(TINY), tmp_path / "rep", scheduler=f"tcp://127.0.0.1:{port}", progress=False,
-                   log=lambda m: None)
+                   log=said.append)
+    assert said == []  # named before the plan's progress line
     assert not (tmp_path / "rep").exists()  # no empty cache folder left behind
     with pytest.raises(ProbvisError, match="out must be the report's folder"):
         experiment(parse_experiment(TINY), None)

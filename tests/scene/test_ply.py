@@ -85,3 +85,19 @@ def test_non_finite_texture_coordinates_are_named(tmp_path):
     path = write_ply(tmp_path / "m.ply", uv_values=bad)
     with pytest.raises(ProbvisError, match="has NaN or infinite texture coordinates"):
         shapes.load_mesh(path)
+
+
+def test_a_nan_in_an_ascii_ply_is_named_without_a_warning(tmp_path):
+    """trimesh reads ASCII PLY; its casts of a NaN warn: the one line is the named error."""
+    import warnings
+
+    from probvis.errors import ProbvisError
+
+    path = tmp_path / "m.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                    "property float u\nproperty float v\nelement face 1\nproperty list uchar int vertex_indices\n"
+                    "end_header\n0 0 0 nan 0\n1 0 0 1 0\n0 1 0 0 1\n3 0 1 2\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ProbvisError, match="has NaN or infinite texture coordinates"):
+            shapes.load_mesh(path)

@@ -12,6 +12,7 @@ import json
 import logging
 import os
 import signal
+import socket
 import sys
 import threading
 import warnings
@@ -155,6 +156,20 @@ class Cache:
 POLL_SECONDS = 0.2  # how often the render loop looks for Ctrl-C / SIGTERM while renders run
 
 
+def _check_reachable(scheduler):
+    """A TCP scheduler that does not answer is named before anything is planned or printed (Dask's own client
+    would find it only after the plan's progress line). Other transports are left to the client."""
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(scheduler if "://" in scheduler else f"tcp://{scheduler}")
+    if parts.scheme != "tcp":
+        return
+    try:
+        socket.create_connection((parts.hostname, parts.port or 8786), timeout=10).close()
+    except (OSError, ValueError) as exc:
+        raise ProbvisError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+
+
 def _open_client(workers, scheduler):
     """A Dask client: to `scheduler` when given, else to an embedded LocalCluster of `workers` processes."""
     from dask.distributed import Client, LocalCluster
@@ -235,6 +250,8 @@ def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log
     log = log or (lambda msg: print(msg, file=sys.stderr))
     if workers < 1:
         raise ProbvisError(f"workers must be at least 1, got {workers}")
+    if scheduler:
+        _check_reachable(scheduler)
     scenes = _load_scenes(exp)
     files = {spec.name: _reference_file(spec, scenes[spec.name]) for spec in exp.scenes
              if spec.reference is not None}  # checked before the first render

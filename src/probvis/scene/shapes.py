@@ -262,7 +262,8 @@ def _read_general(path):
     if path.suffix.lower() == ".obj" and (problem := _obj_problem(path)):
         raise ProbvisError(problem)
     try:
-        mesh, n = _read(path)
+        with np.errstate(all="ignore"):  # trimesh's casts of NaN values warn; the values are checked below, by name
+            mesh, n = _read(path)
     except Exception:  # trimesh raises many types (and leaks its own dependencies' errors) for malformed files
         problem = _obj_problem(path) if path.suffix.lower() == ".obj" else None
         raise ProbvisError(problem or _ply_truncated(path, ply, None) or

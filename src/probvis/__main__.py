@@ -1,0 +1,71 @@
+"""The `probvis` console command and `python -m probvis`: starts the command line, and reports a start that
+fails (Ctrl-C or SIGTERM while the libraries load, a compiled library that cannot load under the process's
+limits) in one line."""
+import signal
+import sys
+
+
+def _terminate(signum, frame):
+    """SIGTERM while the libraries load stops the start as Ctrl-C does."""
+    raise KeyboardInterrupt
+
+
+def _address_limit():
+    """The process's address-space limit in MiB (ulimit -v), or None."""
+    import resource
+
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    return None if soft == resource.RLIM_INFINITY else soft >> 20
+
+
+MIN_STACK_KIB = 1024  # numpy's import crashes below about 90 KiB, the interpreter below 76; scenes need more
+
+
+def _stack_too_small():
+    """The one line for a stack limit (ulimit -s) too small to start: below it the process would crash."""
+    import resource
+
+    soft, _ = resource.getrlimit(resource.RLIMIT_STACK)
+    if soft == resource.RLIM_INFINITY or soft >= MIN_STACK_KIB << 10:
+        return None
+    return (f"probvis: error: the stack limit of {soft >> 10} KiB (ulimit -s) is too small: probvis needs at least "
+            f"{MIN_STACK_KIB} KiB (the usual default is 8192)")
+
+
+def _start_failure(exc):
+    """The one line for a library that failed to load: the process's address-space limit is the usual cause."""
+    limit = _address_limit()
+    if limit is not None:
+        return (f"probvis: error: cannot load its libraries under the address-space limit of {limit} MiB "
+                f"(ulimit -v): raise the limit ({type(exc).__name__})")
+    reason = str(exc).split(". ")[0].splitlines()[0] if str(exc) else ""
+    return f"probvis: error: cannot load its libraries ({type(exc).__name__}: {reason}): reinstall probvis"
+
+
+def main():
+    small = _stack_too_small()
+    if small:
+        print(small, file=sys.stderr)
+        return 1
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        from .cli import main as cli_main
+    except KeyboardInterrupt:
+        print("probvis: interrupted, nothing written", file=sys.stderr)
+        return 130
+    except (ImportError, OSError, MemoryError) as exc:
+        print(_start_failure(exc), file=sys.stderr)
+        return 1
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    try:
+        return cli_main()
+    except (ImportError, OSError, SystemError) as exc:  # a library loaded later, or the interpreter's own allocation
+        if _address_limit() is None:
+            raise
+        print(_start_failure(exc), file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
