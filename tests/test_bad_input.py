@@ -232,12 +232,12 @@ def test_a_start_that_cannot_load_its_libraries_is_one_line(tmp_path):
     """Under a tiny address-space limit (ulimit -v) the compiled libraries cannot load: one line naming the limit,
     before the command line exists."""
     def limits():
-        resource.setrlimit(resource.RLIMIT_AS, (300 << 20, 300 << 20))
+        resource.setrlimit(resource.RLIMIT_AS, (200 << 20, 200 << 20))
 
     r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-o", "o.exr"], capture_output=True,
                        text=True, cwd=tmp_path, timeout=TIME_LIMIT, preexec_fn=limits)
     assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
-    assert r.stderr.startswith("probvis: error: cannot load its libraries under the address-space limit of 300 MiB")
+    assert r.stderr.startswith("probvis: error: cannot load its libraries under the address-space limit of 200 MiB")
     assert not list(tmp_path.iterdir())
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import ProbvisError
-from .settings import MAX_SEED
+from .settings import MAX_SEED, parse_float, parse_int
 from .visibility.base import Switch
 from .visibility.probabilistic.estimator import MAX_POWER
 
@@ -33,7 +33,7 @@ def _int_at_least(lowest, highest=MAX_SEED):
 
     def parse(text):
         try:
-            v = int(text)
+            v = parse_int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
         if v < lowest:
@@ -47,7 +47,7 @@ def _int_at_least(lowest, highest=MAX_SEED):
 
 def _positive_float(text):
     try:
-        v = float(text)
+        v = parse_float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
     if not v > 0 or v == float("inf"):
@@ -58,7 +58,7 @@ def _positive_float(text):
 def _exposure(text):
     """argparse type: a finite exposure in stops within +-64 (2^64 scales any radiance out of range)."""
     try:
-        v = float(text)
+        v = parse_float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number of stops, got '{text}'") from None
     if not -64.0 <= v <= 64.0:  # NaN fails too
@@ -75,7 +75,7 @@ def _comma_list(text, convert, what):
 
 
 def _triple(text):
-    v = _comma_list(text, float, "three comma-separated numbers")
+    v = _comma_list(text, parse_float, "three comma-separated numbers")
     if len(v) != 3:
         raise argparse.ArgumentTypeError(f"expected three comma-separated numbers, got '{text}'")
     return v
@@ -83,7 +83,7 @@ def _triple(text):
 
 def _seed_list(text):
     """argparse type: distinct comma-separated whole numbers >= 0."""
-    v = _comma_list(text, int, "comma-separated whole numbers")
+    v = _comma_list(text, parse_int, "comma-separated whole numbers")
     if min(v) < 0 or max(v) > MAX_SEED or len(set(v)) != len(v):
         raise argparse.ArgumentTypeError(f"expected distinct seeds from 0 to {MAX_SEED}, got '{text}'")
     return v

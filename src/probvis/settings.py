@@ -4,6 +4,7 @@ A scene file declares its own (Mitsuba's `sampler sample_count` and `seed`, the 
 kept as `Scene.defaults`; `render` starts from those and replaces what the caller gives.
 """
 import dataclasses
+import re
 from dataclasses import dataclass
 
 from .errors import ProbvisError
@@ -11,6 +12,24 @@ from .errors import ProbvisError
 MAX_SPP = 1 << 20
 MAX_SHADOW_RAYS = 1 << 16
 MAX_SEED = (1 << 63) - 1  # the kernels take the seed as a signed 64-bit integer
+
+_INT = re.compile(r"\s*[+-]?[0-9]+\s*")
+_FLOAT = re.compile(r"\s*[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|inf|infinity|nan)\s*", re.IGNORECASE)
+
+
+def parse_int(text):
+    """A whole number in the syntax Mitsuba's and C's parsers read: ASCII digits with an optional sign (Python's
+    int() also takes '1_6' and other scripts' digits). ValueError otherwise."""
+    if not isinstance(text, str) or not _INT.fullmatch(text):
+        raise ValueError(f"not a whole number: {text!r}")
+    return int(text)
+
+
+def parse_float(text):
+    """A number in C's decimal syntax (digits, point, exponent, inf, nan); ValueError otherwise."""
+    if not isinstance(text, str) or not _FLOAT.fullmatch(text):
+        raise ValueError(f"not a number: {text!r}")
+    return float(text)
 
 
 @dataclass(frozen=True)

@@ -131,7 +131,7 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
      "max_depth 1 renders no direct illumination in Mitsuba"),
     ("<shape type='rectangle'><transform name='to_world'><matrix value='1 0 0 0 1 0 0 0 0 0 0 0 0 0 0 1'/>"
      "</transform><emitter type='area'><rgb name='radiance' value='1'/></emitter></shape>",
-     "an area emitter on a shape without area"),
+     "the shape's to_world is singular or projective"),
 ])
 def test_unsupported_input_names_file_line_and_element(tmp_path, body, message):
     head = sensor() if "<integrator" not in body else re.sub(r"<integrator.*?</integrator>", "", sensor(), flags=re.S)
@@ -338,6 +338,35 @@ def test_a_second_film_is_refused(tmp_path):
     body = sensor().replace("</sensor>", "<film type='hdrfilm'/></sensor>")
     with pytest.raises(ProbvisError, match=re.escape("<film>: only one film per sensor")):
         probvis.load_scene(write_scene(tmp_path / "bad.xml", body + LIGHT))
+
+
+@pytest.mark.parametrize("edit, message", [
+    (("</sensor>", "<sampler type='independent'/></sensor>"), "<sampler>: only one sampler per sensor"),
+    (("<rfilter type=\"box\"/>", "<rfilter type='box'/><rfilter type='gaussian'/>"),
+     "<rfilter>: only one reconstruction filter per film"),
+    (("value=\"16\"/>", "value=\"1_6\"/>"), "<integer>: '1_6' is not a valid integer"),
+    (("value=\"16\"/>", "value=\"\u0661\u0666\"/>"), "<integer>: '\u0661\u0666' is not a valid integer"),
+    (("value=\"40\"/>", "value=\"4_0\"/>"), "<float>: '4_0' is not a valid float"),
+])
+def test_what_mitsuba_refuses_in_a_sensor_is_named(tmp_path, edit, message):
+    """A second sampler or filter (the last one won), and Python-only number syntax (underscores, other scripts'
+    digits: accepted by int() and float(), not by Mitsuba's parser)."""
+    body = sensor().replace(*edit, 1)
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.load_scene(write_scene(tmp_path / "bad.xml", body + LIGHT))
+
+
+@pytest.mark.parametrize("transform", ["<scale x='0'/>", "<scale value='0'/>", "<scale z='0'/>",
+                                       "<matrix value='1 0 0 0 0 1 0 0 0 0 1 0 0 0 0.5 1'/>"])
+@pytest.mark.parametrize("shape", ["sphere", "rectangle", "cylinder"])
+def test_a_singular_or_projective_shape_transform_is_named(tmp_path, shape, transform):
+    """A flattened sphere was a LinAlgError traceback, a flattened rectangle vanished, a projective row was
+    ignored: each is refused at the shape's line."""
+    body = f"<shape type='{shape}'><transform name='to_world'>{transform}</transform></shape>"
+    if shape == "rectangle" and transform == "<scale z='0'/>":
+        body = body.replace("<scale z='0'/>", "<scale x='0'/>")
+    with pytest.raises(ProbvisError, match=re.escape("<shape>: the shape's to_world is singular or projective")):
+        probvis.load_scene(write_scene(tmp_path / "bad.xml", sensor() + body + LIGHT))
 
 
 def test_a_reflectance_texture_outside_the_unit_range_warns(tmp_path):

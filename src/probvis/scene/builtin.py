@@ -6,7 +6,7 @@ Each generator takes `res`, `spp`, `shadow_rays` and `seed` (as the shared XML s
 import numpy as np
 
 from ..errors import ProbvisError
-from ..settings import RenderSettings
+from ..settings import RenderSettings, parse_int
 from . import shapes as shp
 from . import transform as tf
 from .scene import SceneBuilder
@@ -194,7 +194,7 @@ def builtin_scene(name, **defaults):
         try:
             if isinstance(val, bool) or isinstance(val, float) and not val.is_integer():
                 raise TypeError
-            kwargs[key] = int(val)
+            kwargs[key] = parse_int(val) if isinstance(val, str) else int(val)
         except (TypeError, ValueError):
             raise ProbvisError(f"parameter {key} must be an integer, got '{val}'") from None
     return gen(**kwargs)

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import ProbvisError
 from ..io.image import read_linear_rgb
-from ..settings import RenderSettings
+from ..settings import RenderSettings, parse_float as _float, parse_int as _int
 from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
@@ -166,7 +166,7 @@ class _Reader:
         """A finite number from attribute `key` of `node`."""
         raw = self.attr(node, key, default)
         try:
-            v = float(raw)
+            v = _float(raw)
         except ValueError:
             self.fail(node, f"attribute '{key}': '{raw}' is not a number")
         if not np.isfinite(v):
@@ -175,7 +175,7 @@ class _Reader:
 
     def numbers(self, node, text, count=None):
         try:
-            vals = [float(x) for x in re.split(r"[,\s]+", text.strip()) if x]
+            vals = [_float(x) for x in re.split(r"[,\s]+", text.strip()) if x]
         except ValueError:
             self.fail(node, f"expected numbers, got '{text}'")
         if count is not None and len(vals) not in count:
@@ -197,9 +197,9 @@ class _Reader:
         raw = self.attr(node, "value")
         try:
             if tag == "integer":
-                return int(raw)
+                return _int(raw)
             if tag == "float":
-                v = float(raw)
+                v = _float(raw)
                 if not np.isfinite(v):
                     self.fail(node, f"non-finite value '{raw}'")
                 return v
@@ -672,6 +672,10 @@ class _Reader:
             face_normals = False
         if kind in ("disk", "sphere", "cylinder"):
             uv = shp.analytic_uv(kind, v[f])
+        size = np.abs(m[:3, :3]).max()
+        if not size > 0 or abs(np.linalg.det(m[:3, :3] / size)) < 1e-12 or np.any(m[3] != (0, 0, 0, 1)):
+            self.fail(node, "the shape's to_world is singular or projective (a scale of 0 flattens it; a matrix's "
+                            "last row must be 0 0 0 1): check its scale and matrix")
         if kind in ("rectangle", "disk", "sphere", "cylinder") and np.linalg.det(m[:3, :3]) < 0:
             flip = not flip  # analytic shapes orient by the normal transform, not by the mirrored winding
         name = node.attrs.get("id", f"{kind}@{node.line}")
@@ -716,9 +720,12 @@ class _Reader:
         else:
             allowed.update(aperture_radius=("float",), focus_distance=("float",))
         props, objs = self.params(node, allowed, ("sampler", "film"))
-        spp, seed, film = 4, 0, None  # Mitsuba's default sample count and seed
+        spp, seed, film, sampler = 4, 0, None, None  # Mitsuba's default sample count and seed
         for ch in objs:
             if ch.tag == "sampler":
+                if sampler is not None:
+                    self.fail(ch, "only one sampler per sensor")
+                sampler = ch
                 self.check_attrs(ch, ("type", "id", "name"))
                 st = self.attr(ch, "type")
                 if st not in _SAMPLERS:
@@ -811,7 +818,9 @@ class _Reader:
                 ("rfilter",))
             if props.get("pixel_format", "rgb") not in ("rgb", "rgba", "rgb_alpha", "luminance", "y"):
                 self.fail(node, f"unsupported pixel_format '{props['pixel_format']}'")
-            for ch in objs:
+            for k, ch in enumerate(objs):
+                if k:
+                    self.fail(ch, "only one reconstruction filter per film")
                 rfilter = self.rfilter(ch)
             width, height = props.get("width", width), props.get("height", height)
             if width < 1 or height < 1 or width > 1 << 15 or height > 1 << 15:

@@ -23,6 +23,7 @@ import numpy as np
 from ..cases import (CASE_LIT, CASE_MASK, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN,  # noqa: F401
                      CASE_VERIFIED, N_CASES)
 from ..errors import ProbvisError
+from ..settings import parse_float, parse_int
 
 
 class Switch:
@@ -132,10 +133,10 @@ def _number(value, kind, bad):
         raise bad
     if isinstance(value, str):
         try:
-            value = float(value) if kind is float else int(value.strip())
+            value = parse_float(value) if kind is float else parse_int(value)
         except ValueError:
             try:  # "1e5" for an integer is fine when it is whole
-                value = float(value)
+                value = parse_float(value)
             except ValueError:
                 raise bad from None
     if not isinstance(value, (int, float)) or not math.isfinite(value):
