@@ -143,3 +143,13 @@ def test_a_reference_that_is_not_an_exr_is_refused_before_any_render(tmp_path):
     change = {"scenes": [{"name": "q", "source": "quad-shadow", "reference": "r.png"}]}
     with pytest.raises(ProbvisError, match=re.escape("scenes[0].reference: r.png is not an EXR image")):
         parse_experiment(doc(**change), tmp_path)
+
+
+def test_a_byte_order_mark_is_allowed(tmp_path):
+    """A UTF-8 file saved with a byte-order mark (Windows editors) is UTF-8: tomllib alone called it an invalid
+    statement at line 1."""
+    text = ("name = 'bom'\nresolution = [8, 8]\n[[scenes]]\nname = 'q'\nsource = 'quad-shadow'\n"
+            "[[methods]]\nname = 'm'\nvisibility = 'exact'\n")
+    path = tmp_path / "bom.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    assert load_experiment(path).name == "bom"

@@ -130,3 +130,12 @@ def test_a_statement_short_of_numbers_is_named_with_its_line(tmp_path, text, mes
     (tmp_path / "m.obj").write_text(text)
     with pytest.raises(ProbvisError, match=message.replace(".", r"\.")):
         shapes.load_mesh(tmp_path / "m.obj")
+
+
+def test_a_byte_order_mark_does_not_hide_the_first_line():
+    """Windows editors start a file with a UTF-8 byte-order mark: the first vertex was skipped and every face
+    index shifted by one."""
+    from probvis.scene.obj import read_obj
+
+    v, f, _, _ = read_obj(b"\xef\xbb\xbfv 5 5 5\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert v.tolist()[0] == [5, 5, 5] and len(v) == 4 and f.tolist() == [[0, 1, 2]]

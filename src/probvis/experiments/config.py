@@ -274,7 +274,7 @@ def load_experiment(path):
     if not path.is_file():
         raise ProbvisError(f"experiment file not found: {path}")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark is allowed
     except UnicodeDecodeError:
         raise ProbvisError(f"{path}: not UTF-8 text (a TOML file is UTF-8): save it as UTF-8") from None
     except tomllib.TOMLDecodeError as exc:

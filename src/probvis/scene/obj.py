@@ -121,6 +121,7 @@ def read_obj(data):
     where the file has a statement or face this reader cannot read (the caller names its line). A texture
     coordinate without v has v = 0; corners without uv get (0, 0); normals are kept only where every corner
     has one (else computed from the faces)."""
+    data = data.removeprefix(b"\xef\xbb\xbf")  # a byte-order mark (Windows editors) would hide the first line
     bodies = {kind.decode(): _STATEMENT[kind].findall(data) for kind in _STATEMENT}
     v = _numbers(bodies["v"], np.float64, 3)
     vt = _numbers(bodies["vt"], np.float64, 2, minimum=1)
