@@ -40,3 +40,37 @@ def test_an_hdr_header_too_large_and_a_truncated_pfm_are_named(tmp_path):
     with pytest.raises(ProbvisError, match="truncated: 1,180 bytes of pixels where its 10x10 header needs 1,200"):
         read_linear_rgb(tmp_path / "u.pfm")
     assert read_linear_rgb(tmp_path / "t.pfm").shape == (10, 10, 3)
+
+
+@pytest.mark.parametrize("kind", ["1-bit.png", "cmyk.jpg", "rgba.exr"])
+def test_valid_images_of_other_pixel_modes_read_as_rgb(tmp_path, kind):
+    """A 1-bit PNG was refused, a white CMYK JPEG read black (K taken for alpha), an RGBA EXR refused."""
+    from PIL import Image
+
+    from probvis.io.image import read_linear_rgb
+
+    path = tmp_path / kind
+    if kind == "1-bit.png":
+        Image.new("1", (4, 4), 1).save(path)
+    elif kind == "cmyk.jpg":
+        Image.new("CMYK", (4, 4), (0, 0, 0, 0)).save(path)
+    else:
+        import OpenEXR
+
+        with OpenEXR.File({"type": OpenEXR.scanlineimage}, {"RGBA": np.ones((4, 4, 4), np.float32)}) as f:
+            f.write(str(path))
+    img = read_linear_rgb(path)
+    assert img.shape == (4, 4, 3) and np.allclose(img, 1.0, atol=0.01)
+
+
+def test_a_pfm_scale_of_zero_or_a_comment_is_named(tmp_path):
+    """The scale's sign is the byte order: 0 read as big-endian turned 0.5 into 1e-41 (a black texture)."""
+    from probvis.io.image import read_pfm
+
+    path = tmp_path / "t.pfm"
+    path.write_bytes(b"PF\n2 2\n0\n" + np.full(12, 0.5, "<f4").tobytes())
+    with pytest.raises(ValueError, match="scale is 0: the scale's sign gives the byte order"):
+        read_pfm(path)
+    path.write_bytes(b"PF\n# a comment\n2 2\n-1\n" + np.full(12, 0.5, "<f4").tobytes())
+    with pytest.raises(ValueError, match="its header is not 'PF' or 'Pf', then the width and height"):
+        read_pfm(path)

@@ -141,6 +141,8 @@ def read_exr(path, channel=None):
                 return np.array(ch[channel].pixels, dtype=np.float32)
             if "RGB" in ch:
                 return np.array(ch["RGB"].pixels, dtype=np.float32)
+            if "RGBA" in ch:  # alpha dropped, as for PNG (Mitsuba reads RGBA EXRs)
+                return np.array(ch["RGBA"].pixels, dtype=np.float32)[..., :3]
             if all(c in ch for c in "RGB"):
                 return np.stack([np.array(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
             raise ProbvisError(f"{path}: no RGB channels (found {', '.join(ch)})")
@@ -161,6 +163,11 @@ def _hdr_size(path):
         head = f.read(1 << 16)
     found = re.search(rb"\n\n[-+]Y (\d{1,12}) [-+]X (\d{1,12})", head)
     return (int(found.group(2)), int(found.group(1))) if found else (0, 0)
+
+
+# Pillow modes read as another: 1-bit as 8-bit grey, CMYK and other colour spaces as RGB (their fourth channel
+# is not alpha)
+_PILLOW_MODES = {"1": "L", "CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB"}
 
 
 def read_linear_rgb(path, raw=False):
@@ -207,9 +214,11 @@ def read_linear_rgb(path, raw=False):
         from PIL import Image
 
         limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None  # Pillow's own bomb check names no size
+        mode = None
         try:
             with Image.open(path) as im:  # the header only: refuse a size no texture needs before decoding it
                 w, h = im.size
+                mode = im.mode
         except Exception:
             w = h = 0
         finally:
@@ -218,7 +227,7 @@ def read_linear_rgb(path, raw=False):
             raise ProbvisError(f"{path}: image is {w}x{h} ({w * h / 1e6:.0f} Mpixel), above the "
                                f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads (scale it down)")
         try:
-            data = iio.imread(path, plugin="pillow")
+            data = iio.imread(path, plugin="pillow", mode=_PILLOW_MODES.get(mode))
         except MemoryError:
             raise
         except Exception as exc:
@@ -254,8 +263,14 @@ def write_pfm(path, image):
 def read_pfm(path):
     with open(path, "rb") as f:
         kind = f.readline().strip()
-        w, h = (int(x) for x in f.readline().split())
-        scale = float(f.readline())
+        try:
+            w, h = (int(x) for x in f.readline().split())
+            scale = float(f.readline())
+        except ValueError:
+            raise ValueError("its header is not 'PF' or 'Pf', then the width and height, then the scale") from None
+        if not scale or not np.isfinite(scale):
+            raise ValueError(f"its header's scale is {scale:g}: the scale's sign gives the byte order (-1 for "
+                             "little-endian)")
         dtype = "<f4" if scale < 0 else ">f4"
         ch = 3 if kind == b"PF" else 1
         if w <= 0 or h <= 0 or w * h > MAX_IMAGE_PIXELS:
