@@ -85,6 +85,12 @@ CASES = [
     (["render", "quad-shadow", "-o", "x.exr/"], "the name ends in '/'"),
     (["render", "quad-shadow", "--visibility", "cache-cv", "--q", "0.1", "--min-q", "0.9"],
      "give q or min_q, not both"),
+    (["render", "quad-shadow", "-D", "res=8", "-D", "res=64"], "-D res given twice (8, 64): give it once"),
+    (["render", "quad-shadow", "--shells", "on", "--no-shells"], "--shells and --no-shells set the same option"),
+    (["render", "quad-shadow", "--cache", "--no-cache"], "--cache and --no-cache set the same option"),
+    (["render", "quad-shadow", "--spp", "1_0"], "argument --spp: expected a whole number, got '1_0'"),
+    (["render", "quad-shadow", "--spp", "\u0662"], "argument --spp: expected a whole number"),
+    (["render", "quad-shadow", "-D", "res=1_6"], "parameter res must be an integer, got '1_6'"),
 ]
 
 

@@ -24,6 +24,8 @@ def _defines(items):
         if "=" not in item:
             raise ProbvisError(f"-D expects name=value, got '{item}'")
         k, v = item.split("=", 1)
+        if k.strip() in out and out[k.strip()] != v.strip():
+            raise ProbvisError(f"-D {k.strip()} given twice ({out[k.strip()]}, {v.strip()}): give it once")
         out[k.strip()] = v.strip()
     return out
 
@@ -500,6 +502,16 @@ def _foreign_flags(argv, cls):
     return None
 
 
+def _repeated_option(argv, cls):
+    """The flags of an estimator option given more than once in `argv` (`--shells on --no-shells`), or None."""
+    for o in cls.options:
+        flags = {o.flag, "--no-" + o.flag[2:]} if o.type in (bool, Switch) else {o.flag}
+        given = [a for a in argv if a.split("=", 1)[0] in flags]
+        if len(given) > 1:
+            return given
+    return None
+
+
 def _negative_values(argv):
     """`--exposure -inf` as `--exposure=-inf`: argparse takes a value starting with '-' that is not a plain
     number for a flag, and would say only "expected one argument"."""
@@ -523,6 +535,9 @@ def _parse(argv):
             flag, owners = foreign
             raise ProbvisError(f"{flag} does not apply to --visibility {cls.name} (it is an option of "
                                f"{', '.join(owners)}; see `probvis estimators`)")
+        repeated = _repeated_option(argv, cls)
+        if repeated:
+            raise ProbvisError(f"{' and '.join(repeated)} set the same option: give it once")
     args = _parser(cls).parse_args(argv)
     args.estimator_class = cls
     return args
