@@ -270,3 +270,26 @@ def test_a_stack_too_small_to_start_is_one_line(tmp_path):
     assert r.returncode == 1 and r.stderr == ("probvis: error: the stack limit of 256 KiB (ulimit -s) is too small: "
                                               "probvis needs at least 1024 KiB (the usual default is 8192)\n")
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("stdout", ["full", "closed"])
+def test_a_standard_output_that_fails_is_one_line(tmp_path, stdout):
+    """`probvis scenes > /dev/full` was an OSError traceback; `>&-` printed nothing with exit 0."""
+    target = open("/dev/full", "w") if stdout == "full" else None
+    try:
+        r = subprocess.run([sys.executable, "-m", "probvis", "scenes"], stdout=target if target else None,
+                           stderr=subprocess.PIPE, text=True, cwd=tmp_path, timeout=TIME_LIMIT,
+                           preexec_fn=None if target else (lambda: os.close(1)))
+    finally:
+        if target:
+            target.close()
+    reason = "No space left on device" if stdout == "full" else "it is closed"
+    assert r.returncode == 1 and r.stderr == f"probvis: error: cannot write to the standard output: {reason}\n"
+
+
+def test_a_non_ascii_name_under_an_ascii_locale_is_escaped(tmp_path):
+    """With PYTHONIOENCODING=ascii the summary's 'wrote sortie-é.exr' was a UnicodeEncodeError after the render."""
+    r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-D", "res=8", "--spp", "1",
+                        "-o", "sortie-\u00e9.exr"], capture_output=True, cwd=tmp_path, timeout=TIME_LIMIT,
+                       env={**os.environ, "PYTHONIOENCODING": "ascii"})
+    assert r.returncode == 0 and b"sortie-\\xe9.exr" in r.stdout, r.stderr

@@ -288,8 +288,8 @@ def _cmd_render(args):
             write_stats(args.stats, result.stats)
             written.append(args.stats)
     if not args.quiet:
-        print(summary(result.stats))
-        print("wrote       " + ", ".join(written))
+        _say(summary(result.stats))
+        _say("wrote       " + ", ".join(written))
     return 0
 
 
@@ -322,20 +322,20 @@ def _cmd_estimators(args):
     classes = [estimator_class(args.name)] if args.name else [estimator_class(n) for n in available_names()]
     described = [_describe(c) for c in classes]
     if args.json:
-        print(json.dumps(described, indent=1))
+        _say(json.dumps(described, indent=1))
         return 0
     for d in described:
-        print(f"{d['name']}  —  {d['summary']}")
-        print(f"    class {d['class']}; render path: {d['render_path']}")
+        _say(f"{d['name']}  —  {d['summary']}")
+        _say(f"    class {d['class']}; render path: {d['render_path']}")
         for o in d["options"]:
             default = "automatic" if o["default"] is None else _show(o["default"])
-            print(f"    {o['flag']}  ({o['type']}; default {default})")
-            print(f"        {o['help']}")
+            _say(f"    {o['flag']}  ({o['type']}; default {default})")
+            _say(f"        {o['help']}")
         if d["phases"]:
-            print("    phases: " + ", ".join(f"{p['name']} ({p['stage']})" for p in d["phases"]))
+            _say("    phases: " + ", ".join(f"{p['name']} ({p['stage']})" for p in d["phases"]))
         if d["aovs"]:
-            print("    AOVs:   " + ", ".join(a["name"] for a in d["aovs"]))
-        print()
+            _say("    AOVs:   " + ", ".join(a["name"] for a in d["aovs"]))
+        _say()
     return 0
 
 
@@ -369,22 +369,22 @@ def _cmd_info(args):
         "bvh": bvh.stats(),
     }
     if args.json:
-        print(json.dumps(info, indent=2))
+        _say(json.dumps(info, indent=2))
         return 0
-    print(f"scene      {info['scene']} ({info['source']})")
-    print(f"triangles  {info['triangles']:,}" + (f" ({scene.dropped_degenerate} degenerate dropped)"
+    _say(f"scene      {info['scene']} ({info['source']})")
+    _say(f"triangles  {info['triangles']:,}" + (f" ({scene.dropped_degenerate} degenerate dropped)"
                                                 if scene.dropped_degenerate else ""))
-    print(f"bounds     {np.round(lo, 4).tolist()} .. {np.round(hi, 4).tolist()}")
-    print(f"camera     {cam.width}x{cam.height}, fov_x {cam.fov_x:.4g} deg, {scene.defaults.spp} spp x "
+    _say(f"bounds     {np.round(lo, 4).tolist()} .. {np.round(hi, 4).tolist()}")
+    _say(f"camera     {cam.width}x{cam.height}, fov_x {cam.fov_x:.4g} deg, {scene.defaults.spp} spp x "
           f"{scene.defaults.shadow_rays} shadow rays")
     for e, em in enumerate(info["emitters"]):
-        print(f"emitter {e}  radiance {em['radiance']}, area {em['area']:.4g}, power {em['power']:.4g}, "
+        _say(f"emitter {e}  radiance {em['radiance']}, area {em['area']:.4g}, power {em['power']:.4g}, "
               f"p {em['selection_probability']:.3f}")
     b = info["bvh"]
-    print(f"bvh        {b['nodes']:,} nodes, {b['leaves']:,} leaves, depth {b['max_depth']}, "
+    _say(f"bvh        {b['nodes']:,} nodes, {b['leaves']:,} leaves, depth {b['max_depth']}, "
           f"mean leaf {b['mean_leaf_size']:.2f}, SAH cost {b['sah_cost']:.2f}, built in {b['build_seconds']:.3f} s")
     for s in info["shapes"]:
-        print(f"shape      {s['name']:<16} {s['type']:<10} {s['triangles']:>8,} triangles"
+        _say(f"shape      {s['name']:<16} {s['type']:<10} {s['triangles']:>8,} triangles"
               + ("  (emitter)" if s["emitter"] >= 0 else ""))
     return 0
 
@@ -393,7 +393,7 @@ def _cmd_scenes(args):
     from .scene import BUILTINS
 
     for name, (_, text) in BUILTINS.items():
-        print(f"{name:<14} {text}")
+        _say(f"{name:<14} {text}")
     return 0
 
 
@@ -408,16 +408,16 @@ def _cmd_tables(args):
     out = [{"decomposition": d.name, "probabilities": d.p.tolist(), "terms": list(d.labels), "rows": d.rows()}
            for d in decs]
     if args.json:
-        print(json.dumps(out, indent=1))
+        _say(json.dumps(out, indent=1))
         return 0
     for d in out:
-        print(f"{d['decomposition']}  (p = {', '.join(f'{x:.4g}' for x in d['probabilities'])})")
-        print(f"  {'V_A':>3} {'V_B':>3} {'V_A V_B':>7}  " + "".join(f"{t:>24}" for t in d["terms"])
+        _say(f"{d['decomposition']}  (p = {', '.join(f'{x:.4g}' for x in d['probabilities'])})")
+        _say(f"  {'V_A':>3} {'V_B':>3} {'V_A V_B':>7}  " + "".join(f"{t:>24}" for t in d["terms"])
               + f"{'variance':>12}")
         for r in d["rows"]:
-            print(f"  {r['VA']:>3} {r['VB']:>3} {r['product']:>7}  " + "".join(f"{v:>24.6g}" for v in r["values"])
+            _say(f"  {r['VA']:>3} {r['VB']:>3} {r['product']:>7}  " + "".join(f"{v:>24.6g}" for v in r["values"])
                   + f"{r['variance']:>12.6g}")
-        print()
+        _say()
     return 0
 
 
@@ -449,7 +449,7 @@ def _cmd_experiment(args):
         return 130
     finally:
         signal.signal(signal.SIGTERM, previous)
-    print(f"{run.computed} renders computed, {run.cells_cached} of {len(run.tasks)} cells from the cache; "
+    _say(f"{run.computed} renders computed, {run.cells_cached} of {len(run.tasks)} cells from the cache; "
           f"report: {index}")
     return 0
 
@@ -478,6 +478,42 @@ def _caused_by_interrupt(exc):
             return True
         exc = exc.__cause__ or exc.__context__
     return False
+
+
+class _StdoutFailed(Exception):
+    """Writing the standard output failed (its OSError's reason)."""
+
+
+def _say(*args):
+    """Print to the standard output; a closed or failing one (`>&-`, `> /dev/full`) is `_StdoutFailed`."""
+    if sys.stdout is None:
+        raise _StdoutFailed("it is closed")
+    try:
+        print(*args)
+    except BrokenPipeError:
+        raise
+    except (OSError, ValueError) as exc:
+        raise _StdoutFailed(getattr(exc, "strerror", None) or exc) from None
+
+
+def _flush_stdout():
+    """Flush what a command printed, so that a failing standard output is reported here, not at exit."""
+    try:
+        if sys.stdout is not None:
+            sys.stdout.flush()
+    except BrokenPipeError:
+        raise
+    except (OSError, ValueError) as exc:
+        raise _StdoutFailed(getattr(exc, "strerror", None) or exc) from None
+
+
+def _drop_stdout():
+    """Point the standard output at /dev/null, so the interpreter's own flush at exit finds nothing to fail."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (AttributeError, OSError, ValueError):
+        pass
 
 
 def _terminate(signum, frame):
@@ -548,11 +584,15 @@ def main(argv=None):
     warnings.showwarning = _warning_line
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
+    if hasattr(sys.stdout, "reconfigure"):  # a scene's non-ASCII name under an ASCII locale: escaped, not a crash
+        sys.stdout.reconfigure(errors="backslashreplace")
     try:
         args = _parse(argv)
         args.argv = argv
-        return {"render": _cmd_render, "info": _cmd_info, "scenes": _cmd_scenes, "estimators": _cmd_estimators,
-                "tables": _cmd_tables, "experiment": _cmd_experiment}[args.command](args)
+        status = {"render": _cmd_render, "info": _cmd_info, "scenes": _cmd_scenes, "estimators": _cmd_estimators,
+                  "tables": _cmd_tables, "experiment": _cmd_experiment}[args.command](args)
+        _flush_stdout()
+        return status
     except ProbvisError as exc:
         print(f"probvis: error: {exc}", file=sys.stderr)
         return 2
@@ -569,9 +609,12 @@ def main(argv=None):
         print("probvis: interrupted, nothing written", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `probvis tables | head`: the reader left; say nothing more
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
+        _drop_stdout()
         return 141
+    except _StdoutFailed as exc:  # stdout on a full disk (`> /dev/full`) or closed
+        _drop_stdout()
+        print(f"probvis: error: cannot write to the standard output: {exc}", file=sys.stderr)
+        return 1
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, previous)
