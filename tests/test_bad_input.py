@@ -293,3 +293,13 @@ def test_a_non_ascii_name_under_an_ascii_locale_is_escaped(tmp_path):
                         "-o", "sortie-\u00e9.exr"], capture_output=True, cwd=tmp_path, timeout=TIME_LIMIT,
                        env={**os.environ, "PYTHONIOENCODING": "ascii"})
     assert r.returncode == 0 and b"sortie-\\xe9.exr" in r.stdout, r.stderr
+
+
+@pytest.mark.parametrize("value", ["0", "abc"])
+def test_a_numba_thread_count_that_is_none_is_one_line(tmp_path, value):
+    """NUMBA_NUM_THREADS=0 was Numba's traceback at import; 'abc' its warning, then a render."""
+    r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-o", "o.exr"], capture_output=True,
+                       text=True, cwd=tmp_path, timeout=TIME_LIMIT, env={**os.environ, "NUMBA_NUM_THREADS": value})
+    assert r.returncode == 1 and r.stderr.startswith(f"probvis: error: NUMBA_NUM_THREADS='{value}' is not a thread "
+                                                     "count") and r.stderr.count("\n") == 1, r.stderr
+    assert not list(tmp_path.iterdir())

@@ -1,6 +1,7 @@
 """The `probvis` console command and `python -m probvis`: starts the command line, and reports a start that
 fails (Ctrl-C or SIGTERM while the libraries load, a compiled library that cannot load under the process's
 limits) in one line."""
+import os
 import signal
 import sys
 
@@ -42,10 +43,19 @@ def _start_failure(exc):
     return f"probvis: error: cannot load its libraries ({type(exc).__name__}: {reason}): reinstall probvis"
 
 
+def _bad_environment():
+    """The one line for an environment setting Numba would fail on with a traceback (NUMBA_NUM_THREADS=0)."""
+    threads = os.environ.get("NUMBA_NUM_THREADS")
+    if threads is not None and not (threads.strip().isdigit() and threads.isascii() and int(threads) > 0):
+        return (f"probvis: error: NUMBA_NUM_THREADS='{threads}' is not a thread count: unset it, or give a positive "
+                "whole number (--threads bounds a render's threads)")
+    return _stack_too_small()
+
+
 def main():
-    small = _stack_too_small()
-    if small:
-        print(small, file=sys.stderr)
+    problem = _bad_environment()
+    if problem:
+        print(problem, file=sys.stderr)
         return 1
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
