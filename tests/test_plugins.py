@@ -250,6 +250,11 @@ def test_a_plugin_s_every_method_is_checked(methods, message):
     ((probvis.visibility.Option("kind", str, "c", "not a choice", choices=("a", "b")),),
      "the default of option 'kind' is invalid: kind must be one of a, b, got 'c'"),
     ((probvis.visibility.Option("k", list, [1], "a list"),), "option 'k' has type 'list', which an option cannot take"),
+    ((probvis.visibility.Option("t", tuple, (1.0, 2.0), "no count"),), "option 't' is a tuple and needs count"),
+    ((probvis.visibility.Option("k", int, 1, "raises", check=lambda v: 1 / 0),),
+     "option 'k': its check raised ZeroDivisionError on the default 1"),
+    (probvis.visibility.Option("k", int, 1, "not in a tuple"), "options must be a tuple of Options"),
+    (None, "options must be a tuple of Options, got None"),
 ])
 def test_a_plugin_s_options_are_checked_when_it_loads(options, message):
     cls = type("Declared", (_Exact,), {"options": options})
@@ -262,6 +267,8 @@ def test_a_plugin_s_options_are_checked_when_it_loads(options, message):
     ({"name": 42}, "name must be one word"), ({"name": "has space"}, "name must be one word"),
     ({"phases": (probvis.visibility.Phase("p", "sometimes"),)}, "phase 'p' has stage 'sometimes'"),
     ({"aovs": (probvis.visibility.Aov("a", "h", "weird"),)}, "AOV 'a' has kind 'weird'"),
+    ({"phases": "prepare"}, "phases must be a tuple of Phases, got 'prepare'"),
+    ({"unbiased": "no"}, "unbiased must be True or False, got 'no'"),
 ])
 def test_a_plugin_s_name_phases_and_aovs_are_checked_when_it_loads(declared, message):
     with pytest.raises(ProbvisError, match=re.escape(message)):
@@ -290,3 +297,19 @@ def test_an_estimator_without_evaluate_is_refused():
 
     with pytest.raises(ProbvisError, match="Hollow does not implement evaluate"):
         probvis.render("quad-shadow", spp=1, visibility=Hollow)
+
+
+def test_a_plugin_s_float16_or_float32_values_render_as_float64():
+    """float16 values were a NotImplementedError inside the kernels, blamed on the estimator."""
+    class Half(_Exact):
+        name = "half"
+
+        def evaluate(self, query):
+            res = super().evaluate(query)
+            return probvis.visibility.VisibilityResult(res.value.astype(np.float16), res.node_tests,
+                                                       res.triangle_tests)
+
+    kwargs = dict(resolution=(8, 8), spp=1, shadow_rays=2, threads=1, progress=False)
+    half = probvis.render("quad-shadow", visibility=estimator_class(Half), **kwargs)
+    exact = probvis.render("quad-shadow", visibility="exact", **kwargs)
+    np.testing.assert_array_equal(half.image, exact.image)

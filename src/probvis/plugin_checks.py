@@ -1,6 +1,7 @@
 """What a plug-in estimator (a `VisibilityEstimator` from outside probvis) returns, checked at every stage: its
 exceptions become one error naming its class and the stage, and results of the wrong shape, kind or range are
 refused before they reach the film as NaN pixels or the stats file as invalid JSON."""
+import dataclasses
 import json
 from contextlib import contextmanager
 
@@ -27,8 +28,9 @@ def checked_result(estimator, res, n):
         if arr.shape != (n,) or arr.dtype.kind not in "biuf":
             raise ProbvisError(f"{where} returned {field} of shape {arr.shape} ({arr.dtype}) for {n} segments "
                                "(real numbers, one per segment)")
-    if not np.all(np.isfinite(res.value)) or np.abs(res.value).max(initial=0.0) > MAX_VISIBILITY:
-        bad = int((~(np.abs(res.value) <= MAX_VISIBILITY)).sum())
+    value = np.asarray(res.value, np.float64)
+    if not np.all(np.isfinite(value)) or np.abs(value).max(initial=0.0) > MAX_VISIBILITY:
+        bad = int((~(np.abs(value) <= MAX_VISIBILITY)).sum())
         raise ProbvisError(f"{where} returned {bad} values that are not finite or beyond ±{MAX_VISIBILITY:g}")
     for field in ("node_tests", "triangle_tests"):
         arr = np.asarray(getattr(res, field))
@@ -45,6 +47,10 @@ def checked_result(estimator, res, n):
         if arr.shape != (n,) or arr.dtype.kind not in "biuf" or not np.all(np.isfinite(arr)):
             raise ProbvisError(f"{where} returned AOV '{name}' of shape {arr.shape} ({arr.dtype}): it needs one "
                                f"finite number per segment ({n})")
+    if np.asarray(res.value).dtype != np.float64 or any(np.asarray(a).dtype != np.float64 for a in (res.aovs or {}).values()):
+        # float16, float32, integers: the kernels take float64 (float16 was a NotImplementedError in them)
+        return dataclasses.replace(res, value=value,
+                                   aovs={k: np.asarray(a, np.float64) for k, a in (res.aovs or {}).items()})
     return res
 
 

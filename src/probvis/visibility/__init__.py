@@ -98,6 +98,12 @@ def _check_declarations(cls, what):
     if not own and cls.name in BUILTIN and "name" in vars(cls):  # a subclass may keep its built-in parent's
         raise ProbvisError(f"{where}: name '{cls.name}' is a built-in estimator's: choose another, so its stats and "
                            "reports are not taken for the built-in's")
+    for field, kind in (("options", Option), ("phases", Phase), ("aovs", Aov)):
+        value = getattr(cls, field)
+        if not isinstance(value, (tuple, list)) or not all(isinstance(x, kind) for x in value):
+            raise ProbvisError(f"{where}: {field} must be a tuple of {kind.__name__}s, got {value!r}"[:300])
+    if not isinstance(cls.unbiased, bool):
+        raise ProbvisError(f"{where}: unbiased must be True or False, got {cls.unbiased!r}")
     for phase in cls.phases:
         if phase.stage not in ("prepare", "batch"):
             raise ProbvisError(f"{where}: phase '{phase.name}' has stage {phase.stage!r} (prepare or batch)")
@@ -113,11 +119,16 @@ def _check_declarations(cls, what):
             raise ProbvisError(f"{where} declares option '{o.name}' twice")
         if o.name in RESERVED_OPTIONS:
             raise ProbvisError(f"{where}: option '{o.name}' ({o.flag}) clashes with probvis's own {o.flag} (rename it)")
+        if o.type is tuple and not (isinstance(o.count, int) and not isinstance(o.count, bool) and o.count > 0):
+            raise ProbvisError(f"{where}: option '{o.name}' is a tuple and needs count, how many numbers it takes")
         if o.default is not None:
             try:
                 o.parse(o.default)
             except ProbvisError as exc:
                 raise ProbvisError(f"{where}: the default of option '{o.name}' is invalid: {exc}") from None
+            except Exception as exc:  # the plug-in's own check failed on its default
+                raise ProbvisError(f"{where}: option '{o.name}': its check raised {type(exc).__name__} on the default "
+                                   f"{o.default!r}: {exc}") from None
 
 
 def _estimator_class(name, what):
