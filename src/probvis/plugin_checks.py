@@ -47,10 +47,11 @@ def checked_result(estimator, res, n):
         if arr.shape != (n,) or arr.dtype.kind not in "biuf" or not np.all(np.isfinite(arr)):
             raise ProbvisError(f"{where} returned AOV '{name}' of shape {arr.shape} ({arr.dtype}): it needs one "
                                f"finite number per segment ({n})")
-    if np.asarray(res.value).dtype != np.float64 or any(np.asarray(a).dtype != np.float64 for a in (res.aovs or {}).values()):
+    aovs = res.aovs or {}
+    if np.asarray(res.value).dtype != np.float64 or any(np.asarray(a).dtype != np.float64 for a in aovs.values()):
         # float16, float32, integers: the kernels take float64 (float16 was a NotImplementedError in them)
         return dataclasses.replace(res, value=value,
-                                   aovs={k: np.asarray(a, np.float64) for k, a in (res.aovs or {}).items()})
+                                   aovs={k: np.asarray(a, np.float64) for k, a in aovs.items()})
     return res
 
 
