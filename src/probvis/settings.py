@@ -32,6 +32,14 @@ def parse_float(text):
     return float(text)
 
 
+def _whole(value):
+    """Whether `value` is a whole number (an int, or a float or numpy number with no fraction), not a bool."""
+    import numbers
+
+    return (isinstance(value, numbers.Real) and not isinstance(value, bool) and value == value
+            and abs(value) != float("inf") and int(value) == value)
+
+
 @dataclass(frozen=True)
 class RenderSettings:
     """`spp` camera samples per pixel, `shadow_rays` emitter samples per camera sample, the random `seed`
@@ -53,11 +61,10 @@ class RenderSettings:
     def validate(self):
         for what, val, lo, hi in (("spp", self.spp, 1, MAX_SPP), ("shadow_rays", self.shadow_rays, 1, MAX_SHADOW_RAYS),
                                   ("seed", self.seed, 0, MAX_SEED)):
-            if isinstance(val, bool) or int(val) != val or not lo <= val <= hi:
-                raise ProbvisError(f"{what} must be a whole number from {lo} to {hi}, got {val}")
-        if self.threads is not None and (isinstance(self.threads, bool) or int(self.threads) != self.threads
-                                         or self.threads < 1):
-            raise ProbvisError(f"threads must be a positive whole number, got {self.threads}")
+            if not _whole(val) or not lo <= val <= hi:
+                raise ProbvisError(f"{what} must be a whole number from {lo} to {hi}, got {val!r}")
+        if self.threads is not None and not (_whole(self.threads) and self.threads >= 1):
+            raise ProbvisError(f"threads must be a positive whole number, got {self.threads!r}")
         if not isinstance(self.filter_importance, bool):
             raise ProbvisError(f"filter_importance must be True or False, got {self.filter_importance!r}")
         return self

@@ -1,0 +1,46 @@
+import pytest
+
+from probvis import ProbvisError, RenderSettings
+from probvis.settings import parse_float, parse_int
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"spp": "a"}, "spp must be a whole number from 1 to 1048576, got 'a'"),
+    ({"spp": "4"}, "spp must be a whole number from 1 to 1048576, got '4'"),
+    ({"spp": float("nan")}, "spp must be a whole number from 1 to 1048576, got nan"),
+    ({"spp": float("inf")}, "spp must be a whole number from 1 to 1048576, got inf"),
+    ({"spp": [1]}, "spp must be a whole number from 1 to 1048576, got [1]"),
+    ({"spp": None}, "spp must be a whole number from 1 to 1048576, got None"),
+    ({"threads": "2"}, "threads must be a positive whole number, got '2'"),
+    ({"seed": 1.5}, "seed must be a whole number from 0"),
+])
+def test_settings_of_the_wrong_type_are_named(changes, message):
+    """Raw ValueError, OverflowError and TypeError from int() before; the error names the setting and value."""
+    with pytest.raises(ProbvisError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        RenderSettings(**changes).validate()
+
+
+def test_whole_floats_are_whole_numbers():
+    assert RenderSettings(spp=4.0, threads=2.0).validate().spp == 4
+
+
+@pytest.mark.parametrize("text", ["1_6", "\u0661\u0666", "0x10", "", " ", "1 6", "1e3"])
+def test_whole_numbers_are_read_in_c_syntax_only(text):
+    with pytest.raises(ValueError):
+        parse_int(text)
+
+
+@pytest.mark.parametrize("text, value", [("16", 16), (" -3 ", -3), ("+7", 7)])
+def test_whole_numbers_in_c_syntax_are_read(text, value):
+    assert parse_int(text) == value
+
+
+@pytest.mark.parametrize("text", ["0_5", "\u0660.5", "1e", ".", "0x1p3", "infinit"])
+def test_numbers_are_read_in_c_syntax_only(text):
+    with pytest.raises(ValueError):
+        parse_float(text)
+
+
+@pytest.mark.parametrize("text, value", [("0.5", 0.5), ("-.5e-3", -0.5e-3), ("5.", 5.0), ("1E+2", 100.0)])
+def test_numbers_in_c_syntax_are_read(text, value):
+    assert parse_float(text) == value
