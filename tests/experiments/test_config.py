@@ -126,6 +126,7 @@ def test_command_line_mistakes_exit_2_with_one_line(tmp_path, capsys):
     ({"methods": [{"name": "e", "visibility": "exact", "baseline": "yes"}]}, "methods[0].baseline: expected true"),
     ({"reference": {"visibility": "magic"}}, "reference.visibility: unknown visibility 'magic'"),
     ({"name": "../../escape"}, "name: must be a plain name"),
+    ({"name": "a" * 300}, "name: is 300 characters long, more than a name of files and folders may be (100)"),
     ({"scenes": [{"name": "q", "source": "quad-shadow", "defines": 3}]}, "scenes[0].defines: expected a table"),
 ])
 def test_more_mistakes_are_named(change, message):
@@ -153,3 +154,15 @@ def test_a_byte_order_mark_is_allowed(tmp_path):
     path = tmp_path / "bom.toml"
     path.write_bytes(b"\xef\xbb\xbf" + text.encode())
     assert load_experiment(path).name == "bom"
+
+
+def test_a_plugin_method_whose_init_raises_is_named(tmp_path):
+    """Only ProbvisError was caught around the method's construction: a plug-in's own bug was a traceback."""
+    (tmp_path / "p.py").write_text("import probvis\n\n\nclass X(probvis.visibility.VisibilityEstimator):\n"
+                                   "    name = 'x'\n\n    def __init__(self, **options):\n"
+                                   "        raise ValueError('boom')\n\n    def evaluate(self, query):\n"
+                                   "        pass\n")
+    change = {"methods": [{"name": "e", "visibility": str(tmp_path / "p.py") + ":X"}]}
+    with pytest.raises(ProbvisError, match=r"method 'e': visibility '.*p.py:X' \(.*X\) raised ValueError in "
+                                           r"__init__: boom"):
+        parse_experiment(doc(**change))

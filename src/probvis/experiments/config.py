@@ -182,9 +182,15 @@ def _method(where, table, base):
         _fail(f"{where}.baseline", f"expected true or false, got {table['baseline']!r}")
     try:
         cls = estimator_class(vis)
+    except ProbvisError as exc:
+        _fail(f"method '{name}'", str(exc))
+    try:
         cls(**options)  # the estimator's own checks too, not only each option's
     except ProbvisError as exc:
         _fail(f"method '{name}'", str(exc))
+    except Exception as exc:  # a plug-in's bug: named as `render` names it
+        _fail(f"method '{name}'", f"visibility '{vis}' ({cls.__module__}.{cls.__qualname__}) raised "
+                                  f"{type(exc).__name__} in __init__: {exc}")
     return MethodSpec(name, vis, options)
 
 
@@ -250,11 +256,16 @@ def parse_experiment(data, base=Path("."), source=""):
         seconds=_choice("seconds", data.get("seconds", "total"), ("total", "render")))
 
 
+MAX_NAME = 100  # characters: report files add a suffix, and file systems allow 255 bytes
+
+
 def _plain_name(where, value):
     """A name that report files and folders are made of: letters, digits, '.', '_' and '-', not starting with '.'."""
     name = _str(where, value)
     if not re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9._-]*", name):
         _fail(where, f"must be a plain name (letters, digits, '.', '_', '-'; it names files), got {name!r}")
+    if len(name) > MAX_NAME:
+        _fail(where, f"is {len(name)} characters long, more than a name of files and folders may be ({MAX_NAME})")
     return name
 
 
