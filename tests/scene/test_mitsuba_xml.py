@@ -326,6 +326,10 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
      "</emitter>", "<lookat>: lookat's origin and target must lie within ±1e+30"),
     ("<shape type='sphere'><float name='radius' value='1e100'/></shape>",
      "<shape>: sphere radius must be positive and at most 1e+30, got 1e+100"),
+    ("<shape type='rectangle'><bsdf type='dielectric'><string name='int_ior' value='kryptonite'/></bsdf></shape>",
+     "<bsdf>: unknown material 'kryptonite' for int_ior (Mitsuba's: vacuum, helium"),
+    ("<shape type='rectangle'><bsdf type='roughconductor'><string name='material' value='unobtainium'/></bsdf>"
+     "</shape>", "<bsdf>: unknown conductor material 'unobtainium' (Mitsuba's: Ag, Al,"),
 ])
 def test_values_that_parse_but_would_render_nonsense_are_named_at_their_line(tmp_path, body, message):
     """Values Mitsuba would refuse, or that overflow probvis's arithmetic (NaN or black images before)."""
@@ -387,3 +391,14 @@ def test_a_scene_version_that_is_not_a_number_is_refused(tmp_path):
     with pytest.raises(ProbvisError, match=re.escape(f"{path}:1: <scene>: version must be a version number such "
                                                      "as 3.0.0, got 'banana'")):
         probvis.load_scene(path)
+
+
+def test_a_named_index_of_refraction_is_mitsubas_value(tmp_path):
+    """`int_ior="diamond"` is 2.419 (it was taken as BK7's 1.5046): the diffuse stand-in's reflectance is the
+    Fresnel reflectance at normal incidence of that index against air."""
+    body = ("<shape type='rectangle'><bsdf type='dielectric'><string name='int_ior' value='diamond'/>"
+            "<string name='ext_ior' value='air'/></bsdf></shape>")
+    with pytest.warns(UserWarning, match="rendered as diffuse"):
+        scene = probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + body + LIGHT))
+    eta = 2.419 / 1.00028
+    assert np.isclose(scene.reflectance.max(), ((eta - 1) / (eta + 1)) ** 2)

@@ -21,6 +21,19 @@ from .scene import MAX_COORDINATE, SceneBuilder
 from .sensor import MAX_FILTER_RADIUS, Camera, camera_problem
 from .spectrum import spectrum_to_rgb
 
+# Mitsuba's named indices of refraction (its `ior.h`) and conductor materials (its spectral data files)
+_IORS = {"vacuum": 1.0, "helium": 1.00004, "hydrogen": 1.00013, "air": 1.00028, "carbon dioxide": 1.00045,
+         "water": 1.3330, "acetone": 1.36, "ethanol": 1.361, "carbon tetrachloride": 1.461, "glycerol": 1.4729,
+         "benzene": 1.501, "silicone oil": 1.52045, "bromine": 1.661, "water ice": 1.31, "fused quartz": 1.458,
+         "pyrex": 1.470, "acrylic glass": 1.49, "polypropylene": 1.49, "bk7": 1.5046, "sodium chloride": 1.544,
+         "amber": 1.55, "pet": 1.5750, "diamond": 2.419}
+_CONDUCTORS = {"a-C", "Ag", "Al", "AlAs", "AlAs_palik", "AlSb", "AlSb_palik", "Au", "Be", "Be_palik", "Cr", "CsI",
+               "CsI_palik", "Cu", "Cu_palik", "Cu2O", "Cu2O_palik", "CuO", "CuO_palik", "d-C", "d-C_palik", "Hg",
+               "Hg_palik", "HgTe", "HgTe_palik", "Ir", "Ir_palik", "K", "K_palik", "Li", "Li_palik", "MgO",
+               "MgO_palik", "Mo", "Mo_palik", "Na_palik", "Nb", "Nb_palik", "Ni_palik", "Rh", "Rh_palik", "Se",
+               "Se_palik", "SiC", "SiC_palik", "SnTe", "SnTe_palik", "Ta", "Ta_palik", "Te", "Te_palik", "ThF4",
+               "ThF4_palik", "TiC", "TiC_palik", "TiN", "TiN_palik", "TiO2", "TiO2_palik", "VC", "VC_palik", "V_palik",
+               "VN", "VN_palik", "W", "W_palik", "none"}
 MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarters of the samples out
 MAX_NESTING = 64  # elements deep: real scenes nest a handful
 MAX_EMISSION = 1e30  # radiance, intensity or scale: beyond, power sums overflow
@@ -446,11 +459,13 @@ class _Reader:
         if kind == "principled":
             return colour("base_color", 0.5)
         if kind in ("conductor", "roughconductor"):
+            if isinstance(props.get("material", "none"), str) and props.get("material", "none") not in _CONDUCTORS:
+                self.fail(node, f"unknown conductor material '{props['material']}' (Mitsuba's: "
+                                f"{', '.join(sorted(_CONDUCTORS))})")
             return colour("specular_reflectance", 1.0)
         if kind in ("dielectric", "thindielectric", "roughdielectric"):
-            ior_in, ior_out = props.get("int_ior", 1.5046), props.get("ext_ior", 1.000277)
-            ior_in = ior_in if isinstance(ior_in, float) else 1.5046  # a named material: taken as BK7
-            ior_out = ior_out if isinstance(ior_out, float) else 1.000277  # ... and air
+            ior_in, ior_out = (self.ior(node, props, key, default) for key, default in (("int_ior", "bk7"),
+                                                                                        ("ext_ior", "air")))
             if not (0.0 < ior_in < np.inf and 0.0 < ior_out < np.inf):
                 self.fail(node, f"int_ior and ext_ior must be positive (got {ior_in:g} and {ior_out:g})")
             eta = ior_in / ior_out
@@ -461,6 +476,15 @@ class _Reader:
         if nested:  # mask, bumpmap, normalmap, ...: the BSDF they wrap
             return self.bsdf(nested[0])[0]
         return np.full(3, 0.5)
+
+    def ior(self, node, props, key, default):
+        """An index of refraction given as a number or by one of Mitsuba's material names."""
+        value = props.get(key, default)
+        if isinstance(value, str):
+            if value.lower() not in _IORS:
+                self.fail(node, f"unknown material '{value}' for {key} (Mitsuba's: {', '.join(_IORS)})")
+            value = _IORS[value.lower()]
+        return value
 
     def define(self, node, kind, value):
         """Name `value` (a `kind`) by the node's id (unique in the file: `_unique_ids`)."""
