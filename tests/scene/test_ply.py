@@ -101,3 +101,16 @@ def test_a_nan_in_an_ascii_ply_is_named_without_a_warning(tmp_path):
         warnings.simplefilter("error")
         with pytest.raises(ProbvisError, match="has NaN or infinite texture coordinates"):
             shapes.load_mesh(path)
+
+
+@pytest.mark.parametrize("face, problem", [("4 0 1 2", "early end-of-line"), ("3 0 1 2.5", "malformed input")])
+def test_an_ascii_ply_whose_rows_do_not_match_its_header_is_named(tmp_path, face, problem):
+    """trimesh read a short face list and a fractional index (truncated to 2) without a word."""
+    from probvis.errors import ProbvisError
+
+    path = tmp_path / "m.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+                    f"{face}\n")
+    with pytest.raises(ProbvisError, match=f"m.ply: malformed ASCII PLY: element 'face': row 0: .*{problem}"):
+        shapes.load_mesh(path)

@@ -7,6 +7,7 @@ caller falls back to the general reader, which also names what is wrong.
 """
 import numpy as np
 
+from ..errors import ProbvisError
 from .obj import fans
 
 UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
@@ -34,13 +35,13 @@ def _header(fh):
 
 
 def read_ply(path):
-    """(vertices, faces, normals or None, uv or None) of a binary PLY of triangles, or None where the general
-    reader must read it."""
+    """(vertices, faces, normals or None, uv or None) of a PLY of triangles or polygons, or None where the general
+    reader must read it; an ASCII file whose rows do not match its header is named (trimesh read it loosely)."""
     from plyfile import PlyData, PlyElementParseError, PlyHeaderParseError
 
     with open(path, "rb") as fh:
         header = _header(fh)
-    if header is None or header[0] not in ("binary_little_endian", "binary_big_endian"):
+    if header is None or header[0] not in ("ascii", "binary_little_endian", "binary_big_endian"):
         return None
     elements = header[1]
     vertex, face = elements.get("vertex", []), elements.get("face", [])
@@ -53,6 +54,8 @@ def read_ply(path):
                 ply = PlyData.read(fh, known_list_len={"face": {lists[0]: 3}})
                 f = np.asarray(ply["face"].data[lists[0]], dtype=np.int64)
             except PlyElementParseError as exc:
+                if header[0] == "ascii" and not any(m in str(exc) for m in ("unexpected list length", "end-of-file")):
+                    raise ProbvisError(f"mesh {path}: malformed ASCII PLY: {exc}") from None
                 if "unexpected list length" not in str(exc):
                     return None
                 fh.seek(0)
