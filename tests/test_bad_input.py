@@ -91,6 +91,7 @@ CASES = [
     (["render", "quad-shadow", "--spp", "1_0"], "argument --spp: expected a whole number, got '1_0'"),
     (["render", "quad-shadow", "--spp", "\u0662"], "argument --spp: expected a whole number"),
     (["render", "quad-shadow", "-D", "res=1_6"], "parameter res must be an integer, got '1_6'"),
+    (["render", "quad-shadow", "--output="], "an output needs a file name (got an empty one)"),
 ]
 
 
@@ -303,3 +304,20 @@ def test_a_numba_thread_count_that_is_none_is_one_line(tmp_path, value):
     assert r.returncode == 1 and r.stderr.startswith(f"probvis: error: NUMBA_NUM_THREADS='{value}' is not a thread "
                                                      "count") and r.stderr.count("\n") == 1, r.stderr
     assert not list(tmp_path.iterdir())
+
+
+def test_an_output_under_a_file_is_named_as_such(tmp_path):
+    (tmp_path / "f.txt").write_text("")
+    r, _ = run(["render", "quad-shadow", "-o", "f.txt/out.exr"], tmp_path)
+    assert r.returncode == 2 and r.stderr == ("probvis: error: cannot write 'f.txt/out.exr': folder 'f.txt' is a "
+                                              "file, not a folder\n"), r.stderr
+
+
+def test_a_deleted_working_folder_is_one_line(tmp_path):
+    """It was blamed on the estimator ("cannot import probvis.visibility.exact: FileNotFoundError")."""
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    r = subprocess.run(f"cd '{gone}' && rmdir '{gone}' && exec '{sys.executable}' -m probvis render quad-shadow "
+                       "-o out.exr", shell=True, capture_output=True, text=True, timeout=TIME_LIMIT)
+    assert r.returncode == 2 and r.stderr == ("probvis: error: the current folder no longer exists (it was deleted): "
+                                              "cd to an existing folder\n"), r.stderr

@@ -313,3 +313,20 @@ def test_a_plugin_s_float16_or_float32_values_render_as_float64():
     half = probvis.render("quad-shadow", visibility=estimator_class(Half), **kwargs)
     exact = probvis.render("quad-shadow", visibility="exact", **kwargs)
     np.testing.assert_array_equal(half.image, exact.image)
+
+
+def test_a_plugin_that_changes_folder_does_not_move_the_outputs(tmp_path, monkeypatch):
+    """The image went to the plug-in's folder ("/out.exr") while the summary said "wrote out.exr"."""
+    (tmp_path / "ests.py").write_text(
+        "import os\nimport probvis\n\n\nclass Moves(probvis.visibility.VisibilityEstimator):\n"
+        "    name = 'moves'\n\n    def prepare(self, *args):\n        super().prepare(*args)\n"
+        "        os.chdir(os.path.dirname(os.getcwd()))\n\n    def evaluate(self, query):\n"
+        "        return probvis.visibility.VisibilityResult(query.tmax * 0 + 1.0, query.tmax * 0, query.tmax * 0)\n")
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    from probvis.cli import main
+
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "-q", "--visibility",
+                 str(tmp_path / "ests.py") + ":Moves", "-o", "out.exr"]) == 0
+    assert (work / "out.exr").is_file() and not (tmp_path / "out.exr").exists()

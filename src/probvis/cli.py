@@ -270,10 +270,14 @@ def _cmd_render(args):
     if args.exposure and not any(Path(o).suffix.lower() == ".png" for o in outputs):
         warnings.warn("--exposure applies to PNG outputs only (EXR and PFM keep the radiance): ignored", stacklevel=1)
     options = {o.name: getattr(args, o.name) for o in cls.options if getattr(args, o.name) is not None}
-    result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed, threads=args.threads,
-                    visibility=cls, visibility_options=options, defines=_defines(args.defines), strict=args.strict,
-                    clamp_negative=args.clamp_negative, progress=not args.quiet,
-                    filter_importance=args.filter_importance or None)
+    folder = os.getcwd()
+    try:
+        result = render(args.scene, spp=args.spp, shadow_rays=args.shadow_rays, seed=args.seed, threads=args.threads,
+                        visibility=cls, visibility_options=options, defines=_defines(args.defines),
+                        strict=args.strict, clamp_negative=args.clamp_negative, progress=not args.quiet,
+                        filter_importance=args.filter_importance or None)
+    finally:  # a plug-in that changed folder: the outputs are named relative to the user's
+        os.chdir(folder)
     _refuse_inputs(planned, result.stats["inputs"])
     with staged_writes():  # every output or none
         for path in outputs:
@@ -587,6 +591,11 @@ def main(argv=None):
     if hasattr(sys.stdout, "reconfigure"):  # a scene's non-ASCII name under an ASCII locale: escaped, not a crash
         sys.stdout.reconfigure(errors="backslashreplace")
     try:
+        try:
+            os.getcwd()
+        except FileNotFoundError:
+            raise ProbvisError("the current folder no longer exists (it was deleted): cd to an existing folder") \
+                from None
         args = _parse(argv)
         args.argv = argv
         status = {"render": _cmd_render, "info": _cmd_info, "scenes": _cmd_scenes, "estimators": _cmd_estimators,

@@ -402,3 +402,27 @@ def test_a_named_index_of_refraction_is_mitsubas_value(tmp_path):
         scene = probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + body + LIGHT))
     eta = 2.419 / 1.00028
     assert np.isclose(scene.reflectance.max(), ((eta - 1) / (eta + 1)) ** 2)
+
+
+@pytest.mark.parametrize("key, value", [("component_format", "banana"), ("file_format", "jpeg")])
+def test_a_film_format_mitsuba_does_not_know_is_named(tmp_path, key, value):
+    body = sensor().replace("<rfilter", f"<string name='{key}' value='{value}'/><rfilter", 1)
+    with pytest.raises(ProbvisError, match=re.escape(f"<film>: unknown {key} '{value}'")):
+        probvis.load_scene(write_scene(tmp_path / "bad.xml", body + LIGHT))
+
+
+def test_a_default_s_name_may_be_any_word(tmp_path):
+    """`$r\u00e4` was read as `$r` and refused as undefined; Mitsuba substitutes any declared name."""
+    body = ("<default name='r\u00e4' value='0.25'/>" + sensor() +
+            "<shape type='sphere'><float name='radius' value='$r\u00e4'/></shape>" + LIGHT)
+    scene = probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+    assert np.isclose(np.abs(scene.triangles[scene.tri_emitter < 0]).max(), 0.25, rtol=0.01)
+
+
+@pytest.mark.parametrize("name", ["m.txt", "mesh"])
+def test_a_mesh_is_read_by_its_shape_type_not_its_extension(tmp_path, name):
+    """Mitsuba reads `type='obj'` as OBJ whatever the file is called; probvis chose the reader by extension."""
+    (tmp_path / name).write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    body = sensor() + f"<shape type='obj'><string name='filename' value='{name}'/></shape>" + LIGHT
+    scene = probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+    assert (scene.tri_emitter < 0).sum() == 1

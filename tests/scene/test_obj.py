@@ -49,7 +49,7 @@ def test_every_face_form_reads_as_trimesh_reads_it(tmp_path, form, extra, quads)
     fast = read_obj(path.read_bytes())
     assert fast is not None
     v1, f1, n1, uv1 = fast
-    v2, f2, n2, uv2 = shapes._read_general(path)
+    v2, f2, n2, uv2 = shapes._read_general(path, "obj")
     v2, f2 = np.asarray(v2), np.asarray(f2)
     assert len(f1) == 9  # eight triangles of the grid (four quads split or given as such) and one more
     assert (uv1 is not None) == ("vt" in extra) and (n1 is not None) == ("vn" in extra)

@@ -33,7 +33,7 @@ def write_ply(path, order="<", normals=True, uv=("u", "v"), faces=F, fmt=None, t
 def test_binary_triangles_read_as_trimesh_reads_them(tmp_path, order, normals, uv):
     path = write_ply(tmp_path / "m.ply", order, normals, uv)
     v, f, n, t = read_ply(path)
-    v2, f2, n2, t2 = shapes._read_general(path)
+    v2, f2, n2, t2 = shapes._read_general(path, "ply")
     np.testing.assert_array_equal(v, np.asarray(v2))
     np.testing.assert_array_equal(f, np.asarray(f2))
     np.testing.assert_array_equal(f, F)

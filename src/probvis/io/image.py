@@ -22,6 +22,8 @@ MAX_IMAGE_BYTES = 4 << 30  # an image file larger than this is refused before re
 def check_writable(path, formats=FORMATS, role="an image"):
     """Fail early, before a long render, when `path` cannot be written or its extension is not one of `formats`
     (`role` names what it is for in the message)."""
+    if not str(path):
+        raise ProbvisError("an output needs a file name (got an empty one)")
     if str(path).endswith(os.sep):
         raise ProbvisError(f"cannot write '{path}': the name ends in '{os.sep}' (a folder's name); give a file name")
     path = Path(path)
@@ -32,7 +34,8 @@ def check_writable(path, formats=FORMATS, role="an image"):
         parent = (Path(os.path.realpath(path)).parent if path.is_symlink() else
                   path.parent if str(path.parent) else Path("."))
         if not parent.is_dir():
-            raise ProbvisError(f"cannot write '{path}': folder '{parent}' does not exist")
+            what = "is a file, not a folder" if parent.exists() else "does not exist"
+            raise ProbvisError(f"cannot write '{path}': folder '{parent}' {what}")
         if not os.access(parent, os.W_OK):
             raise ProbvisError(f"cannot write '{path}': folder '{parent}' is not writable")
         if path.is_dir():

@@ -111,7 +111,7 @@ _APPROXIMATED_BSDFS = {"plastic", "roughplastic", "conductor", "roughconductor",
                        "pplastic", "hair", "measured", "polarizer", "retarder"}
 _PROPERTY_TAGS = {"integer", "float", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform"}
 _SAMPLERS = {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"}
-_VAR = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
+_VAR = re.compile(r"\$(\w+)")  # any <default> name, as Mitsuba substitutes it
 
 
 def _unique_ids(root, fail):
@@ -672,7 +672,7 @@ class _Reader:
                 if kind == "serialized":
                     v, f, vnormals, uv = shp.load_serialized(mesh_path, props.get("shape_index", 0))
                 else:
-                    v, f, vnormals, uv = shp.load_mesh(mesh_path, props.get("flip_tex_coords"))
+                    v, f, vnormals, uv = shp.load_mesh(mesh_path, props.get("flip_tex_coords"), kind)
             except ProbvisError as exc:
                 self.fail(node, str(exc))
             face_normals = props.get("face_normals", False)
@@ -842,6 +842,10 @@ class _Reader:
                 ("rfilter",))
             if props.get("pixel_format", "rgb") not in ("rgb", "rgba", "rgb_alpha", "luminance", "y"):
                 self.fail(node, f"unsupported pixel_format '{props['pixel_format']}'")
+            for key, known in (("component_format", ("float16", "float32", "uint32")),
+                               ("file_format", ("openexr", "exr", "rgbe", "hdr", "pfm"))):
+                if props.get(key, known[0]).lower() not in known:
+                    self.fail(node, f"unknown {key} '{props[key]}' (Mitsuba's hdrfilm takes {', '.join(known)})")
             for k, ch in enumerate(objs):
                 if k:
                     self.fail(ch, "only one reconstruction filter per film")

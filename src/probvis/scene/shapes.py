@@ -193,14 +193,14 @@ def _ply_truncated(path, declared, mesh):
     return None
 
 
-def _read(path):
+def _read(path, fmt):
     """trimesh's reader of the file's type, straight into one mesh: (Trimesh, the file's vertex normals or None).
     An OBJ is read as Mitsuba does, one mesh in file order (grouping statements dropped); the readers' arrays go
     into the mesh directly (trimesh.load's scene round trip took five times longer on a large PLY and dropped
     the file's normals)."""
     import trimesh
 
-    if path.suffix.lower() == ".obj":
+    if fmt == "obj":
         from trimesh.exchange.obj import load_obj
 
         kwargs = load_obj(io.BytesIO(_OBJ_GROUPING.sub(b"", path.read_bytes())), maintain_order=True)
@@ -217,11 +217,15 @@ def _read(path):
     return trimesh.Trimesh(**kwargs, process=False, maintain_order=True), normals
 
 
-def load_mesh(path, flip_tex_coords=None):
+def load_mesh(path, flip_tex_coords=None, fmt=None):
     """Read an OBJ or PLY file as `MeshData`, order preserved: by `read_obj` or `read_ply` where the file's
-    layout allows, by trimesh's reader otherwise. Texture coordinates are flipped vertically (v -> 1 - v) by
-    default for OBJ and not for PLY, as Mitsuba's `flip_tex_coords` defaults."""
+    layout allows, by trimesh's reader otherwise. `fmt` ("obj" or "ply", a scene's shape type; by default the
+    file's extension) chooses the reader, as Mitsuba reads by the shape's type. Texture coordinates are flipped
+    vertically (v -> 1 - v) by default for OBJ and not for PLY, as Mitsuba's `flip_tex_coords` defaults."""
     path = Path(path)
+    fmt = fmt or path.suffix.lower().lstrip(".")
+    if fmt not in ("obj", "ply"):
+        raise ProbvisError(f"mesh {path}: not an .obj or .ply file (a scene's shape type names the format)")
     if not path.exists():
         raise ProbvisError(f"mesh file not found: {path}")
     if not path.is_file():
@@ -229,12 +233,12 @@ def load_mesh(path, flip_tex_coords=None):
     if path.stat().st_size > MAX_MESH_BYTES:
         raise ProbvisError(f"mesh {path} is {path.stat().st_size / 2**30:.0f} GiB, more than probvis reads (at most "
                            f"{MAX_MESH_BYTES >> 30} GiB)")
-    obj = path.suffix.lower() == ".obj"
+    obj = fmt == "obj"
     try:
-        read = read_obj(path.read_bytes()) if obj else read_ply(path) if path.suffix.lower() == ".ply" else None
+        read = read_obj(path.read_bytes()) if obj else read_ply(path)
     except OSError as exc:
         raise ProbvisError(f"cannot read mesh {path}: {exc.strerror or exc}") from None
-    v, f, n, uv = read if read is not None else _read_general(path)
+    v, f, n, uv = read if read is not None else _read_general(path, fmt)
     if len(f) == 0:
         raise ProbvisError(f"mesh {path} contains no triangles")
     v = np.asarray(v, dtype=np.float64)
@@ -253,24 +257,24 @@ def load_mesh(path, flip_tex_coords=None):
     return MeshData(v, f, n, uv)
 
 
-def _read_general(path):
+def _read_general(path, fmt):
     """(vertices, faces, normals, uv) by trimesh's reader, with its failures and misreadings named (file:line
     for an OBJ)."""
     import trimesh
 
-    ply = _ply_elements(path) if path.suffix.lower() == ".ply" else {}
-    if path.suffix.lower() == ".obj" and (problem := _obj_problem(path)):
+    ply = _ply_elements(path) if fmt == "ply" else {}
+    if fmt == "obj" and (problem := _obj_problem(path)):
         raise ProbvisError(problem)
     try:
         with np.errstate(all="ignore"):  # trimesh's casts of NaN values warn; the values are checked below, by name
-            mesh, n = _read(path)
+            mesh, n = _read(path, fmt)
     except Exception:  # trimesh raises many types (and leaks its own dependencies' errors) for malformed files
-        problem = _obj_problem(path) if path.suffix.lower() == ".obj" else None
+        problem = _obj_problem(path) if fmt == "obj" else None
         raise ProbvisError(problem or _ply_truncated(path, ply, None) or
-                           f"cannot read mesh {path}: not a valid {path.suffix.lstrip('.').upper()} file") from None
+                           f"cannot read mesh {path}: not a valid {fmt.upper()} file") from None
     if ply and (problem := _ply_truncated(path, ply, mesh)):
         raise ProbvisError(problem)
-    if path.suffix.lower() == ".obj" and (problem := _obj_checked(path, mesh)):
+    if fmt == "obj" and (problem := _obj_checked(path, mesh)):
         raise ProbvisError(problem)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ProbvisError(f"mesh {path} contains no triangles")
