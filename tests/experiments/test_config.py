@@ -166,3 +166,14 @@ def test_a_plugin_method_whose_init_raises_is_named(tmp_path):
     with pytest.raises(ProbvisError, match=r"method 'e': visibility '.*p.py:X' \(.*X\) raised ValueError in "
                                            r"__init__: boom"):
         parse_experiment(doc(**change))
+
+
+def test_the_experiment_api_names_wrong_argument_types(tmp_path):
+    from probvis.experiments import experiment, quick_experiment
+
+    for kwargs, message in ((dict(workers="2"), "workers must be a whole number, got '2'"),
+                            (dict(cache=5), "cache must be a folder"), (dict(scheduler=5), "scheduler must be")):
+        with pytest.raises(ProbvisError, match=message):
+            experiment(quick_experiment(), tmp_path / "rep", **kwargs)
+    with pytest.raises(ProbvisError, match="base must be the folder relative paths start from"):
+        parse_experiment(doc(), base=5)

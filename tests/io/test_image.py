@@ -69,8 +69,29 @@ def test_a_pfm_scale_of_zero_or_a_comment_is_named(tmp_path):
 
     path = tmp_path / "t.pfm"
     path.write_bytes(b"PF\n2 2\n0\n" + np.full(12, 0.5, "<f4").tobytes())
-    with pytest.raises(ValueError, match="scale is 0: the scale's sign gives the byte order"):
+    with pytest.raises(ProbvisError, match="scale is 0: the scale's sign gives the byte order"):
         read_pfm(path)
     path.write_bytes(b"PF\n# a comment\n2 2\n-1\n" + np.full(12, 0.5, "<f4").tobytes())
-    with pytest.raises(ValueError, match="its header is not 'PF' or 'Pf', then the width and height"):
+    with pytest.raises(ProbvisError, match="its header is not 'PF' or 'Pf', then the width and height"):
         read_pfm(path)
+
+
+def test_the_io_functions_name_their_mistakes(tmp_path):
+    """probvis.io's exported functions raised raw ValueError, TypeError and FileNotFoundError (the last with the
+    temporary file's internal name), and write_stats wrote NaN, which is not JSON."""
+    from probvis.io import write_exr, write_png, write_stats
+
+    cases = [
+        (lambda: write_exr(tmp_path / "x.exr", np.zeros(5)),
+         r"expected an \(h, w, 3\) or \(h, w\) image, got shape \(5,\)"),
+        (lambda: tonemap_srgb("x"), "expected an image of numbers, got str"),
+        (lambda: write_png(5, np.zeros((2, 2, 3))), r"an output path must be a file name \(str or Path\), got 5"),
+        (lambda: read_pfm(tmp_path / "nothere.pfm"), "cannot read PFM image .*nothere.pfm: No such file"),
+        (lambda: write_stats(tmp_path / "no" / "s.json", {}), "cannot write '.*s.json': folder '.*no' does not exist"),
+        (lambda: write_exr(tmp_path / "no" / "x.exr", np.zeros((2, 2, 3))), "folder '.*no' does not exist"),
+        (lambda: write_stats(tmp_path / "s.json", {"a": float("nan")}), "the stats hold a value JSON cannot hold"),
+    ]
+    for call, message in cases:
+        with pytest.raises(ProbvisError, match=message):
+            call()
+    assert not list(tmp_path.iterdir())

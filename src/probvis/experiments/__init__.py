@@ -17,6 +17,12 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
         exp = load_experiment(exp)
     if not isinstance(out, (str, Path)):
         raise ProbvisError(f"out must be the report's folder (a path), got {type(out).__name__}")
+    if cache is not None and not isinstance(cache, (str, Path)):
+        raise ProbvisError(f"cache must be a folder (a path) or None, got {type(cache).__name__}")
+    if isinstance(workers, bool) or not isinstance(workers, int):
+        raise ProbvisError(f"workers must be a whole number, got {workers!r}")
+    if scheduler is not None and not isinstance(scheduler, str):
+        raise ProbvisError(f"scheduler must be an address (tcp://host:port) or None, got {type(scheduler).__name__}")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ProbvisError(f"report folder '{out}' is a file: give -o a folder (new or existing)")

@@ -197,6 +197,11 @@ def _method(where, table, base):
 def parse_experiment(data, base=Path("."), source=""):
     """Validate a parsed TOML document into an `Experiment`; `base` resolves relative paths."""
     where = source or "experiment"
+    if not isinstance(base, (str, Path)):
+        raise ProbvisError(f"base must be the folder relative paths start from (a path), got {type(base).__name__}")
+    if not isinstance(data, dict):
+        raise ProbvisError(f"an experiment is a table (dict) of its keys, got {type(data).__name__}")
+    base = Path(base)
     _check_keys(where, data, TOP_KEYS)
     scenes = data.get("scenes")
     methods = data.get("methods")

@@ -84,8 +84,15 @@ def atomic_path(path):
     """Yield a temporary path beside `path` (beside its target, for a symbolic link: the link is written
     through, as a plain write would); rename it over `path` only when the block succeeds (inside
     `staged_writes`, when all of them did)."""
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise ProbvisError(f"an output path must be a file name (str or Path), got {path!r}")
     shown, path = path, Path(os.path.realpath(path))
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent or ".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent or ".")
+    except OSError as exc:
+        missing = isinstance(exc, FileNotFoundError) or not path.parent.is_dir()
+        raise ProbvisError(f"cannot write '{shown}': " + (f"folder '{Path(shown).parent}' does not exist" if missing
+                                                          else exc.strerror or str(exc))) from None
     os.close(fd)
     try:
         yield tmp
@@ -107,10 +114,12 @@ def atomic_path(path):
 
 def _as_rgb(image):
     img = np.asarray(image)
+    if img.dtype.kind not in "biuf":
+        raise ProbvisError(f"expected an image of numbers, got {type(image).__name__} of {img.dtype}")
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
     if img.ndim != 3 or img.shape[2] != 3:
-        raise ValueError(f"expected an (h, w, 3) or (h, w) image, got shape {img.shape}")
+        raise ProbvisError(f"expected an (h, w, 3) or (h, w) image, got shape {img.shape}")
     return img
 
 
@@ -194,7 +203,7 @@ def read_linear_rgb(path, raw=False):
         img = read_exr(path)
     elif ext == ".pfm":
         try:
-            img = read_pfm(path)
+            img = _read_pfm(path)
         except (ValueError, OSError) as exc:
             raise ProbvisError(f"cannot read PFM image {path}: {exc}") from None
     elif ext == ".hdr":
@@ -264,9 +273,19 @@ def write_pfm(path, image):
 
 
 def read_pfm(path):
+    """A PFM image as (h, w, channels) float32, top row first; a file that is not one is named."""
+    try:
+        return _read_pfm(path)
+    except (ValueError, OSError) as exc:
+        raise ProbvisError(f"cannot read PFM image {path}: {getattr(exc, 'strerror', None) or exc}") from None
+
+
+def _read_pfm(path):
     with open(path, "rb") as f:
         kind = f.readline().strip()
         try:
+            if kind not in (b"PF", b"Pf"):
+                raise ValueError
             w, h = (int(x) for x in f.readline().split())
             scale = float(f.readline())
         except ValueError:

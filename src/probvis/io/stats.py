@@ -1,14 +1,19 @@
 """Render statistics: JSON files and the short summary the CLI prints."""
 import json
 
+from ..errors import ProbvisError
 from .image import atomic_path
 
 
 def write_stats(path, stats):
+    """`stats` as JSON; a value JSON cannot hold (NaN, infinity, an object) is refused, nothing written."""
+    try:
+        text = json.dumps(stats, indent=2, allow_nan=False) + "\n"
+    except (TypeError, ValueError) as exc:
+        raise ProbvisError(f"cannot write '{path}': the stats hold a value JSON cannot hold ({exc})") from None
     with atomic_path(path) as tmp:
         with open(tmp, "w") as f:
-            json.dump(stats, f, indent=2)
-            f.write("\n")
+            f.write(text)
 
 
 def summary(stats):
