@@ -1,10 +1,13 @@
-"""Binary PLY files of triangles read by memory-mapping them (`plyfile` with the faces' list length known).
+"""PLY files of triangles read by `plyfile`: binary ones memory-mapped with the faces' list length known,
+ASCII ones row by row, a row that does not match the header named.
 
-A scanned mesh is almost always one: a vertex element of scalar properties and a face element whose only list
+A scanned mesh is almost always binary: a vertex element of scalar properties and a face element whose only list
 holds three indices. Polygons are read row by row and split into fans around their first corner, as Mitsuba
-does. Anything else (ASCII, other list properties, a file shorter than its header says) returns None, and the
-caller falls back to the general reader, which also names what is wrong.
+does. Anything else (other list properties, a file shorter than its header says) returns None, and the caller
+falls back to the general reader, which also names what is wrong.
 """
+import io
+
 import numpy as np
 
 from ..errors import ProbvisError
@@ -49,7 +52,8 @@ def read_ply(path):
     if len(lists) != 1 or any(is_list for _, is_list in vertex):
         return None
     try:
-        with open(path, "rb") as fh:
+        # plyfile reads ASCII through a text wrapper it leaves open: over bytes in memory nothing is left open
+        with (io.BytesIO(path.read_bytes()) if header[0] == "ascii" else open(path, "rb")) as fh:
             try:
                 ply = PlyData.read(fh, known_list_len={"face": {lists[0]: 3}})
                 f = np.asarray(ply["face"].data[lists[0]], dtype=np.int64)
