@@ -114,3 +114,27 @@ def test_an_ascii_ply_whose_rows_do_not_match_its_header_is_named(tmp_path, face
                     f"{face}\n")
     with pytest.raises(ProbvisError, match=f"m.ply: malformed ASCII PLY: element 'face': row 0: .*{problem}"):
         shapes.load_mesh(path)
+
+
+def test_an_ascii_ply_with_another_element_is_read():
+    """Mitsuba skips elements it does not use (an edge list): probvis called the file truncated."""
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "m.ply"
+        path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                        "property float z\nelement face 1\nproperty list uchar int vertex_indices\nelement edge 1\n"
+                        "property int vertex1\nproperty int vertex2\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n0 1\n")
+        mesh = shapes.load_mesh(path)
+    assert mesh[1].tolist() == [[0, 1, 2]] and mesh[0].shape == (3, 3)
+
+
+def test_a_property_type_ply_does_not_have_is_named(tmp_path):
+    from probvis.errors import ProbvisError
+
+    path = tmp_path / "m.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty half x\nproperty float y\nproperty float z\n"
+                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    with pytest.raises(ProbvisError, match="malformed PLY header: line 4: field type 'half' is not one of PLY's"):
+        shapes.load_mesh(path)

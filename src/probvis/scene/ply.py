@@ -7,6 +7,7 @@ does. Anything else (other list properties, a file shorter than its header says)
 falls back to the general reader, which also names what is wrong.
 """
 import io
+from pathlib import Path
 
 import numpy as np
 
@@ -53,17 +54,21 @@ def read_ply(path):
         return None
     try:
         # plyfile reads ASCII through a text wrapper it leaves open: over bytes in memory nothing is left open
-        with (io.BytesIO(path.read_bytes()) if header[0] == "ascii" else open(path, "rb")) as fh:
+        with (io.BytesIO(Path(path).read_bytes()) if header[0] == "ascii" else open(path, "rb")) as fh:
             try:
                 ply = PlyData.read(fh, known_list_len={"face": {lists[0]: 3}})
-                f = np.asarray(ply["face"].data[lists[0]], dtype=np.int64)
+                rows = ply["face"].data[lists[0]]
+                if rows.dtype == object:  # ASCII: plyfile gives each row its own array
+                    raise PlyElementParseError("unexpected list length")
+                f = np.asarray(rows, dtype=np.int64)
             except PlyElementParseError as exc:
                 if header[0] == "ascii" and not any(m in str(exc) for m in ("unexpected list length", "end-of-file")):
                     raise ProbvisError(f"mesh {path}: malformed ASCII PLY: {exc}") from None
                 if "unexpected list length" not in str(exc):
                     return None
-                fh.seek(0)
-                ply = PlyData.read(fh)  # polygons: plyfile reads the faces row by row, split into fans here
+                if header[0] != "ascii":
+                    fh.seek(0)
+                    ply = PlyData.read(fh)  # polygons: plyfile reads the faces row by row, split into fans here
                 rows = ply["face"].data[lists[0]]
                 counts = np.array([len(r) for r in rows], dtype=np.int64)
                 if counts.min() < 3:
@@ -78,7 +83,12 @@ def read_ply(path):
                  if {"nx", "ny", "nz"} <= names else None)
             uv = next((np.column_stack([vert[a], vert[b]]).astype(np.float64) for a, b in UV_NAMES
                        if {a, b} <= names), None)
-    except (PlyElementParseError, PlyHeaderParseError, KeyError, ValueError):
+    except PlyHeaderParseError as exc:
+        if " not in " not in str(exc):
+            return None
+        raise ProbvisError(f"mesh {path}: malformed PLY header: {str(exc).split(' not in ')[0]} is not one of PLY's "
+                           "types (char, uchar, short, ushort, int, uint, float, double)") from None
+    except (PlyElementParseError, KeyError, ValueError):
         return None
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
         return None
