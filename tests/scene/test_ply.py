@@ -135,6 +135,7 @@ def test_a_property_type_ply_does_not_have_is_named(tmp_path):
 
     path = tmp_path / "m.ply"
     path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty half x\nproperty float y\nproperty float z\n"
-                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+                    "3 0 1 2\n")
     with pytest.raises(ProbvisError, match="malformed PLY header: line 4: field type 'half' is not one of PLY's"):
         shapes.load_mesh(path)
