@@ -426,3 +426,20 @@ def test_a_mesh_is_read_by_its_shape_type_not_its_extension(tmp_path, name):
     body = sensor() + f"<shape type='obj'><string name='filename' value='{name}'/></shape>" + LIGHT
     scene = probvis.load_scene(write_scene(tmp_path / "s.xml", body))
     assert (scene.tri_emitter < 0).sum() == 1
+
+
+def test_a_shapegroup_nothing_instances_is_still_loaded(tmp_path):
+    """Mitsuba loads a group's shapes when it is defined: a missing mesh in an unused group went unnoticed."""
+    body = (sensor() + "<shape type='shapegroup' id='g'><shape type='obj'><string name='filename' "
+            "value='nothere.obj'/></shape></shape>" + LIGHT)
+    with pytest.raises(ProbvisError, match="mesh file not found: .*nothere.obj"):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+
+
+def test_a_sensor_s_spectral_response_is_approximated_or_refused(tmp_path):
+    """`srf` was parsed and ignored without a word; a negative one is no response at all."""
+    body = sensor().replace("<float name=\"fov\"", "<rgb name='srf' value='0.5'/><float name=\"fov\"", 1)
+    with pytest.warns(UserWarning, match="sensor 'srf' ignored: probvis renders RGB"):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", body + LIGHT))
+    with pytest.raises(ProbvisError, match="srf \\(spectral response\\) must not be negative"):
+        probvis.load_scene(write_scene(tmp_path / "n.xml", body.replace("'0.5'", "'-1'") + LIGHT))

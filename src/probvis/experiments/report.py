@@ -13,6 +13,7 @@ import io
 import json
 import math
 import shutil
+import warnings
 from importlib import resources
 from pathlib import Path
 
@@ -485,6 +486,8 @@ Data: <a href=results.csv>results.csv</a>, <a href=results.json>results.json</a>
 def write_report(exp, run, results, folder, command=""):
     """Write the report; on failure (a full disk, say) say so — the renders stay in the cache."""
     try:
-        return Report(exp, run, results, folder, command).write()
+        with warnings.catch_warnings():  # an exact method's relMSE of 0 has no place on a log axis: not plotted
+            warnings.filterwarnings("ignore", message="Data has no positive values")
+            return Report(exp, run, results, folder, command).write()
     except OSError as exc:
         raise ProbvisError(f"cannot write the report to '{folder}': {exc.strerror or exc}") from None

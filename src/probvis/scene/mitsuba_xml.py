@@ -140,6 +140,7 @@ class _Reader:
         self.default_lines = {}  # the line of each <default>
         self.used = set()  # overridden parameters the scene refers to
         self.ids = {}
+        self.referenced = set()  # ids a <ref> resolved
 
     # --- errors and values -------------------------------------------------------------------
     def fail(self, node, msg):
@@ -503,6 +504,7 @@ class _Reader:
         k, val = self.ids[key]
         if k != kind:
             self.fail(node, f"id '{key}' is a {k}, not a {kind}")
+        self.referenced.add(key)
         return val
 
     def emitter_radiance(self, node):
@@ -744,6 +746,10 @@ class _Reader:
         else:
             allowed.update(aperture_radius=("float",), focus_distance=("float",))
         props, objs = self.params(node, allowed, ("sampler", "film"))
+        if "srf" in props:
+            if np.any(np.asarray(props["srf"]) < 0):
+                self.fail(node, "the sensor's srf (spectral response) must not be negative")
+            self.approximate(node, "sensor 'srf'", "ignored: probvis renders RGB with the standard response")
         spp, seed, film, sampler = 4, 0, None, None  # Mitsuba's default sample count and seed
         for ch in objs:
             if ch.tag == "sampler":
@@ -964,6 +970,10 @@ class _Reader:
                 self.delta_emitter(ch, builder)
             else:
                 self.fail(ch, "unsupported element")
+        for key, (kind, shapes) in list(self.ids.items()):  # Mitsuba loads a group's shapes though none uses it
+            if kind == "shapegroup" and key not in self.referenced:
+                for child in shapes:
+                    self.shape(child, SceneBuilder(key, str(self.path)), np.eye(4))
         if camera is None:
             raise ProbvisError(f"{self.path}: the scene has no <sensor>")
         unused = sorted(set(self.overrides) - self.used - set(self.defaults))
