@@ -459,7 +459,9 @@ def _cmd_experiment(args):
 
 
 def _warning_line(message, category, filename, lineno, file=None, line=None):
-    print(f"probvis: warning: {message}", file=sys.stderr)
+    """A warning as one line: a library's multi-line, coloured text (Numba's) keeps its first line, uncoloured."""
+    text = re.sub(r"\x1b\[[0-9;]*m", "", str(message)).strip().splitlines()
+    print(f"probvis: warning: {text[0] if text else category.__name__}", file=sys.stderr)
 
 
 def _visibility_arg(argv):
@@ -586,6 +588,9 @@ def _parse(argv):
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     warnings.showwarning = _warning_line
+    # Numba guards its first parallel launch with a multiprocessing lock; without one (no /dev/shm, a file size
+    # limit) it warns at length, though a render runs one process
+    warnings.filterwarnings("ignore", message=".*Could not obtain multiprocessing lock")
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     if hasattr(sys.stdout, "reconfigure"):  # a scene's non-ASCII name under an ASCII locale: escaped, not a crash

@@ -95,3 +95,13 @@ def test_the_io_functions_name_their_mistakes(tmp_path):
         with pytest.raises(ProbvisError, match=message):
             call()
     assert not list(tmp_path.iterdir())
+
+
+def test_an_empty_write_is_refused(tmp_path):
+    """OpenEXR's writer reports nothing when it can write nothing (ulimit -f 0): an empty file is an error."""
+    from probvis.io.image import atomic_path
+
+    with pytest.raises(ProbvisError, match="cannot write '.*e.exr': nothing could be written"):
+        with atomic_path(str(tmp_path / "e.exr")) as tmp:
+            open(tmp, "wb").close()
+    assert not list(tmp_path.iterdir())

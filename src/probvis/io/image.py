@@ -96,6 +96,9 @@ def atomic_path(path):
     os.close(fd)
     try:
         yield tmp
+        if os.path.getsize(tmp) == 0:  # OpenEXR's writer reports no error when it can write nothing
+            raise ProbvisError(f"cannot write '{shown}': nothing could be written (a full disk, or a file size limit: "
+                               "ulimit -f)")
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the file the usual permissions
