@@ -3,9 +3,11 @@ runs, and raise KeyboardInterrupt at the next safe point instead.
 
 Python raises KeyboardInterrupt wherever the main thread happens to be. Inside a Numba kernel that leaves the
 interpreter in an error state; inside Dask's client calls it leaves a half-cancelled operation whose clean-up
-callback fails with a logged traceback. Both callers poll `check()` at points where stopping is clean.
+callback fails with a logged traceback. Both callers poll `check()` at points where stopping is clean. Inside
+Numba's compiler (a first run's minutes of Python code, no kernel running) a signal acts at once.
 """
 import signal
+import sys
 import threading
 from contextlib import contextmanager
 
@@ -19,7 +21,13 @@ def deferred_interrupts(signals=(signal.SIGINT, signal.SIGTERM)):
         yield lambda: None
         return
     pending = []
-    previous = {s: signal.signal(s, lambda signum, frame: pending.append(signum)) for s in signals}
+
+    def record(signum, frame):
+        pending.append(signum)
+        if _compiling():  # Numba's compiler is Python code, no kernel runs: stop now, not after minutes
+            raise KeyboardInterrupt
+
+    previous = {s: signal.signal(s, record) for s in signals}
 
     def check():
         if pending:
@@ -31,3 +39,9 @@ def deferred_interrupts(signals=(signal.SIGINT, signal.SIGTERM)):
         for s, handler in previous.items():
             signal.signal(s, handler)
     check()
+
+
+def _compiling():
+    """Whether this thread is inside Numba's compiler (a first run compiles for minutes)."""
+    lock = getattr(sys.modules.get("numba.core.compiler_lock"), "global_compiler_lock", None)
+    return lock is not None and lock.is_locked()

@@ -1,0 +1,31 @@
+import os
+import signal
+
+import pytest
+
+from probvis.interrupts import deferred_interrupts
+
+
+def test_a_signal_waits_for_the_next_safe_point():
+    with pytest.raises(KeyboardInterrupt):
+        with deferred_interrupts() as check:
+            os.kill(os.getpid(), signal.SIGTERM)
+            reached = True  # the handler only recorded it
+            check()
+    assert reached
+
+
+def test_a_signal_inside_numbas_compiler_acts_at_once():
+    """A first run compiles for minutes inside the render's deferral: SIGTERM 40 s in was acted on only after
+    the compile (the process ran on for a minute)."""
+    from numba.core.compiler_lock import global_compiler_lock
+
+    reached = False
+    with pytest.raises(KeyboardInterrupt):
+        with deferred_interrupts():
+            with global_compiler_lock:
+                os.kill(os.getpid(), signal.SIGTERM)
+                for _ in range(1000):  # the handler runs between bytecodes, within these
+                    pass
+                reached = True
+    assert not reached
