@@ -494,19 +494,19 @@ def _say(*args):
     """Print to the standard output; a closed or failing one (`>&-`, `> /dev/full`) is `_StdoutFailed`."""
     if sys.stdout is None:
         raise _StdoutFailed("it is closed")
-    try:
-        print(*args)
-    except BrokenPipeError:
-        raise
-    except (OSError, ValueError) as exc:
-        raise _StdoutFailed(getattr(exc, "strerror", None) or exc) from None
+    _stdout_call(print, *args)
 
 
 def _flush_stdout():
     """Flush what a command printed, so that a failing standard output is reported here, not at exit."""
+    if sys.stdout is not None:
+        _stdout_call(sys.stdout.flush)
+
+
+def _stdout_call(write, *args):
+    """`write(*args)` on the standard output, its failure (other than the reader leaving) `_StdoutFailed`."""
     try:
-        if sys.stdout is not None:
-            sys.stdout.flush()
+        write(*args)
     except BrokenPipeError:
         raise
     except (OSError, ValueError) as exc:
