@@ -486,6 +486,13 @@ def _caused_by_interrupt(exc):
     return False
 
 
+def _unraisable(unraisable):
+    """An interrupt inside a library's callback (llvmlite's, while Numba compiles) is reported once, as the
+    interrupt; anything else as Python would."""
+    if not issubclass(unraisable.exc_type, KeyboardInterrupt):
+        sys.__unraisablehook__(unraisable)
+
+
 class _StdoutFailed(Exception):
     """Writing the standard output failed (its OSError's reason)."""
 
@@ -588,6 +595,7 @@ def _parse(argv):
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     warnings.showwarning = _warning_line
+    sys.unraisablehook = _unraisable
     # Numba guards its first parallel launch with a multiprocessing lock; without one (no /dev/shm, a file size
     # limit) it warns at length, though a render runs one process
     warnings.filterwarnings("ignore", message=".*Could not obtain multiprocessing lock")
@@ -617,11 +625,6 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("probvis: interrupted, nothing written", file=sys.stderr)
         return 130
-    except SystemError as exc:  # Ctrl-C or SIGTERM while compiled code returned: Python chains it as a cause
-        if not _caused_by_interrupt(exc):
-            raise
-        print("probvis: interrupted, nothing written", file=sys.stderr)
-        return 130
     except BrokenPipeError:  # `probvis tables | head`: the reader left; say nothing more
         _drop_stdout()
         return 141
@@ -629,6 +632,14 @@ def main(argv=None):
         _drop_stdout()
         print(f"probvis: error: cannot write to the standard output: {exc}", file=sys.stderr)
         return 1
+    except Exception as exc:  # Ctrl-C or SIGTERM while compiled code returned (a SystemError chains it as a
+        # cause) or inside Numba's compiler, where a callback swallows it and the compile fails on its own terms
+        from .interrupts import interrupt_received
+
+        if not (_caused_by_interrupt(exc) or interrupt_received()):
+            raise
+        print("probvis: interrupted, nothing written", file=sys.stderr)
+        return 130
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, previous)

@@ -21,9 +21,11 @@ def deferred_interrupts(signals=(signal.SIGINT, signal.SIGTERM)):
         yield lambda: None
         return
     pending = []
+    _received.clear()
 
     def record(signum, frame):
         pending.append(signum)
+        _received.append(signum)
         if _compiling():  # Numba's compiler is Python code, no kernel runs: stop now, not after minutes
             raise KeyboardInterrupt
 
@@ -39,6 +41,14 @@ def deferred_interrupts(signals=(signal.SIGINT, signal.SIGTERM)):
         for s, handler in previous.items():
             signal.signal(s, handler)
     check()
+
+
+_received = []  # the stop signals the latest deferral recorded
+
+
+def interrupt_received():
+    """Whether a stop signal arrived inside a deferral: an error that follows it is the interrupt's doing."""
+    return bool(_received)
 
 
 def _compiling():
