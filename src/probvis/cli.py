@@ -377,19 +377,19 @@ def _cmd_info(args):
         return 0
     _say(f"scene      {info['scene']} ({info['source']})")
     _say(f"triangles  {info['triangles']:,}" + (f" ({scene.dropped_degenerate} degenerate dropped)"
-                                                if scene.dropped_degenerate else ""))
+                                               if scene.dropped_degenerate else ""))
     _say(f"bounds     {np.round(lo, 4).tolist()} .. {np.round(hi, 4).tolist()}")
     _say(f"camera     {cam.width}x{cam.height}, fov_x {cam.fov_x:.4g} deg, {scene.defaults.spp} spp x "
-          f"{scene.defaults.shadow_rays} shadow rays")
+         f"{scene.defaults.shadow_rays} shadow rays")
     for e, em in enumerate(info["emitters"]):
         _say(f"emitter {e}  radiance {em['radiance']}, area {em['area']:.4g}, power {em['power']:.4g}, "
-              f"p {em['selection_probability']:.3f}")
+             f"p {em['selection_probability']:.3f}")
     b = info["bvh"]
     _say(f"bvh        {b['nodes']:,} nodes, {b['leaves']:,} leaves, depth {b['max_depth']}, "
-          f"mean leaf {b['mean_leaf_size']:.2f}, SAH cost {b['sah_cost']:.2f}, built in {b['build_seconds']:.3f} s")
+         f"mean leaf {b['mean_leaf_size']:.2f}, SAH cost {b['sah_cost']:.2f}, built in {b['build_seconds']:.3f} s")
     for s in info["shapes"]:
         _say(f"shape      {s['name']:<16} {s['type']:<10} {s['triangles']:>8,} triangles"
-              + ("  (emitter)" if s["emitter"] >= 0 else ""))
+             + ("  (emitter)" if s["emitter"] >= 0 else ""))
     return 0
 
 
@@ -417,10 +417,10 @@ def _cmd_tables(args):
     for d in out:
         _say(f"{d['decomposition']}  (p = {', '.join(f'{x:.4g}' for x in d['probabilities'])})")
         _say(f"  {'V_A':>3} {'V_B':>3} {'V_A V_B':>7}  " + "".join(f"{t:>24}" for t in d["terms"])
-              + f"{'variance':>12}")
+             + f"{'variance':>12}")
         for r in d["rows"]:
             _say(f"  {r['VA']:>3} {r['VB']:>3} {r['product']:>7}  " + "".join(f"{v:>24.6g}" for v in r["values"])
-                  + f"{r['variance']:>12.6g}")
+                 + f"{r['variance']:>12.6g}")
         _say()
     return 0
 
@@ -454,7 +454,7 @@ def _cmd_experiment(args):
     finally:
         signal.signal(signal.SIGTERM, previous)
     _say(f"{run.computed} renders computed, {run.cells_cached} of {len(run.tasks)} cells from the cache; "
-          f"report: {index}")
+         f"report: {index}")
     return 0
 
 

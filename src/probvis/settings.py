@@ -4,6 +4,7 @@ A scene file declares its own (Mitsuba's `sampler sample_count` and `seed`, the 
 kept as `Scene.defaults`; `render` starts from those and replaces what the caller gives.
 """
 import dataclasses
+import numbers
 import re
 from dataclasses import dataclass
 
@@ -34,8 +35,6 @@ def parse_float(text):
 
 def _whole(value):
     """Whether `value` is a whole number (an int, or a float or numpy number with no fraction), not a bool."""
-    import numbers
-
     return (isinstance(value, numbers.Real) and not isinstance(value, bool) and value == value
             and abs(value) != float("inf") and int(value) == value)
 

@@ -205,10 +205,7 @@ def read_linear_rgb(path, raw=False):
     if ext == ".exr":
         img = read_exr(path)
     elif ext == ".pfm":
-        try:
-            img = _read_pfm(path)
-        except (ValueError, OSError) as exc:
-            raise ProbvisError(f"cannot read PFM image {path}: {exc}") from None
+        img = read_pfm(path)
     elif ext == ".hdr":
         import cv2
 

@@ -111,6 +111,13 @@ _APPROXIMATED_BSDFS = {"plastic", "roughplastic", "conductor", "roughconductor",
                        "pplastic", "hair", "measured", "polarizer", "retarder"}
 _PROPERTY_TAGS = {"integer", "float", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform"}
 _SAMPLERS = {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"}
+def _invertible_affine(m):
+    """Whether the 4x4 transform `m` is affine (last row 0 0 0 1) with an invertible linear part, judged
+    independently of its overall scale."""
+    size = np.abs(m[:3, :3]).max()
+    return bool(size > 0 and abs(np.linalg.det(m[:3, :3] / size)) >= 1e-12 and np.all(m[3] == (0, 0, 0, 1)))
+
+
 _VAR = re.compile(r"\$(\w+)")  # any <default> name, as Mitsuba substitutes it
 
 
@@ -698,8 +705,7 @@ class _Reader:
             face_normals = False
         if kind in ("disk", "sphere", "cylinder"):
             uv = shp.analytic_uv(kind, v[f])
-        size = np.abs(m[:3, :3]).max()
-        if not size > 0 or abs(np.linalg.det(m[:3, :3] / size)) < 1e-12 or np.any(m[3] != (0, 0, 0, 1)):
+        if not _invertible_affine(m):
             self.fail(node, "the shape's to_world is singular or projective (a scale of 0 flattens it; a matrix's "
                             "last row must be 0 0 0 1): check its scale and matrix")
         if kind in ("rectangle", "disk", "sphere", "cylinder") and np.linalg.det(m[:3, :3]) < 0:
@@ -783,8 +789,7 @@ class _Reader:
             if not (lens["aperture_radius"] >= 0 and lens["focus_distance"] > 0):
                 self.fail(node, "aperture_radius must be >= 0 and focus_distance positive")
         m = props.get("to_world", np.eye(4))
-        size = np.abs(m[:3, :3]).max()
-        if not size > 0 or abs(np.linalg.det(m[:3, :3] / size)) < 1e-12 or np.any(m[3] != (0, 0, 0, 1)):
+        if not _invertible_affine(m):
             self.fail(node, "the sensor's to_world is singular or projective: a camera needs an invertible "
                             "rotation, scale and translation (check its scale and matrix)")
         scale = np.abs(np.linalg.det(m[:3, :3])) ** (1 / 3)

@@ -57,23 +57,21 @@ def read_ply(path):
         with (io.BytesIO(Path(path).read_bytes()) if header[0] == "ascii" else open(path, "rb")) as fh:
             try:
                 ply = PlyData.read(fh, known_list_len={"face": {lists[0]: 3}})
-                rows = ply["face"].data[lists[0]]
-                if rows.dtype == object:  # ASCII: plyfile gives each row its own array
-                    raise PlyElementParseError("unexpected list length")
-                f = np.asarray(rows, dtype=np.int64)
             except PlyElementParseError as exc:
-                if header[0] == "ascii" and not any(m in str(exc) for m in ("unexpected list length", "end-of-file")):
-                    raise ProbvisError(f"mesh {path}: malformed ASCII PLY: {exc}") from None
-                if "unexpected list length" not in str(exc):
+                if "unexpected list length" not in str(exc):  # a binary file's polygon breaks the fixed length
+                    if header[0] == "ascii" and "end-of-file" not in str(exc):
+                        raise ProbvisError(f"mesh {path}: malformed ASCII PLY: {exc}") from None
                     return None
-                if header[0] != "ascii":
-                    fh.seek(0)
-                    ply = PlyData.read(fh)  # polygons: plyfile reads the faces row by row, split into fans here
-                rows = ply["face"].data[lists[0]]
+                fh.seek(0)
+                ply = PlyData.read(fh)
+            rows = ply["face"].data[lists[0]]
+            if rows.dtype == object:  # polygons, or any ASCII file: a row per face, split into fans here
                 counts = np.array([len(r) for r in rows], dtype=np.int64)
                 if counts.min() < 3:
                     return None
                 f = np.concatenate(rows).astype(np.int64)[fans(counts)]
+            else:
+                f = np.asarray(rows, dtype=np.int64)
             vert = ply["vertex"].data
             names = set(vert.dtype.names)
             if not {"x", "y", "z"} <= names:
