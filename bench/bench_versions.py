@@ -3,7 +3,7 @@
     git worktree add /tmp/before <commit>
     python3 bench/bench_versions.py /tmp/before/src src --pairs 6
 
-Each pair renders cornell-bunny (../shared) at 256x256, 16 spp x 16 shadow rays, exact visibility, three times
+Each pair renders cornell-bunny (../shared; `--scene` for another) at 256x256, 16 spp x 16 shadow rays, exact visibility, three times
 in a fresh process per tree (the trees alternate, first one then the other, so both see the machine's slow and
 fast phases alike). Reported: per tree the median over pairs of each process's best render seconds (the
 render phase, compile and loading excluded), and the median of the per-pair ratios second / first.
@@ -47,8 +47,9 @@ def main():
     ap.add_argument("--repeats", type=int, default=3, help="renders per process (the best counts)")
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--visibility", default="exact")
+    ap.add_argument("--scene", default="cornell-bunny", help="a scene of ../shared/scenes (default cornell-bunny)")
     args = ap.parse_args()
-    scene = SHARED / "scenes" / "cornell-bunny.xml"
+    scene = SHARED / "scenes" / f"{args.scene}.xml"
     for src in (args.first, args.second):  # compile both outside the timing
         run(src, scene, 8, 1, args.visibility)
     first, second, ratios = [], [], []

@@ -134,11 +134,9 @@ def triangle_irradiance(triangles, t, px, py, pz, nx, ny, nz):
     lz = ex[0] * fx[1] - ex[1] * fx[0]
     if lx * (px - triangles[t, 0, 0]) + ly * (py - triangles[t, 0, 1]) + lz * (pz - triangles[t, 0, 2]) <= 0.0:
         return 0.0  # p is behind the emitting side
-    # clip the triangle (relative to p) against the receiver's horizon plane: at most 4 vertices
-    vx = np.empty(4)
-    vy = np.empty(4)
-    vz = np.empty(4)
-    m = 0
+    # clip the triangle (relative to p) against the receiver's horizon plane: at most 4 vertices, each made
+    # unit and summed edge by edge as it comes (no arrays: the fused kernels run without Numba's allocator)
+    c = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, False)  # first vertex, previous vertex, count, sum, degenerate
     for i in range(3):
         j = (i + 1) % 3
         ax, ay, az = triangles[t, i, 0] - px, triangles[t, i, 1] - py, triangles[t, i, 2] - pz
@@ -146,33 +144,38 @@ def triangle_irradiance(triangles, t, px, py, pz, nx, ny, nz):
         da = ax * nx + ay * ny + az * nz
         db = bx * nx + by * ny + bz * nz
         if da >= 0.0:
-            vx[m], vy[m], vz[m] = ax, ay, az
-            m += 1
+            c = _clip_vertex(c, ax, ay, az, nx, ny, nz)
         if (da >= 0.0) != (db >= 0.0):
             s = da / (da - db)
-            vx[m], vy[m], vz[m] = ax + s * (bx - ax), ay + s * (by - ay), az + s * (bz - az)
-            m += 1
-    if m < 3:
+            c = _clip_vertex(c, ax + s * (bx - ax), ay + s * (by - ay), az + s * (bz - az), nx, ny, nz)
+    if c[6] < 3 or c[8]:
         return 0.0
-    for i in range(m):
-        r = np.sqrt(vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i])
-        if r == 0.0:
-            return 0.0
-        vx[i] /= r
-        vy[i] /= r
-        vz[i] /= r
-    total = 0.0
-    for i in range(m):
-        j = (i + 1) % m
-        cx = vy[i] * vz[j] - vz[i] * vy[j]
-        cy = vz[i] * vx[j] - vx[i] * vz[j]
-        cz = vx[i] * vy[j] - vy[i] * vx[j]
-        sn = np.sqrt(cx * cx + cy * cy + cz * cz)
-        if sn == 0.0:
-            continue
-        cs = vx[i] * vx[j] + vy[i] * vy[j] + vz[i] * vz[j]
-        total += np.arctan2(sn, cs) * (cx * nx + cy * ny + cz * nz) / sn
-    return 0.5 * abs(total)
+    return 0.5 * abs(c[7] + _edge_term(c[3], c[4], c[5], c[0], c[1], c[2], nx, ny, nz))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _clip_vertex(c, x, y, z, nx, ny, nz):
+    """`triangle_irradiance`'s running state `c` after the clipped polygon's next vertex (x, y, z): made unit,
+    the edge from the previous one added, a zero-length vertex marked degenerate."""
+    r = np.sqrt(x * x + y * y + z * z)
+    ux, uy, uz = x / r, y / r, z / r
+    total = c[7] if c[6] == 0 else c[7] + _edge_term(c[3], c[4], c[5], ux, uy, uz, nx, ny, nz)
+    if c[6] == 0:
+        return (ux, uy, uz, ux, uy, uz, 1, total, r == 0.0)
+    return (c[0], c[1], c[2], ux, uy, uz, c[6] + 1, total, c[8] or r == 0.0)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _edge_term(ax, ay, az, bx, by, bz, nx, ny, nz):
+    """Lambert's term of the polygon edge between unit vectors a and b for normal n."""
+    cx = ay * bz - az * by
+    cy = az * bx - ax * bz
+    cz = ax * by - ay * bx
+    sn = np.sqrt(cx * cx + cy * cy + cz * cz)
+    if sn == 0.0:
+        return 0.0
+    cs = ax * bx + ay * by + az * bz
+    return np.arctan2(sn, cs) * (cx * nx + cy * ny + cz * nz) / sn
 
 
 @njit(cache=True, error_model="numpy", inline="always")

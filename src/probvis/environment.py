@@ -80,12 +80,15 @@ def _bilinear(image, fx, fy):
     i = min(int(fy), image.shape[0] - 2)
     j = min(int(fx), image.shape[1] - 2)
     wx, wy = fx - j, fy - i
-    out = [0.0, 0.0, 0.0]
-    for c in range(3):
-        top = (1.0 - wx) * image[i, j, c] + wx * image[i, j + 1, c]
-        bottom = (1.0 - wx) * image[i + 1, j, c] + wx * image[i + 1, j + 1, c]
-        out[c] = (1.0 - wy) * top + wy * bottom
-    return out[0], out[1], out[2]
+    return _lerp2(image, i, j, wx, wy, 0), _lerp2(image, i, j, wx, wy, 1), _lerp2(image, i, j, wx, wy, 2)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _lerp2(image, i, j, wx, wy, c):
+    """Channel c of the bilinear blend of pixels (i, j)..(i + 1, j + 1) with weights (wx, wy)."""
+    top = (1.0 - wx) * image[i, j, c] + wx * image[i, j + 1, c]
+    bottom = (1.0 - wx) * image[i + 1, j, c] + wx * image[i + 1, j + 1, c]
+    return (1.0 - wy) * top + wy * bottom
 
 
 @njit(cache=True, error_model="numpy", inline="always")

@@ -9,10 +9,11 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .environment import environment_radiance
 from .geometry import unit_normals
+from .parallel import over_threads
 from .texture import texture_arrays, texture_value
 
 
@@ -52,19 +53,16 @@ class Interactions(NamedTuple):
     albedo: np.ndarray  # (m, 3) diffuse reflectance at the point
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def _surface(geom, tx, es, prim, b1, b2, dirs):
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _surface(geom, tx, es, prim, b1, b2, dirs, first, end, out):
+    """Interactions first..end-1 into `out`, the zeroed (emitted, position, normal, material, albedo) arrays
+    (serial, without Numba's allocator and reference counts: `surface_interactions` runs it over the threads)."""
     triangles, vnormals, tri_mat, tri_emit = geom.triangles, geom.vertex_normals, geom.tri_material, geom.tri_emitter
     twosided, radiance = geom.twosided, geom.emitter_radiance
-    n = prim.shape[0]
-    emitted = np.zeros((n, 3))
-    pos = np.zeros((n, 3))
-    nrm = np.zeros((n, 3))
-    mat = np.full(n, -1, np.int32)
-    albedo = np.zeros((n, 3))
+    emitted, pos, nrm, mat, albedo = out
     scale = es.env_scale
     sky = scale[0] != 0.0 or scale[1] != 0.0 or scale[2] != 0.0
-    for i in prange(n):
+    for i in range(first, end):
         tri = prim[i]
         if tri < 0:
             if sky:
@@ -101,11 +99,12 @@ def _surface(geom, tx, es, prim, b1, b2, dirs):
             u = c0 * uv[tri, 0, 0] + c1 * uv[tri, 1, 0] + c2 * uv[tri, 2, 0]
             v = c0 * uv[tri, 0, 1] + c1 * uv[tri, 1, 1] + c2 * uv[tri, 2, 1]
             albedo[i, 0], albedo[i, 1], albedo[i, 2] = texture_value(tx, t, u, v)
-    return emitted, pos, nrm, mat, albedo
 
 
 def surface_interactions(geom, textures, es, prim, b1, b2, dirs):
     """`Interactions` of camera rays with directions `dirs` that hit triangles `prim` (-1: a miss) at barycentrics
     (b1, b2); `textures` are the scene's `TextureArrays`, `es` its `EmitterArrays` (for the environment)."""
-    emitted, pos, nrm, mat, albedo = _surface(geom, textures, es, prim, b1, b2, dirs)
-    return Interactions(prim, emitted, pos, nrm, mat, albedo)
+    n = len(prim)
+    out = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.full(n, -1, np.int32), np.zeros((n, 3)))
+    over_threads(lambda first, end: _surface(geom, textures, es, prim, b1, b2, dirs, first, end, out), n)
+    return Interactions(prim, *out)

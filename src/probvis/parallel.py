@@ -1,11 +1,17 @@
-"""Load balance for `prange` loops whose blocks of work differ in cost.
+"""Parallel loops over blocks of work: the split of an iteration range over the thread budget, and load balance.
 
-Numba splits a `prange` into one contiguous run of iterations per thread. Blocks of rays or shading points
+Numba splits a `prange` into one contiguous run of iterations per thread; `over_threads` splits a range the
+same way for a serial `nogil` kernel run on a pool of that many threads, which Numba compiles without its
+parallel-loop passes (the largest kernels compile in a third of the time). Blocks of rays or shading points
 in image order are not equally expensive (the top of a Cornell box image is ceiling, the bottom is the
 bunny and its shadow), so contiguous runs leave one thread idle while another finishes. Visiting block
-`spread(t, n)` in iteration t of `prange(n)` gives every thread an even mix of the image instead; results
+`spread(t, n)` in iteration t of either loop gives every thread an even mix of the image instead; results
 do not depend on it.
 """
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import numba
 from numba import njit
 
 LANES = 32  # interleaving width: at least the number of threads
@@ -27,3 +33,24 @@ def spread(t, n_blocks):
         u = t - full * rows
         lane, row = full + u // (rows - 1), u % (rows - 1)
     return row * LANES + lane
+
+
+_pools = {}  # pool size -> its ThreadPoolExecutor, made once
+_pools_lock = threading.Lock()
+
+
+def over_threads(task, n):
+    """Run `task(lo, hi)` over contiguous runs that split range(n) among `numba.get_num_threads()` threads (the
+    render's budget), the calling thread taking the first run; returns when all have, raising the first error.
+    `task` calls a `nogil` kernel: the runs execute at once, and no run may start parallel work of its own."""
+    k = max(1, min(numba.get_num_threads(), n))
+    cuts = [n * j // k for j in range(k + 1)]
+    with _pools_lock:
+        if k > 1 and k not in _pools:
+            _pools[k] = ThreadPoolExecutor(k - 1, thread_name_prefix="probvis")
+    futures = [_pools[k].submit(task, cuts[j], cuts[j + 1]) for j in range(1, k)]
+    try:
+        task(cuts[0], cuts[1])
+    finally:
+        for f in futures:
+            f.result()

@@ -93,9 +93,12 @@ def texture_value(tx, t, u, v):
     x0, y0 = math.floor(fx), math.floor(fy)
     wx, wy = fx - x0, fy - y0
     x, y = int(x0), int(y0)
-    out = [0.0, 0.0, 0.0]
-    for c in range(3):
-        top = (1.0 - wx) * _texel(tx, t, x, y, c) + wx * _texel(tx, t, x + 1, y, c)
-        bottom = (1.0 - wx) * _texel(tx, t, x, y + 1, c) + wx * _texel(tx, t, x + 1, y + 1, c)
-        out[c] = (1.0 - wy) * top + wy * bottom
-    return out[0], out[1], out[2]
+    return _bilinear(tx, t, x, y, wx, wy, 0), _bilinear(tx, t, x, y, wx, wy, 1), _bilinear(tx, t, x, y, wx, wy, 2)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _bilinear(tx, t, x, y, wx, wy, c):
+    """Channel c of texture t's bilinear blend of texels (x, y)..(x + 1, y + 1) with weights (wx, wy)."""
+    top = (1.0 - wx) * _texel(tx, t, x, y, c) + wx * _texel(tx, t, x + 1, y, c)
+    bottom = (1.0 - wx) * _texel(tx, t, x, y + 1, c) + wx * _texel(tx, t, x + 1, y + 1, c)
+    return (1.0 - wy) * top + wy * bottom

@@ -217,7 +217,9 @@ def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, 
         node_count[node] = 0
         if sp + 2 > st.shape[0]:
             grown = np.empty((2 * st.shape[0], 5), np.int64)
-            grown[:sp] = st[:sp]
+            for r in range(sp):  # element by element: a slice copy's shape check compiles for seconds
+                for c in range(5):
+                    grown[r, c] = st[r, c]
             st = grown
         st[sp, 0], st[sp, 1], st[sp, 2], st[sp, 3], st[sp, 4] = mid, end, node, depth + 1, known
         if known:  # the right child's bounds: its bins' union

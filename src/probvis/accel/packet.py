@@ -11,9 +11,9 @@ boxes that its own order would have culled. Results are those of `traversal.any_
 `traversal.closest_hit`.
 """
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from ..parallel import spread
+from ..parallel import over_threads, spread
 from .traversal import _BOX_SLACK, hit_triangle, ray_setup
 
 MAX_PACKET = 64  # rays per packet: one bit each in a uint64 mask
@@ -76,7 +76,7 @@ def _child_boxes(b, node, m, rays, shared, t_left, t_right):
                                  (bz0 - oz) * iz, (bz1 - oz) * iz, t_lo, t_hi)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left, t_right, visits, stack,
                   stack_mask, closest, occ, hit, hit_t, hit_b1, hit_b2, n_node, n_tri):
     """Traversal of rays lo..lo+m-1 (m <= 64); fills their `n_node` and `n_tri`. With `closest` (a constant
@@ -188,9 +188,9 @@ def occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, m, work, occ, n_node,
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, task, closest, occ, hit, hit_t, hit_b1, hit_b2, n_node,
-                n_tri):
-    """Packets task * PACKETS_PER_TASK onwards (one parallel work item), with their own work arrays."""
-    rays, t_left, t_right, visits, stack, stack_mask = packet_work(bvh.stack_depth)
+                n_tri, work):
+    """Packets task * PACKETS_PER_TASK onwards (one parallel work item), with the thread's `packet_work`."""
+    rays, t_left, t_right, visits, stack, stack_mask = work
     cb, ci, tv = bvh.records, bvh.ints, bvh.tri_v
     for k in range(task * PACKETS_PER_TASK, min(starts.shape[0] - 1, (task + 1) * PACKETS_PER_TASK)):
         _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, starts[k], starts[k + 1] - starts[k], rays, t_left,
@@ -201,50 +201,63 @@ def _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, task, closest, occ, h
 def root_record(root):
     """The root's box stored as both children of one record, so the first test uses the node-pair code."""
     root2 = np.empty((1, 12))
-    root2[0, :6] = root[0]
-    root2[0, 6:] = root[0]
+    for c in range(6):  # element by element: a slice copy's shape check compiles for seconds
+        root2[0, c] = root2[0, 6 + c] = root[0, c]
     return root2
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
 def any_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     """Occlusion queries over packets [starts[k], starts[k + 1]) of at most 64 segments: occluded flag, node
     and triangle tests per segment."""
     n = org.shape[0]
-    occ = np.empty(n, np.bool_)
-    n_node = np.empty(n, np.int32)
-    n_tri = np.empty(n, np.int32)
-    root2 = root_record(bvh.root)
-    n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
-    for it in prange(n_tasks):  # the unused nearest-hit arrays are stand-ins of the right types
-        _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), False, occ, n_node, tmax, tmax,
-                    tmax, n_node, n_tri)
-    return occ, n_node, n_tri
+    out = (np.empty(n, np.bool_), np.empty(n, np.int32), np.empty(n, np.int32))
+    _over_tasks(_any_hit_tasks, bvh, (org, dirs, tmin, tmax, starts), out)
+    return out
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
 def closest_hit_packets(bvh, org, dirs, tmin, tmax, starts):
     """Nearest hits over packets [starts[k], starts[k + 1]) of at most 64 rays, returned as by
     `traversal.closest_hit`: scene triangle id (-1 on a miss), t, b1, b2, node and triangle tests."""
-    prim_ids = bvh.prim_ids
     n = org.shape[0]
-    hit = np.empty(n, np.int64)
-    t = np.empty(n)
-    b1 = np.zeros(n)
-    b2 = np.zeros(n)
-    n_node = np.empty(n, np.int32)
-    n_tri = np.empty(n, np.int32)
-    no_occ = np.empty(0, np.bool_)
-    root2 = root_record(bvh.root)
-    n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
-    for it in prange(n_tasks):
-        _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), True, no_occ, hit, t, b1, b2,
-                    n_node, n_tri)
+    hit, t, b1, b2 = np.empty(n, np.int64), np.empty(n), np.zeros(n), np.zeros(n)
+    n_node, n_tri = np.empty(n, np.int32), np.empty(n, np.int32)
+    out = (np.empty(0, np.bool_), hit, t, b1, b2, n_node, n_tri)  # an empty stand-in for the occlusion flags
+    _over_tasks(_closest_hit_tasks, bvh, (org, dirs, tmin, tmax, starts), out)
     prim = np.full(n, -1, np.int32)
-    for i in prange(n):
-        if hit[i] >= 0:
-            prim[i] = prim_ids[hit[i]]
+    found = hit >= 0
+    prim[found] = bvh.prim_ids[hit[found]]
     return prim, t, b1, b2, n_node, n_tri
+
+
+def _over_tasks(kernel, bvh, rays, out):
+    """Run a serial packet kernel over the thread budget, each thread with work arrays of its own (the kernels
+    run without Numba's allocator and reference counts, as `fused_exact`'s)."""
+    root2 = root_record(bvh.root)
+    n_tasks = (rays[4].shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
+    over_threads(lambda first, end: kernel(bvh, root2, rays, first, end, out, packet_work(bvh.stack_depth)), n_tasks)
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _any_hit_tasks(bvh, root2, rays, first, end, out, work):
+    """Work items first..end-1 of `any_hit_packets` (the unused nearest-hit arrays are stand-ins of the right
+    types)."""
+    org, dirs, tmin, tmax, starts = rays
+    occ, n_node, n_tri = out
+    n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
+    for it in range(first, end):
+        _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), False, occ, n_node, tmax, tmax,
+                    tmax, n_node, n_tri, work)
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _closest_hit_tasks(bvh, root2, rays, first, end, out, work):
+    """Work items first..end-1 of `closest_hit_packets`."""
+    org, dirs, tmin, tmax, starts = rays
+    no_occ, hit, t, b1, b2, n_node, n_tri = out
+    n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
+    for it in range(first, end):
+        _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), True, no_occ, hit, t, b1, b2,
+                    n_node, n_tri, work)
 
 
 def occluded_segments(bvh, origin, direction, tmax, point, tmin=None):
