@@ -71,9 +71,10 @@ def _wrap(i, n, mode):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _texel(tx, t, x, y, c):
+def _texel(tx, t, x, y):
+    """Row of `tx.data` holding texel (x, y) of texture t, wrapped as the texture says."""
     w, h = tx.size[t, 0], tx.size[t, 1]
-    return tx.data[tx.offset[t] + _wrap(y, h, tx.wrap[t]) * w + _wrap(x, w, tx.wrap[t]), c]
+    return tx.offset[t] + _wrap(y, h, tx.wrap[t]) * w + _wrap(x, w, tx.wrap[t])
 
 
 @njit(cache=True, error_model="numpy")
@@ -87,18 +88,22 @@ def texture_value(tx, t, u, v):
         return tx.colours[t, k, 0], tx.colours[t, k, 1], tx.colours[t, k, 2]
     w, h = tx.size[t, 0], tx.size[t, 1]
     if not tx.bilinear[t]:
-        x, y = int(math.floor(uu * w)), int(math.floor(vv * h))
-        return _texel(tx, t, x, y, 0), _texel(tx, t, x, y, 1), _texel(tx, t, x, y, 2)
+        k = _texel(tx, t, int(math.floor(uu * w)), int(math.floor(vv * h)))
+        return tx.data[k, 0], tx.data[k, 1], tx.data[k, 2]
     fx, fy = uu * w - 0.5, vv * h - 0.5
     x0, y0 = math.floor(fx), math.floor(fy)
     wx, wy = fx - x0, fy - y0
     x, y = int(x0), int(y0)
-    return _bilinear(tx, t, x, y, wx, wy, 0), _bilinear(tx, t, x, y, wx, wy, 1), _bilinear(tx, t, x, y, wx, wy, 2)
+    k00, k10 = _texel(tx, t, x, y), _texel(tx, t, x + 1, y)
+    k01, k11 = _texel(tx, t, x, y + 1), _texel(tx, t, x + 1, y + 1)
+    d = tx.data
+    return (_bilinear(d, k00, k10, k01, k11, wx, wy, 0), _bilinear(d, k00, k10, k01, k11, wx, wy, 1),
+            _bilinear(d, k00, k10, k01, k11, wx, wy, 2))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _bilinear(tx, t, x, y, wx, wy, c):
-    """Channel c of texture t's bilinear blend of texels (x, y)..(x + 1, y + 1) with weights (wx, wy)."""
-    top = (1.0 - wx) * _texel(tx, t, x, y, c) + wx * _texel(tx, t, x + 1, y, c)
-    bottom = (1.0 - wx) * _texel(tx, t, x, y + 1, c) + wx * _texel(tx, t, x + 1, y + 1, c)
+def _bilinear(d, k00, k10, k01, k11, wx, wy, c):
+    """Channel c of the bilinear blend of texel rows k00, k10 (x + 1), k01 (y + 1), k11 with weights (wx, wy)."""
+    top = (1.0 - wx) * d[k00, c] + wx * d[k10, c]
+    bottom = (1.0 - wx) * d[k01, c] + wx * d[k11, c]
     return (1.0 - wy) * top + wy * bottom
