@@ -29,7 +29,7 @@ def test_over_threads_covers_the_range_once(threads, n):
     before, threads = numba.get_num_threads(), min(threads, numba.config.NUMBA_NUM_THREADS)
     numba.set_num_threads(threads)
     try:
-        over_threads(lambda first, end: runs.append((first, end)), n)
+        over_threads(lambda _, first, end: runs.append((first, end)), n)
     finally:
         numba.set_num_threads(before)
     runs.sort()
@@ -44,7 +44,7 @@ def test_over_threads_raises_a_runs_error_after_all_runs_end():
     from probvis.parallel import over_threads
     ended = []
 
-    def task(first, end):
+    def task(_, first, end):
         if first > 0:
             raise ValueError("second run")
         ended.append(first)

@@ -25,7 +25,7 @@ def shade_exact(geom, es, bvh, batch):
     root2 = root_record(bvh.root)
     n_blocks = (out[1].shape[0] + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
 
-    def run(lo, hi):
+    def run(_, lo, hi):
         _shade_blocks(geom, es, bvh, batch, root2, lo, hi, out, _scratch(batch.shadow_rays),
                       packet_work(bvh.stack_depth))
 

@@ -42,7 +42,7 @@ from .visibility import (RenderPath, ShadingPoints, ShadowQuery, VisibilityEstim
 
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keeps progress and Ctrl-C prompt)
 TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
-COMPILE_TIME = "1-3 minutes"  # what the first run's kernel compilation takes on 2 cores (60-150 s measured)
+COMPILE_TIME = "about a minute"  # what the first run's kernel compilation takes on 2 cores (35-55 s measured)
 MEMORY_HINTS = {"film": "the resolution (-D res, resolution=)", "photons": "--photons",
                 "lookups": "--neighbours or --shadow-rays", "batch": "--spp or --shadow-rays"}
 
@@ -211,7 +211,7 @@ _warmed = set()
 
 def _cold_cache():
     """Whether Numba's on-disk cache lacks the kernels (a first run, or a changed probvis)."""
-    return not any((Path(__file__).parent / "__pycache__").glob("fused_exact.shade_exact-*.nbi"))
+    return not any((Path(__file__).parent / "__pycache__").glob("fused_exact._shade_blocks-*.nbi"))
 
 
 class _CompileProgress:

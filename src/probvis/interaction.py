@@ -106,5 +106,5 @@ def surface_interactions(geom, textures, es, prim, b1, b2, dirs):
     (b1, b2); `textures` are the scene's `TextureArrays`, `es` its `EmitterArrays` (for the environment)."""
     n = len(prim)
     out = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.full(n, -1, np.int32), np.zeros((n, 3)))
-    over_threads(lambda first, end: _surface(geom, textures, es, prim, b1, b2, dirs, first, end, out), n)
+    over_threads(lambda _, first, end: _surface(geom, textures, es, prim, b1, b2, dirs, first, end, out), n)
     return Interactions(prim, *out)

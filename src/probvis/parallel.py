@@ -40,17 +40,18 @@ _pools_lock = threading.Lock()
 
 
 def over_threads(task, n):
-    """Run `task(lo, hi)` over contiguous runs that split range(n) among `numba.get_num_threads()` threads (the
-    render's budget), the calling thread taking the first run; returns when all have, raising the first error.
-    `task` calls a `nogil` kernel: the runs execute at once, and no run may start parallel work of its own."""
+    """Run `task(run, first, end)` over contiguous runs (numbered from 0) that split range(n) among
+    `numba.get_num_threads()` threads (the render's budget), the calling thread taking run 0; returns when all
+    have, raising the first error. `task` calls a `nogil` kernel: the runs execute at once, and no run may start
+    parallel work of its own."""
     k = max(1, min(numba.get_num_threads(), n))
     cuts = [n * j // k for j in range(k + 1)]
     with _pools_lock:
         if k > 1 and k not in _pools:
             _pools[k] = ThreadPoolExecutor(k - 1, thread_name_prefix="probvis")
-    futures = [_pools[k].submit(task, cuts[j], cuts[j + 1]) for j in range(1, k)]
+    futures = [_pools[k].submit(task, j, cuts[j], cuts[j + 1]) for j in range(1, k)]
     try:
-        task(cuts[0], cuts[1])
+        task(0, cuts[0], cuts[1])
     finally:
         for f in futures:
             f.result()

@@ -234,7 +234,7 @@ def _over_tasks(kernel, bvh, rays, out):
     run without Numba's allocator and reference counts, as `fused_exact`'s)."""
     root2 = root_record(bvh.root)
     n_tasks = (rays[4].shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
-    over_threads(lambda first, end: kernel(bvh, root2, rays, first, end, out, packet_work(bvh.stack_depth)), n_tasks)
+    over_threads(lambda _, first, end: kernel(bvh, root2, rays, first, end, out, packet_work(bvh.stack_depth)), n_tasks)
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")

@@ -19,14 +19,13 @@ counters (named slots below) and its cycles per phase.
 """
 from typing import NamedTuple
 
-import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ...accel import SHADOW_PACKET, buffered_blocker, occluded_packet, packet_work, ray_setup, root_record
 from ...cases import CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, CASE_VERIFIED
 from ...cycles import cycles
-from ...parallel import spread
+from ...parallel import over_threads, spread
 from ...rng import mix64, uniform
 from ...shading import (CAM_NODE, CAM_TRI, NEGATIVE, SH_NODE, SH_TRI, SHADOW_EPSILON, point_samples,
                         shaded_arrays)
@@ -78,47 +77,59 @@ def _trace(bvh, root, org, dirs, tmin, tmax, idx, c, org2, dirs2, work, occ, n_n
         tri_out[idx[j]] += n_tri[j]
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
 def shade_map(geom, es, bvh, batch, cand, lists, groups, terms, rows):
     """`ShadedBatch` arrays of a `ShadingBatch` with the occlusion map's estimators, and their counters (N_COUNTERS
     slots), verification sums (N_SUMS) and cycles per phase (N_PHASES). `cand` is the `CandidateGeometry`,
     `lists` the batch's `PairLists`, `groups` and `terms` the decomposition's `GroupedLists` and `TermTables`
     (with PENUMBRA_TERMS); `rows` is scratch for the gathered candidates, (threads, 2, longest list, 13)."""
-    root = root_record(bvh.root)
-    spp, n_shadow, n_emit = batch.spp, batch.shadow_rays, batch.cases.shape[1]
     radiance, counts, n_seg = shaded_arrays(batch)
+    n_blocks = (counts.shape[0] + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
+    out = (radiance, counts, n_seg, np.zeros((n_blocks, N_COUNTERS), np.int64), np.zeros((n_blocks, N_SUMS)),
+           np.zeros((n_blocks, N_PHASES)))
+    root = root_record(bvh.root)
+
+    def run(thread, first, end):
+        _shade_blocks(geom, es, bvh, batch, (cand, lists, groups, terms, root, rows[thread]), first, end, out,
+                      _scratch(batch.shadow_rays), packet_work(bvh.stack_depth))
+
+    over_threads(run, n_blocks)
+    return radiance, counts, n_seg, out[3].sum(axis=0), out[4].sum(axis=0), out[5].sum(axis=0)
+
+
+def _scratch(n):
+    """One thread's per-point arrays of `n` shadow-ray slots (`_shade_blocks` names them)."""
+    f3, i64 = (lambda: np.empty((n, 3))), (lambda: np.empty(n, np.int64))
+    return (f3(), f3(), f3(), f3(), f3(), np.empty(n, np.int32), np.empty(n, np.bool_), i64(), np.empty(n, np.uint64),
+            np.empty(n), np.empty(n), np.empty(n, np.bool_), np.empty(n, np.int32), np.empty(n, np.int32), i64(), i64(),
+            i64(), np.empty(n), np.empty(n, np.bool_), np.empty(n, np.bool_), i64(), i64(), np.empty((3, n), np.int64),
+            np.empty(3, np.int64), i64(), i64(), i64(), i64(), i64(), np.empty(2, np.int64), np.empty(1, np.int64),
+            np.empty(1, np.int64))
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _shade_blocks(geom, es, bvh, batch, tables, start, stop, out, scratch, work):
+    """Iterations start..stop-1 of `shade_map`'s loop over blocks of pixels, into `out` (its arrays, the
+    counters, sums and cycles per block); `tables` are (cand, lists, groups, terms, the root record, this
+    thread's rows). Serial and without Numba's allocator and reference counts, as `fused_exact`'s kernel."""
+    cand, lists, groups, terms, root, scratch_rows = tables
+    spp, n_emit = batch.spp, batch.cases.shape[1]
+    radiance, counts, n_seg, counters, sums, phase = out
+    (org, dirs, contrib, org2, dirs2, s_emit, active, slot, key, tmin, tmax, occ, node_j, tri_j, sh_node, sh_tri,
+     n_cull, value, verified, alone, by_whole, by_general, by_term, n_term, exact_idx, lit_idx, shd_idx, ver_idx,
+     alone_idx, tests, dim, chosen) = scratch
     n_pix = counts.shape[0]
     n_blocks = (n_pix + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
-    counters = np.zeros((n_blocks, N_COUNTERS), np.int64)
-    sums = np.zeros((n_blocks, N_SUMS))
-    phase = np.zeros((n_blocks, N_PHASES))
     general = groups.levels > 1 or groups.cells > 1
-    for it in prange(n_blocks):
+    list_rows, list_cull = scratch_rows[0, :, :9], scratch_rows[0, :, 9:]
+    group_rows, group_cull = scratch_rows[1, :, :9], scratch_rows[1, :, 9:]
+    for it in range(start, stop):
         blk = spread(it, n_blocks)
-        org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
-        org2, dirs2 = np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
-        s_emit = np.empty(n_shadow, np.int32)
-        active = np.empty(n_shadow, np.bool_)
-        slot = np.empty(n_shadow, np.int64)
-        key = np.empty(n_shadow, np.uint64)
-        tmin = np.zeros(n_shadow)
-        tmax = np.full(n_shadow, 1.0 - SHADOW_EPSILON)
-        occ = np.empty(n_shadow, np.bool_)
-        node_j, tri_j = np.empty(n_shadow, np.int32), np.empty(n_shadow, np.int32)
-        sh_node, sh_tri, n_cull = np.empty(n_shadow, np.int64), np.empty(n_shadow, np.int64), np.empty(n_shadow,
-                                                                                                         np.int64)
-        value = np.empty(n_shadow)
-        verified, alone = np.empty(n_shadow, np.bool_), np.empty(n_shadow, np.bool_)
-        by_whole, by_general = np.empty(n_shadow, np.int64), np.empty(n_shadow, np.int64)
-        by_term, n_term = np.empty((3, n_shadow), np.int64), np.zeros(3, np.int64)
-        exact_idx, lit_idx, shd_idx, ver_idx = (np.empty(n_shadow, np.int64), np.empty(n_shadow, np.int64),
-                                                np.empty(n_shadow, np.int64), np.empty(n_shadow, np.int64))
-        alone_idx = np.empty(n_shadow, np.int64)
-        tests, dim, chosen = np.zeros(2, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64)
-        scratch = rows[numba.get_thread_id()]
-        list_rows, list_cull = scratch[0, :, :9], scratch[0, :, 9:]
-        group_rows, group_cull = scratch[1, :, :9], scratch[1, :, 9:]
-        work = packet_work(bvh.stack_depth)
+        tmin[:] = 0.0
+        tmax[:] = 1.0 - SHADOW_EPSILON
+        n_term[:] = 0
+        tests[:] = 0
+        dim[:] = 0
+        chosen[:] = 0
         for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
             for s in range(spp):
                 i = px * spp + s
@@ -292,7 +303,6 @@ def shade_map(geom, es, bvh, batch, cand, lists, groups, terms, rows):
                 n_seg[px] += m
                 radiance[i, 0], radiance[i, 1], radiance[i, 2] = l0, l1, l2
                 phase[blk, FILM] += cycles() - t6
-    return (radiance, counts, n_seg, counters.sum(axis=0), sums.sum(axis=0), phase.sum(axis=0))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
