@@ -170,7 +170,7 @@ def _shade_blocks(geom, es, bvh, batch, tables, start, stop, out, scratch, work)
                     pair = e * lists.n_rep + lists.rep[i]
                     lo, hi = lists.offsets[pair], lists.offsets[pair + 1]
                     tp = pair if terms.per_pair else 0
-                    q = lists.q[i, e]
+                    q = lists.q[i, e] if lists.verify else 0.0  # without verification q is a (1, 1) stand-in
                     whole = lists.penumbra == PENUMBRA_LIST or terms.mode[tp, 0] == MODE_EXACT
                     c0, c1 = terms.cdf[tp, 0], terms.cdf[tp, 1]
                     n_whole = n_general = 0
@@ -211,7 +211,9 @@ def _shade_blocks(geom, es, bvh, batch, tables, start, stop, out, scratch, work)
                             break
                     ox, oy, oz = org[first, 0], org[first, 1], org[first, 2]
                     have_l = have_a = have_b = 0
-                    ga, gb, gc = groups.bounds[pair, 0], groups.bounds[pair, 1], groups.bounds[pair, -1]
+                    ga = gb = gc = 0  # the decomposition's groups, if any (NO_GROUPS has one row)
+                    if lists.penumbra == PENUMBRA_TERMS:
+                        ga, gb, gc = groups.bounds[pair, 0], groups.bounds[pair, 1], groups.bounds[pair, -1]
                     for j in range(n_whole):  # the whole list, most often recorded blockers first
                         k = by_whole[j]
                         d = (dirs[k, 0], dirs[k, 1], dirs[k, 2])
