@@ -251,8 +251,13 @@ def _warm_up(cls, options, progress):
     if cold:
         print(f"probvis: compiling kernels (first run only, about {COMPILE_TIME} on 2 cores)", file=sys.stderr,
               flush=True)
-    with _CompileProgress() if cold and sys.stderr.isatty() else nullcontext():
-        render_pass(quad_shadow(res=4), RenderSettings(spp=1, shadow_rays=2), cls(**options))
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)  # compile in this thread: a pool thread's compile would hold an interrupt's exit
+    try:
+        with _CompileProgress() if cold and sys.stderr.isatty() else nullcontext():
+            render_pass(quad_shadow(res=4), RenderSettings(spp=1, shadow_rays=2), cls(**options))
+    finally:
+        numba.set_num_threads(threads)
     _warmed.add(key)
     return time.perf_counter() - t0
 
