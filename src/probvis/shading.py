@@ -107,7 +107,7 @@ def choose_emitter(pmf, cases, i, total, u):
     return last, pmf[last] / total  # only reached through rounding when u is within an ulp of 1
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def emitter_segment(slot, le, scale, rgb, u, es, triangles, fnormals, p, s, gn, eps, contrib, s_org, s_dir,
                      s_emit, active):
     """Fill shadow slot `slot` with a point sampled on emitter `le` (random numbers `u`) seen from shading
@@ -155,7 +155,7 @@ def emitter_segment(slot, le, scale, rgb, u, es, triangles, fnormals, p, s, gn, 
     active[slot] = (dot_x > 0.0) & (dot_y > 0.0)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def point_samples(i, geom, es, batch, base, s_org, s_dir, contrib, s_emit, active, sample, dense):
     """Direct light at camera sample `i` of the `ShadingBatch` (`geom` is the `SceneArrays`, `es` the
     `EmitterArrays`), per emitter as the visibility estimator's `batch.cases` say:
@@ -200,6 +200,7 @@ def point_samples(i, geom, es, batch, base, s_org, s_dir, contrib, s_emit, activ
     eps = 1e-9 * (1.0 + max(abs(p[0]), abs(p[1]), abs(p[2])))
     key = batch.keys[i]
     if only >= 0:  # a single emitter: no choice (its random dimension is simply not drawn)
+        only = np.int64(only)  # not typed as the literal -1 it may also be: one compile of emitter_segment
         scale = area[only] * inv_pi / n_shadow
         rgb = (refl[i, 0] * radiance[only, 0], refl[i, 1] * radiance[only, 1], refl[i, 2] * radiance[only, 2])
         for j in range(n_shadow):

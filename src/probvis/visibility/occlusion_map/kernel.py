@@ -139,7 +139,7 @@ def _shade_blocks(geom, es, bvh, batch, tables, start, stop, out, scratch, work)
                 a0, a1, a2, m = point_samples(i, geom, es, batch, 0, org, dirs, contrib, s_emit, active, slot, True)
                 t1 = cycles()
                 phase[blk, SAMPLING] += t1 - t0
-                n_exact = n_lit = n_shd = n_ver = n_alone = 0
+                n_exact = n_lit = n_shd = n_ver = n_alone = np.int64(0)  # not literals: one compile of _trace
                 for k in range(m):
                     key[k] = mix64(batch.keys[i] + np.uint64(slot[k] + 1))
                     value[k] = 1.0
@@ -271,11 +271,11 @@ def _shade_blocks(geom, es, bvh, batch, tables, start, stop, out, scratch, work)
                 phase[blk, EXACT_TRACES] += t5 - t4
                 if lists.verify:
                     _verify(bvh, root, org, dirs, tmin, tmax, lit_idx, n_lit, 1.0, lists.q[i], s_emit, org2, dirs2,
-                            work, occ, node_j, tri_j, sh_node, sh_tri, value, sums[blk], LIT_SUMS)
+                            work, occ, node_j, tri_j, sh_node, sh_tri, value, sums[blk], np.int64(LIT_SUMS))
                     counters[blk, LIT_SEGMENTS] += n_lit
                     counters[blk, LIT_VERIFIED] += n_lit
                     _verify(bvh, root, org, dirs, tmin, tmax, shd_idx, n_shd, 0.0, lists.q[i], s_emit, org2, dirs2,
-                            work, occ, node_j, tri_j, sh_node, sh_tri, value, sums[blk], SHADOWED_SUMS)
+                            work, occ, node_j, tri_j, sh_node, sh_tri, value, sums[blk], np.int64(SHADOWED_SUMS))
                     counters[blk, SHADOWED_SEGMENTS] += n_shd
                     counters[blk, SHADOWED_VERIFIED] += n_shd
                     for k in range(m):
@@ -289,7 +289,7 @@ def _shade_blocks(geom, es, bvh, batch, tables, start, stop, out, scratch, work)
                     for j in range(n_alone):
                         value[alone_idx[j]] = 1.0 - np.float64(occ[j])
                     _verify(bvh, root, org, dirs, tmin, tmax, ver_idx, n_ver, 1.0, lists.q[i], s_emit, org2, dirs2,
-                            work, occ, node_j, tri_j, sh_node, sh_tri, value, sums[blk], PENUMBRA_SUMS)
+                            work, occ, node_j, tri_j, sh_node, sh_tri, value, sums[blk], np.int64(PENUMBRA_SUMS))
                 t6 = cycles()
                 phase[blk, VERIFICATION_TRACES] += t6 - t5
                 l0, l1, l2 = batch.emitted[i, 0] + a0, batch.emitted[i, 1] + a1, batch.emitted[i, 2] + a2
