@@ -1,3 +1,4 @@
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -19,13 +20,20 @@ WARM_UP_GROUPS = (("occlusion-map", "probvis"), ("exact", "nee++", "cache-cv", "
 
 
 def pytest_configure(config):
-    """With the tests in parallel processes (pytest-xdist), fill Numba's on-disk cache first, the render paths
-    split between processes: otherwise every test process compiles the same kernels at once, for minutes on a
-    fresh clone. With a warm cache this takes seconds."""
+    """With the tests in parallel processes (pytest-xdist), fill Numba's on-disk cache first, the warm-ups'
+    kernels compiled in one process per core (`precompile`), then the render paths warmed up split between two
+    processes: otherwise every test process compiles the same kernels at once, for minutes on a fresh clone.
+    With a warm cache this takes seconds."""
     if hasattr(config, "workerinput") or not config.pluginmanager.hasplugin("xdist"):
         return
     if config.getoption("numprocesses", None) in (None, 0):
         return
+    from probvis import integrator, precompile
+    from probvis.visibility import estimator_class
+
+    if integrator._cold_cache():
+        calls = [(integrator.warm_up_render, (estimator_class(v), {})) for group in WARM_UP_GROUPS for v in group]
+        precompile.fill_cache(calls, min(4, os.cpu_count() or 1))  # what it misses, the warm-ups compile
     procs = [subprocess.Popen([sys.executable, "-c", WARM_UP, *group]) for group in WARM_UP_GROUPS]
     for p in procs:
         p.wait()

@@ -160,7 +160,7 @@ def test_first_run_says_it_compiles_kernels(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(integrator, "_cold_cache", lambda: True)
     monkeypatch.setattr(integrator, "_warmed", set())
     assert main(["render", "quad-shadow", "-D", "res=8", "-o", str(tmp_path / "c.exr")]) == 0
-    said = f"probvis: compiling kernels (first run only, about {integrator.COMPILE_TIME} on 2 cores)"
+    said = f"probvis: compiling kernels (first run only: {integrator.COMPILE_TIME} on 2 cores)"
     assert said in capsys.readouterr().err
     monkeypatch.setattr(integrator, "_warmed", set())
     assert main(["render", "quad-shadow", "-D", "res=8", "-o", str(tmp_path / "c.exr"), "-q"]) == 0

@@ -21,7 +21,7 @@ import numba
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from . import memory
+from . import memory, precompile
 from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
@@ -42,7 +42,7 @@ from .visibility import (RenderPath, ShadingPoints, ShadowQuery, VisibilityEstim
 
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keeps progress and Ctrl-C prompt)
 TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
-COMPILE_TIME = "about a minute"  # what the first run's kernel compilation takes on 2 cores (35-55 s measured)
+COMPILE_TIME = "half a minute to a minute"  # a first run's compilation on 2 cores (20-26 s exact, 48-54 s probvis)
 MEMORY_HINTS = {"film": "the resolution (-D res, resolution=)", "photons": "--photons",
                 "lookups": "--neighbours or --shadow-rays", "batch": "--spp or --shadow-rays"}
 
@@ -211,11 +211,15 @@ _warmed = set()
 
 def _cold_cache():
     """Whether Numba's on-disk cache lacks the kernels (a first run, or a changed probvis)."""
-    return not any((Path(__file__).parent / "__pycache__").glob("fused_exact._shade_blocks-*.nbi"))
+    from .fused_exact import _shade_blocks
+
+    index = getattr(getattr(_shade_blocks._cache, "_cache_file", None), "_index_path", None)
+    return index is not None and not Path(index).exists()
 
 
 class _CompileProgress:
-    """A progress bar over Numba's compile events, for the first run's warm-up."""
+    """A progress bar over the kernels compiled in this process (Numba's compile events) or, through `bar`,
+    by `precompile`."""
 
     def __init__(self):
         from numba.core import event
@@ -239,25 +243,35 @@ class _CompileProgress:
         self.bar.close()
 
 
+def warm_up_render(cls, options):
+    """The warm-up: a render of `cls(**options)` on the 4x4 built-in quad-shadow scene, with the sizes its
+    options declare for it (`Option.warm_up`), which runs every kernel a render with these options runs."""
+    from .scene.builtin import quad_shadow
+
+    sizes = {o.name: o.warm_up for o in cls.options if o.warm_up is not None}
+    render_pass(quad_shadow(res=4), RenderSettings(spp=1, shadow_rays=2), cls(**{**options, **sizes}))
+
+
 def _warm_up(cls, options, progress):
-    """Compile (or load from Numba's cache) every kernel of the pipeline on a tiny scene; returns seconds."""
+    """Compile (or load from Numba's cache) every kernel of the pipeline on a tiny scene; returns seconds. A
+    first run with more than one thread compiles them in that many processes first (`precompile`)."""
     key = (cls, repr(sorted(options.items())))
     if key in _warmed:
         return 0.0
-    from .scene.builtin import quad_shadow
-
     t0 = time.perf_counter()
     cold = progress and _cold_cache()
     if cold:
-        print(f"probvis: compiling kernels (first run only, about {COMPILE_TIME} on 2 cores)", file=sys.stderr,
+        print(f"probvis: compiling kernels (first run only: {COMPILE_TIME} on 2 cores)", file=sys.stderr,
               flush=True)
     threads = numba.get_num_threads()
-    numba.set_num_threads(1)  # compile in this thread: a pool thread's compile would hold an interrupt's exit
-    try:
-        with _CompileProgress() if cold and sys.stderr.isatty() else nullcontext():
-            render_pass(quad_shadow(res=4), RenderSettings(spp=1, shadow_rays=2), cls(**options))
-    finally:
-        numba.set_num_threads(threads)
+    with _CompileProgress() if cold and sys.stderr.isatty() else nullcontext() as shown:
+        if cold and threads > 1:
+            precompile.fill_cache([(warm_up_render, (cls, options))], threads, shown.bar if shown else None)
+        numba.set_num_threads(1)  # compile in this thread: a pool thread's compile would hold an interrupt's exit
+        try:
+            warm_up_render(cls, options)
+        finally:
+            numba.set_num_threads(threads)
     _warmed.add(key)
     return time.perf_counter() - t0
 

@@ -55,6 +55,7 @@ class Option:
     count: int | None = None
     check: object = None
     metavar: str | None = None
+    warm_up: object = None  # the value of the first run's warm-up render (4x4 pixels): a size, not a choice of kernels
 
     @property
     def flag(self):

@@ -36,7 +36,7 @@ MAX_NEIGHBOURS = 1024
 
 MAP_OPTIONS = (
     Option("photons", int, None, "photon rays of the first pass (default: half a ray per camera sample, at least "
-                                 "100,000)", minimum=1, maximum=MAX_PHOTONS),
+                                 "100,000)", minimum=1, maximum=MAX_PHOTONS, warm_up=4096),
     Option("neighbours", int, DEFAULT_NEIGHBOURS, "photons looked up per shading point", minimum=1,
            maximum=MAX_NEIGHBOURS),
     Option("radius", float, None, "look-up radius (default: twice the median distance from a photon to its k-th "
