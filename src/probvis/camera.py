@@ -12,9 +12,10 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .errors import ProbvisError
+from .parallel import over_threads
 from .rng import make_key, mix64, uniform
 
 STREAM_CAMERA = 1  # rng stream of camera paths
@@ -98,24 +99,27 @@ def filter_offset(cdf, radius, u, lo, hi):
     return min(max(((k + t) / n * 2.0 - 1.0) * radius, lo), hi)
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
 def camera_rays(cam, spp, seed, pixels):
     """Rays for `pixels` of the image (row-major indices, an int64 array), `spp` per pixel, pixel-major order.
 
     Returns origins, unit directions, tmin, tmax, the rng key of each camera sample and its position on the
     film (n, 2): x, y in pixels from the window's top-left corner (pixel (i, j) spans [j, j + 1] x [i, i + 1]).
     """
+    n = len(pixels) * spp
+    out = (np.empty((n, 3)), np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, np.uint64), np.empty((n, 2)))
+    over_threads(lambda _, first, end: _camera_ray_runs(cam, spp, seed, pixels, first, end, out), n)
+    return out
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _camera_ray_runs(cam, spp, seed, pixels, first, end, out):
+    """Rays first..end-1 of `camera_rays`, into `out` (its arrays). Serial and without reference counts, run on
+    the thread budget (`over_threads`)."""
+    org, dirs, tmin, tmax, keys, film_xy = out
     m, tan_x, tan_y, width = cam.to_world, cam.tan_x, cam.tan_y, cam.width
     near, far, fw, fh = cam.near_clip, cam.far_clip, cam.film_width, cam.film_height
     boxed = cam.filter_cdf.shape[0] == 0
-    n = len(pixels) * spp
-    org = np.empty((n, 3))
-    dirs = np.empty((n, 3))
-    tmin = np.empty(n)
-    tmax = np.empty(n)
-    keys = np.empty(n, np.uint64)
-    film_xy = np.empty((n, 2))
-    for i in prange(n):
+    for i in range(first, end):
         pix = pixels[i // spp]
         s = i % spp
         key = make_key(seed, STREAM_CAMERA, pix * spp + s)
@@ -163,4 +167,3 @@ def camera_rays(cam, spp, seed, pixels):
         tmin[i] = near / lz * wl
         tmax[i] = far / lz * wl
         keys[i] = key
-    return org, dirs, tmin, tmax, keys, film_xy

@@ -12,7 +12,7 @@ Wald (JCGT 2013) in double precision: rays through shared edges and vertices nev
 import numpy as np
 from numba import njit, prange
 
-from ..parallel import spread
+from ..parallel import over_threads, spread
 
 CHUNK = 64  # rays per stack allocation in the parallel loops
 _BOX_SLACK = 1.0 + 2.0 * 3.0 * 1.1102230246251565e-16  # 1 + 2 gamma(3): conservative slab exit
@@ -271,23 +271,33 @@ def trace_all(cb, ci, root, tv, ox, oy, oz, dx, dy, dz, tmin, cap, out_t, out_p,
     return count, n_node, n_tri
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
 def all_hits(bvh, org, dirs, tmin, cap):
     """Batched all-hits queries: per ray the number of hits kept (<= cap), their scene triangle ids and
     distances sorted nearest first, and the node and triangle tests made."""
-    cb, ci, root, tv, prim_ids, depth = bvh
     n = org.shape[0]
-    count = np.zeros(n, np.int32)
-    tri = np.full((n, cap), -1, np.int32)
-    dist = np.full((n, cap), np.inf)
-    n_node = np.zeros(n, np.int32)
-    n_tri = np.zeros(n, np.int32)
+    out = (np.zeros(n, np.int32), np.full((n, cap), -1, np.int32), np.full((n, cap), np.inf), np.zeros(n, np.int32),
+           np.zeros(n, np.int32))
     n_chunks = (n + CHUNK - 1) // CHUNK
-    for it in prange(n_chunks):
+
+    def run(_, first, end):
+        scratch = (np.empty(bvh.stack_depth, np.int32), np.empty(cap), np.empty(cap, np.int32))
+        _all_hit_chunks(bvh, org, dirs, tmin, cap, first, end, out, scratch)
+
+    over_threads(run, n_chunks)
+    return out
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _all_hit_chunks(bvh, org, dirs, tmin, cap, first, end, out, scratch):
+    """Chunks first..end-1 of `all_hits`' rays, into `out`; `scratch` is this thread's stack and hit arrays.
+    Serial and without reference counts, run on the thread budget (`over_threads`)."""
+    cb, ci, root, tv, prim_ids, _ = bvh
+    count, tri, dist, n_node, n_tri = out
+    stack, ot, op = scratch
+    n = org.shape[0]
+    n_chunks = (n + CHUNK - 1) // CHUNK
+    for it in range(first, end):
         c = spread(it, n_chunks)
-        stack = np.empty(depth, np.int32)
-        ot = np.empty(cap)
-        op = np.empty(cap, np.int32)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             k, a, b = trace_all(cb, ci, root, tv, org[i, 0], org[i, 1], org[i, 2], dirs[i, 0], dirs[i, 1],
                                 dirs[i, 2], tmin[i], cap, ot, op, stack)
@@ -295,4 +305,3 @@ def all_hits(bvh, org, dirs, tmin, cap):
             for j in range(k):
                 tri[i, j] = prim_ids[op[j]]
                 dist[i, j] = ot[j]
-    return count, tri, dist, n_node, n_tri

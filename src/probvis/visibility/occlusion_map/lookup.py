@@ -9,9 +9,10 @@ Blockers are gathered as *groups*: `group[t]` names the set of triangles a recor
 (its whole small connected component, or t alone) and `group_tris[group_off[g]:group_off[g + 1]]` lists it.
 """
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ...cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN
+from ...parallel import over_threads
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -50,7 +51,6 @@ def _unique_by_frequency(buf, m):
     return uniq[:u][order], cnt[:u][order]
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
 def classify_points(nbr, nrm, photons, groups, normal_cos, min_photons, max_hits, with_lists):
     """Case, candidate list (CSR of triangles, most often recorded groups first), agreeing (light, shadow)
     photon counts and, for penumbra points with lists, the Good-Turing estimate of the list's unseen blockers
@@ -59,10 +59,9 @@ def classify_points(nbr, nrm, photons, groups, normal_cos, min_photons, max_hits
 
     `nbr` (m, k) holds photon ids of one emitter's photons near each point (-1 for none); `nrm` the points'
     normals (a zero normal marks a point that is not shaded); `photons` the `PhotonArrays`, `groups` the
-    `BlockerGroups`. Without `with_lists` the lists are left empty.
+    `BlockerGroups`. Without `with_lists` the lists are left empty. Two serial kernels run over the thread
+    budget (`over_threads`): the cases and each list's groups, then the lists' triangles.
     """
-    pn, nb, start, ray_tris = photons.normal, photons.n_blockers, photons.start, photons.ray_tris
-    group, group_off, group_tris = groups.group, groups.offsets, groups.tris
     m, k = nbr.shape
     case = np.full(m, CASE_UNKNOWN, np.int8)
     counts = np.zeros((m, 2), np.int32)
@@ -71,8 +70,27 @@ def classify_points(nbr, nrm, photons, groups, normal_cos, min_photons, max_hits
     # each penumbra point's distinct blocker groups, most frequent first (pages are touched only where written)
     found = np.empty((m if with_lists else 0, k * max_hits), np.int32)
     n_found = np.zeros(m, np.int64)
-    for c in prange((m + 63) // 64):
-        buf = np.empty(k * max_hits, np.int32)
+    out = (case, counts, unseen, length, found, n_found)
+    n_chunks = (m + 63) // 64
+    over_threads(lambda _, first, end: _classify_chunks(nbr, nrm, photons, groups.group, groups.offsets, normal_cos,
+                                                        min_photons, with_lists, first, end, out,
+                                                        np.empty(k * max_hits, np.int32)), n_chunks)
+    offsets = np.cumsum(length)
+    tris = np.empty(offsets[m], np.int32)
+    if with_lists:
+        over_threads(lambda _, first, end: _list_chunks(found, n_found, offsets, groups.offsets, groups.tris, first,
+                                                        end, tris), n_chunks)
+    return case, offsets, tris, counts, unseen
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _classify_chunks(nbr, nrm, photons, group, group_off, normal_cos, min_photons, with_lists, first, end, out, buf):
+    """Chunks first..end-1 (64 points each) of `classify_points`' cases, counts, unseen shares, list lengths and
+    groups found, into `out`; `buf` is this thread's scratch."""
+    pn, nb, start, ray_tris = photons.normal, photons.n_blockers, photons.start, photons.ray_tris
+    case, counts, unseen, length, found, n_found = out
+    m = nbr.shape[0]
+    for c in range(first, end):
         for i in range(c * 64, min(m, c * 64 + 64)):
             nx, ny, nz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
             if nx == 0.0 and ny == 0.0 and nz == 0.0:
@@ -98,9 +116,13 @@ def classify_points(nbr, nrm, photons, groups, normal_cos, min_photons, max_hits
                     length[i + 1] += group_off[gr + 1] - group_off[gr]
                     singles += freq[a] == 1
                 unseen[i] = singles / max(g, 1)
-    offsets = np.cumsum(length)
-    tris = np.empty(offsets[m], np.int32)
-    for c in prange((m + 63) // 64 if with_lists else 0):
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _list_chunks(found, n_found, offsets, group_off, group_tris, first, end, tris):
+    """Chunks first..end-1 of `classify_points`' lists: each point's groups' triangles, in the groups' order."""
+    m = n_found.shape[0]
+    for c in range(first, end):
         for i in range(c * 64, min(m, c * 64 + 64)):
             w = offsets[i]
             for a in range(n_found[i]):
@@ -108,4 +130,3 @@ def classify_points(nbr, nrm, photons, groups, normal_cos, min_photons, max_hits
                 for h in range(group_off[gr], group_off[gr + 1]):
                     tris[w] = group_tris[h]
                     w += 1
-    return case, offsets, tris, counts, unseen

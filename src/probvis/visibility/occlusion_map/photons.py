@@ -10,13 +10,14 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ...accel import all_hits
 from ...geometry import unit_normal
 from ...emitters import sample_on_emitter
 from ...environment import sample_environment
 from ...scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT
+from ...parallel import over_threads
 from ...rng import make_key, uniform
 
 MAX_HITS = 16
@@ -76,17 +77,23 @@ class Photons:
         )
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
 def points_on_emitters(emitter, es, triangles, seed, stream, first):
     """Points uniform by area on the given emitters (`es` is the `EmitterArrays`; point i from
     rng key (seed, stream, first + i)), each nudged off its triangle along the front normal; returns points,
     unit front normals and the keys. Directional and environment light starts on a disk facing it beyond the
     scene's bounding sphere, its "normal" the direction it travels (an environment's by luminance)."""
     n = emitter.shape[0]
-    org = np.empty((n, 3))
-    nrm = np.empty((n, 3))
-    keys = np.empty(n, np.uint64)
-    for i in prange(n):
+    out = (np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.uint64))
+    over_threads(lambda _, lo, hi: _emitter_point_runs(emitter, es, triangles, (seed, stream, first), lo, hi, out), n)
+    return out
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _emitter_point_runs(emitter, es, triangles, stream_of, lo, hi, out):
+    """Points lo..hi-1 of `points_on_emitters`, into `out`; `stream_of` is its (seed, stream, first)."""
+    org, nrm, keys = out
+    seed, stream, first = stream_of
+    for i in range(lo, hi):
         key = make_key(seed, stream, first + i)
         keys[i] = key
         e = emitter[i]
@@ -113,17 +120,21 @@ def points_on_emitters(emitter, es, triangles, seed, stream, first):
         eps = 1e-9 * (1.0 + max(abs(x), abs(y), abs(z)))
         org[i, 0], org[i, 1], org[i, 2] = x + eps * nx, y + eps * ny, z + eps * nz
         nrm[i, 0], nrm[i, 1], nrm[i, 2] = nx, ny, nz
-    return org, nrm, keys
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
 def emission_directions(emitter, es, nrm, keys):
     """Per photon origin a direction (rng dimensions 4 and 5 of its key): cosine-distributed about the normal
     of an area emitter, uniform over the sphere for a point light and over the cutoff cone of a spot; directional
     and environment light keep the direction `points_on_emitters` gave."""
-    n = nrm.shape[0]
-    dirs = np.empty((n, 3))
-    for i in prange(n):
+    dirs = np.empty((nrm.shape[0], 3))
+    over_threads(lambda _, lo, hi: _direction_runs(emitter, es, nrm, keys, lo, hi, dirs), nrm.shape[0])
+    return dirs
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _direction_runs(emitter, es, nrm, keys, lo, hi, dirs):
+    """Directions lo..hi-1 of `emission_directions`, into `dirs`."""
+    for i in range(lo, hi):
         e = emitter[i]
         u1, u2 = uniform(keys[i], 4), uniform(keys[i], 5)
         if es.kind[e] == EMITTER_DIRECTIONAL or es.kind[e] == EMITTER_ENVIRONMENT:  # along the "normal"
@@ -141,7 +152,6 @@ def emission_directions(emitter, es, nrm, keys):
         dirs[i, 0] = lx * tx + ly * bx + z * ax
         dirs[i, 1] = lx * ty + ly * by + z * ay
         dirs[i, 2] = lx * tz + ly * bz + z * az
-    return dirs
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -169,20 +179,25 @@ def cosine_direction(nx, ny, nz, u1, u2):
     return lx * tx + ly * bx + lz * nx, lx * ty + ly * by + lz * ny, lx * tz + ly * bz + lz * nz
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
 def _photon_records(triangles, org, dirs, emitter, count, tri, dist):
     """Flatten the hits of a batch of photon rays into photons (see `Photons`)."""
-    n, cap = tri.shape
-    first = np.zeros(n + 1, np.int64)
-    for i in range(n):
-        first[i + 1] = first[i] + count[i]
-    p = first[n]
-    pos = np.empty((p, 3))
-    nrm = np.empty((p, 3))
-    emit = np.empty(p, np.int32)
-    nb = np.empty(p, np.int32)
-    start = np.empty(p, np.int64)
-    for i in prange(n):
+    n = tri.shape[0]
+    first = np.concatenate(([0], np.cumsum(count, dtype=np.int64)))
+    p = int(first[n])
+    out = (np.empty((p, 3)), np.empty((p, 3)), np.empty(p, np.int32), np.empty(p, np.int32), np.empty(p, np.int64))
+    over_threads(lambda _, lo, hi: _record_runs(triangles, (org, dirs, emitter), (count, tri, dist), first, lo, hi,
+                                                out), n)
+    return out
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _record_runs(triangles, rays, hits, first, lo, hi, out):
+    """Photon rays lo..hi-1 of `_photon_records`: their hits' photons from position first[i] on, into `out`."""
+    org, dirs, emitter = rays
+    count, tri, dist = hits
+    pos, nrm, emit, nb, start = out
+    cap = tri.shape[1]
+    for i in range(lo, hi):
         for h in range(count[i]):
             k = first[i] + h
             t = tri[i, h]
@@ -195,7 +210,6 @@ def _photon_records(triangles, org, dirs, emitter, count, tri, dist):
             emit[k] = emitter[i]
             nb[k] = h
             start[k] = i * cap
-    return pos, nrm, emit, nb, start
 
 
 def trace_photons(scene, bvh, org, dirs, emitter):

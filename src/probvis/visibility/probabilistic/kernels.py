@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...accel import CHUNK, first_blocker, ray_setup
+from ...parallel import over_threads, spread
 from ...rng import mix64, uniform
 from .decomposition import MODE_A, MODE_AB_BLOCKED, MODE_B, MODE_BOTH, MODE_EXACT
 
@@ -61,7 +62,6 @@ def _split(order, weight, leaf, lo, hi, method, key, level):
             leaf[e] = leaf[e] * 2 + np.int64(coin)
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
 def group_lists(triangles, pos, offsets, tris, unit, n_rep, method, levels, cells, seed, skip=None):
     """Reorder each pair's candidates into leaves (see module docstring); returns the reordered triangle ids,
     leaf boundaries (pairs, leaves + 1) as absolute positions, and each pair's solid angle in A and B. Pairs
@@ -70,16 +70,32 @@ def group_lists(triangles, pos, offsets, tris, unit, n_rep, method, levels, cell
 
     The blockers split are the list's blocker groups (`unit[t]`: the small connected component a recorded
     triangle stands for, or the triangle alone), which stand in the list as runs of consecutive triangles: a
-    city's box goes to A or B whole, so the volumetric culling of its faces stays regular along the group."""
+    city's box goes to A or B whole, so the volumetric culling of its faces stays regular along the group. A
+    serial kernel over the pairs runs on the thread budget (`over_threads`)."""
     n_pairs = offsets.shape[0] - 1
     n_leaves = cells * (1 << levels)
-    out = np.empty_like(tris)
-    bounds = np.empty((n_pairs, n_leaves + 1), np.int64)
-    balance = np.zeros((n_pairs, 2))
-    for pr in prange(n_pairs):
+    out = (np.empty_like(tris), np.empty((n_pairs, n_leaves + 1), np.int64), np.zeros((n_pairs, 2)))
+    skip = np.zeros(n_pairs, np.bool_) if skip is None else skip
+    config = (np.int64(n_rep), np.int64(method), np.int64(levels), np.int64(cells), np.int64(seed))
+    over_threads(lambda _, first, end: _group_pairs(triangles, pos, (offsets, tris, unit, skip), config, first, end,
+                                                    out), n_pairs)
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _group_pairs(triangles, pos, lists, config, begin, stop, result):
+    """Pairs spread(begin..stop-1) of `group_lists`, into `result` (its reordered ids, bounds and balance);
+    `lists` are its (offsets, tris, unit, skip), `config` its (n_rep, method, levels, cells, seed)."""
+    offsets, tris, unit, skip = lists
+    n_rep, method, levels, cells, seed = config
+    out, bounds, balance = result
+    n_pairs = offsets.shape[0] - 1
+    n_leaves = cells * (1 << levels)
+    for it in range(begin, stop):
+        pr = spread(it, n_pairs)
         lo, hi = offsets[pr], offsets[pr + 1]
         n = hi - lo
-        if skip is not None and skip[pr]:
+        if skip[pr]:
             for a in range(lo, hi):
                 out[a] = tris[a]
             bounds[pr, 0] = lo
@@ -137,7 +153,6 @@ def group_lists(triangles, pos, offsets, tris, unit, n_rep, method, levels, cell
             for a in range(first[u], first[u + 1]):
                 out[lo + counts[leaf[u]]] = tris[lo + a]
                 counts[leaf[u]] += 1
-    return out, bounds, balance
 
 
 class GroupedLists(NamedTuple):
