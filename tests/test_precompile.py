@@ -32,8 +32,16 @@ def test_discovery_follows_the_options_that_choose_kernels():
         return {j[1] for j in precompile._discover([(integrator.warm_up_render, (estimator_class(visibility),
                                                                                   options))])}
 
-    assert {"group_lists", "classify_points"} <= names("probvis", {"verify": "off"})
-    assert "group_lists" not in names("exact", {})
+    assert {"_group_pairs", "_classify_chunks"} <= names("probvis", {"verify": "off"})
+    assert "_group_pairs" not in names("exact", {})
+
+
+def test_the_children_do_not_import_from_the_working_folder(tmp_path, monkeypatch):
+    """A `numba.py` in the folder the render runs in is not what the children import (they run with -P)."""
+    (tmp_path / "numba.py").write_text(f"open({str(tmp_path / 'imported')!r}, 'w').close()\n")
+    monkeypatch.chdir(tmp_path)
+    assert precompile._discover([(integrator.warm_up_render, (estimator_class("exact"), {}))])
+    assert not (tmp_path / "imported").exists()
 
 
 def test_a_class_the_child_cannot_import_leaves_the_warm_up_to_compile():

@@ -24,6 +24,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+DISCOVERY_SECONDS = 120  # the plain-Python warm-up takes about a second
+JOB_SECONDS = 600  # the largest kernel compiles in under a minute
+
 
 def fill_cache(calls, workers, bar=None):
     """Compile the kernels that `calls`, a list of (function, arguments) such as
@@ -38,13 +41,14 @@ def fill_cache(calls, workers, bar=None):
 
 
 def _child(role, extra_env):
-    """A child process running this module's `role`, with this process's probvis first on its path and its
-    output to pipes (its errors, if any, are not shown: the warm-up reports them)."""
+    """A child process running this module's `role`, with this process's probvis first on its path and not the
+    working folder (`-P`: a `numba.py` there is not imported), its output to pipes (its errors, if any, are not
+    shown: the warm-up reports them)."""
     env = {**os.environ, **extra_env, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
            "OPENBLAS_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore",
-           "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parent.parent),
-                                          os.environ.get("PYTHONPATH", "")])}
-    return subprocess.Popen([sys.executable, "-m", "probvis.precompile", role], stdin=subprocess.PIPE,
+           "PYTHONPATH": os.pathsep.join(p for p in [str(Path(__file__).resolve().parent.parent),
+                                                     *os.environ.get("PYTHONPATH", "").split(os.pathsep)] if p)}
+    return subprocess.Popen([sys.executable, "-P", "-m", "probvis.precompile", role], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env)
 
 
@@ -58,8 +62,10 @@ def _discover(calls):
     proc = _child("discover", {"NUMBA_DISABLE_JIT": "1"})
     interrupted = True
     try:
-        out, _ = proc.communicate(payload)
+        out, _ = proc.communicate(payload, timeout=DISCOVERY_SECONDS)
         interrupted = False
+    except subprocess.TimeoutExpired:
+        return []
     finally:
         _stop(proc, interrupted)
     if proc.returncode != 0:
@@ -74,13 +80,17 @@ def _compile(jobs, workers, bar):
     """Hand `jobs` to `workers` child processes, one at a time to whichever is free; returns how many
     compiled."""
     procs = [_child("compile", {}) for _ in range(workers)]
-    todo, done, interrupted = list(jobs), 0, True
+    todo, done, interrupted, stuck = list(jobs), 0, True, False
     sel = selectors.DefaultSelector()
     try:
         for proc in procs:
             _send(proc, todo, sel)
         while sel.get_map():
-            for key, _ in sel.select():
+            ready = sel.select(timeout=JOB_SECONDS)
+            if not ready:  # a worker is stuck: stop them all, the warm-up compiles what is left
+                stuck = True
+                break
+            for key, _ in ready:
                 proc = key.data
                 reply = proc.stdout.readline()
                 sel.unregister(proc.stdout)
@@ -90,7 +100,7 @@ def _compile(jobs, workers, bar):
                 if bar is not None:
                     bar.update(1)
                 _send(proc, todo, sel)
-        interrupted = False
+        interrupted = stuck
     finally:
         sel.close()
         for proc in procs:
