@@ -50,6 +50,9 @@ CASES = [
     (["render", "quad-shadow", "-D", "res=16384"], "this render needs about"),
     (["render", "quad-shadow", "-D", "res=32768"], "lower the resolution"),
     (["render", "quad-shadow", "-D", "res=1e9"], "parameter res must be an integer"),
+    (["render", "quad-shadow", "-D", "res=0"], "parameter res (-D res=, res=) must be from 1 to 32768, got 0"),
+    (["render", "quad-shadow", "-o", "a\nb.tiff"], "cannot write 'a\\nb.tiff'"),
+    (["render", "quad-shadow", "-D", "res=8\x1b[2J"], "got '8\\x1b[2J'"),
     (["render", "quad-shadow", "--visibility", "occlusion-map", "--photons", "1e8"], "lower --photons"),
     (["render", "quad-shadow", "--visibility", "occlusion-map", "--neighbours", "100000000"],
      "neighbours must be from 1 to 1,024"),
@@ -237,16 +240,18 @@ def test_a_texture_too_large_to_read_is_one_line(tmp_path, monkeypatch):
     assert err.getvalue().startswith("probvis: error: out of memory") and err.getvalue().count("\n") == 1
 
 
-def test_a_start_that_cannot_load_its_libraries_is_one_line(tmp_path):
-    """Under a tiny address-space limit (ulimit -v) the compiled libraries cannot load: one line naming the limit,
-    before the command line exists."""
+@pytest.mark.parametrize("mib", [200, 400])
+def test_an_address_space_too_small_to_start_is_one_line(tmp_path, mib):
+    """Under a small address-space limit (ulimit -v) the compiled libraries cannot load (200 MiB), or OpenBLAS's
+    start-up retried a failing allocation for ever (400 MiB: a hang): one line naming the limit, before anything
+    loads."""
     def limits():
-        resource.setrlimit(resource.RLIMIT_AS, (200 << 20, 200 << 20))
+        resource.setrlimit(resource.RLIMIT_AS, (mib << 20, mib << 20))
 
     r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-o", "o.exr"], capture_output=True,
-                       text=True, cwd=tmp_path, timeout=TIME_LIMIT, preexec_fn=limits)
+                       text=True, cwd=tmp_path, timeout=60, preexec_fn=limits)
     assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
-    assert r.stderr.startswith("probvis: error: cannot load its libraries under the address-space limit of 200 MiB")
+    assert r.stderr.startswith(f"probvis: error: the address-space limit of {mib} MiB (ulimit -v) is too small")
     assert not list(tmp_path.iterdir())
 
 
@@ -323,3 +328,92 @@ def test_a_deleted_working_folder_is_one_line(tmp_path):
                        "-o out.exr", shell=True, capture_output=True, text=True, timeout=TIME_LIMIT)
     assert r.returncode == 2 and r.stderr == ("probvis: error: the current folder no longer exists (it was deleted): "
                                               "cd to an existing folder\n"), r.stderr
+
+
+def _integrator_scene(tmp_path, integrator):
+    return write_scene(tmp_path / "s.xml", sensor().split("<integrator")[0] + integrator + """
+        <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""")
+
+
+def test_integrator_messages_name_the_parameter(tmp_path, capsys):
+    for integrator, message in (('<integrator type="direct"><integer name="shading_samples" value="-3"/>'
+                                 '</integrator>', "shading_samples must be at least 1"),
+                                ('<integrator type="path"><integer name="max_depth" value="-7"/></integrator>',
+                                 "max_depth must be -1")):
+        assert main(["render", str(_integrator_scene(tmp_path, integrator)), "-o", str(tmp_path / "o.exr")]) == 2
+        assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value, message", [(-5.0, "values must be finite, non-negative"),
+                                            (3e38, "values must be finite, non-negative")])
+def test_an_environment_map_out_of_range_is_refused_at_its_line(tmp_path, capsys, value, message):
+    """An envmap texel of -5 rendered without a word; one of 3e38 rendered inf pixels with exit 0."""
+    import numpy as np
+
+    from probvis.io import write_exr
+
+    image = np.full((4, 8, 3), 0.5)
+    image[1, 2] = value
+    write_exr(tmp_path / "env.exr", image)
+    scene = write_scene(tmp_path / "s.xml", sensor() + """
+        <emitter type="envmap"><string name="filename" value="env.exr"/></emitter>
+        <shape type="sphere"/>""")
+    assert main(["render", str(scene), "-o", str(tmp_path / "o.exr")]) == 2
+    err = capsys.readouterr().err
+    assert "s.xml:" in err and message in err and not (tmp_path / "o.exr").exists()
+
+
+def test_an_image_beyond_float32_is_refused_and_nothing_written(tmp_path):
+    import numpy as np
+
+    from probvis.errors import ProbvisError
+    from probvis.io import staged_writes, write_exr, write_image
+
+    with pytest.raises(ProbvisError, match="beyond what a float32 file holds"):
+        with staged_writes():
+            write_image(tmp_path / "a.pfm", np.ones((2, 2, 3)))
+            write_exr(tmp_path / "b.exr", np.full((2, 2, 3), 1e39))
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_symbolic_link_that_loops_is_one_line(tmp_path, capsys):
+    (tmp_path / "loop.exr").symlink_to("loop.exr")
+    assert main(["render", "quad-shadow", "-D", "res=8", "-o", str(tmp_path / "loop.exr")]) == 2
+    assert "symbolic link that loops" in capsys.readouterr().err
+
+
+def test_a_standard_output_that_fails_leaves_no_image(tmp_path, monkeypatch, capsys):
+    """The summary is printed before the files appear: a run whose summary cannot be written wrote nothing."""
+    monkeypatch.setattr(sys, "stdout", None)
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "-o", str(tmp_path / "o.exr")]) == 1
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("clip", ['near_clip" value="100', 'far_clip" value="0.5'])
+def test_clip_planes_that_leave_out_the_scene_are_refused(tmp_path, capsys, clip):
+    scene = write_scene(tmp_path / "s.xml", sensor().replace('<float name="fov"', f'<float name="{clip}"/>'
+                                                              '<float name="fov"') + """
+        <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""")
+    assert main(["render", str(scene), "-o", str(tmp_path / "o.exr")]) == 2
+    assert "leaves out the whole scene" in capsys.readouterr().err
+
+
+def test_ply_face_indices_that_are_not_integers_are_refused(tmp_path, capsys):
+    ply = (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+           b"element face 1\nproperty list uchar float vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+           b"3 0.5 1 2\n")
+    (tmp_path / "m.ply").write_bytes(ply)
+    scene = write_scene(tmp_path / "s.xml", sensor() + """
+        <shape type="ply"><string name="filename" value="m.ply"/></shape>
+        <shape type="rectangle"><transform name="to_world"><translate z="2"/></transform>
+            <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""")
+    assert main(["render", str(scene), "-o", str(tmp_path / "o.exr")]) == 2
+    assert "vertex indices are integers" in capsys.readouterr().err
+
+
+def test_numpy_numbers_are_numbers_for_estimator_options():
+    import numpy as np
+
+    from probvis.visibility import estimator_class
+
+    assert estimator_class("occlusion-map")(photons=np.int64(2000)).params.photons == 2000

@@ -20,6 +20,17 @@ def _address_limit():
 
 
 MIN_STACK_KIB = 1024  # numpy's import crashes below about 90 KiB, the interpreter below 76; scenes need more
+MIN_ADDRESS_MIB = 640  # the libraries and a tiny render need about 500 MiB of address space; between 350 and 550
+# OpenBLAS's start-up retries a failing allocation for ever (a hang), or gives up with a message of its own
+
+
+def _address_space_too_small():
+    """The one line for an address-space limit (ulimit -v) too small to load the libraries and render."""
+    limit = _address_limit()
+    if limit is None or limit >= MIN_ADDRESS_MIB:
+        return None
+    return (f"probvis: error: the address-space limit of {limit} MiB (ulimit -v) is too small: probvis needs at "
+            f"least {MIN_ADDRESS_MIB} MiB to load its libraries, and more for a scene: raise the limit")
 
 
 def _stack_too_small():
@@ -49,7 +60,7 @@ def _bad_environment():
     if threads is not None and not (threads.strip().isdigit() and threads.isascii() and int(threads) > 0):
         return (f"probvis: error: NUMBA_NUM_THREADS='{threads}' is not a thread count: unset it, or give a positive "
                 "whole number (--threads bounds a render's threads)")
-    return _stack_too_small()
+    return _stack_too_small() or _address_space_too_small()
 
 
 def main():

@@ -291,8 +291,10 @@ def _cmd_render(args):
         if args.stats:
             write_stats(args.stats, result.stats)
             written.append(args.stats)
+        if not args.quiet:  # before the files appear: a standard output that fails leaves none of them
+            _say(summary(result.stats))
+            _flush_stdout()
     if not args.quiet:
-        _say(summary(result.stats))
         _say("wrote       " + ", ".join(written))
     return 0
 
@@ -461,7 +463,13 @@ def _cmd_experiment(args):
 def _warning_line(message, category, filename, lineno, file=None, line=None):
     """A warning as one line: a library's multi-line, coloured text (Numba's) keeps its first line, uncoloured."""
     text = re.sub(r"\x1b\[[0-9;]*m", "", str(message)).strip().splitlines()
-    print(f"probvis: warning: {text[0] if text else category.__name__}", file=sys.stderr)
+    print(f"probvis: warning: {_one_line(text[0]) if text else category.__name__}", file=sys.stderr)
+
+
+def _one_line(text):
+    """`text` with its control characters escaped (a newline in a file name, a terminal escape in a file's
+    line): a message stays one line and cannot drive the terminal."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(text))
 
 
 def _visibility_arg(argv):
@@ -616,7 +624,7 @@ def main(argv=None):
         _flush_stdout()
         return status
     except ProbvisError as exc:
-        print(f"probvis: error: {exc}", file=sys.stderr)
+        print(f"probvis: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except MemoryError:  # an allocation the estimate before the render did not foresee (a texture's, say)
         print("probvis: error: out of memory (the machine's or the process's limit, ulimit -v): lower the "

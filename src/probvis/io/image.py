@@ -30,6 +30,12 @@ def check_writable(path, formats=FORMATS, role="an image"):
     if path.suffix.lower() not in formats:
         raise ProbvisError(f"cannot write '{path}': {role} must be a {', '.join(formats)} file")
     try:
+        if path.is_symlink():
+            try:
+                path.resolve()
+            except RuntimeError:  # Python before 3.13 (later ones raise an OSError, ELOOP)
+                raise ProbvisError(f"cannot write '{path}': it is a symbolic link that loops back to itself; "
+                                   "remove it or give another name") from None
         # a symbolic link is written through: its target's folder counts
         parent = (Path(os.path.realpath(path)).parent if path.is_symlink() else
                   path.parent if str(path.parent) else Path("."))
@@ -126,14 +132,25 @@ def _as_rgb(image):
     return img
 
 
+def _float32(path, values):
+    """`values` as contiguous float32, refused (naming the file) where float32 cannot hold them: they would be
+    written as infinities."""
+    values = np.asarray(values, dtype=np.float64)
+    biggest = float(np.max(np.abs(values), initial=0.0))
+    if biggest > np.finfo(np.float32).max:
+        raise ProbvisError(f"cannot write '{path}': the image has values up to {biggest:.3g}, beyond what a float32 "
+                           f"file holds ({np.finfo(np.float32).max:.3g}): lower the emitters' radiance or scale")
+    return np.ascontiguousarray(values, dtype=np.float32)
+
+
 def write_exr(path, image, channels=None):
     """Write float32 channels; by default RGB. `channels` maps names to (h, w) arrays instead."""
     import OpenEXR
 
     if channels is None:
-        data = {"RGB": np.ascontiguousarray(_as_rgb(image), dtype=np.float32)}
+        data = {"RGB": _float32(path, _as_rgb(image))}
     else:
-        data = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
+        data = {k: _float32(path, v) for k, v in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as tmp:
         with OpenEXR.File(header, data) as f:
@@ -264,7 +281,7 @@ def read_linear_rgb(path, raw=False):
 
 
 def write_pfm(path, image):
-    img = np.ascontiguousarray(_as_rgb(image)[::-1], dtype="<f4")
+    img = _float32(path, _as_rgb(image)[::-1]).astype("<f4", copy=False)
     h, w = img.shape[:2]
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:

@@ -602,6 +602,9 @@ class _Reader:
                 self.fail(node, str(exc))
             if image.shape[1] < 2 or image.shape[0] < 3:
                 self.fail(node, f"{path}: the environment map resolution must be at least 2x3 pixels")
+            if not (np.all(np.isfinite(image)) and image.min() >= 0.0 and image.max() <= MAX_EMISSION):
+                self.fail(node, f"{path}: the environment map's values must be finite, non-negative and at most "
+                                f"{MAX_EMISSION:g} (they range from {np.nanmin(image):g} to {np.nanmax(image):g})")
             m, scale = props.get("to_world"), props.get("scale", 1.0)
             if m is not None and not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-6):
                 self.fail(node, "an envmap's to_world must be a rotation (no scale or shear)")
@@ -903,6 +906,8 @@ class _Reader:
             if props.get("hide_emitters", False):
                 self.fail(node, "hide_emitters=true is not supported")
             depth = props.get("max_depth", -1)
+            if depth < -1:
+                self.fail(node, f"max_depth must be -1 (no limit) or at least 2 here, got {depth}")
             if depth in (0, 1):  # Mitsuba: 0 renders nothing, 1 only the emitters seen directly
                 lost = "no light" if depth == 0 else "no direct illumination"
                 self.fail(node, f"max_depth {depth} renders {lost} in Mitsuba; probvis renders direct illumination "
@@ -919,6 +924,8 @@ class _Reader:
         if props.get("hide_emitters", False):
             self.fail(node, "hide_emitters=true is not supported")
         base = props.get("shading_samples", 1)
+        if base < 1:
+            self.fail(node, f"shading_samples must be at least 1, got {base}")
         if props.get("bsdf_samples", 0) != 0:  # only when the file asks for them: a default is no request
             warnings.warn(f"{self.path}:{node.line}: bsdf_samples ignored: probvis samples emitters only "
                           "(same expected image)", stacklevel=2)

@@ -65,6 +65,10 @@ def read_ply(path):
                 fh.seek(0)
                 ply = PlyData.read(fh)
             rows = ply["face"].data[lists[0]]
+            values = rows[0] if rows.dtype == object and len(rows) else rows
+            if np.asarray(values).dtype.kind not in "iu":
+                raise ProbvisError(f"mesh {path}: the faces' '{lists[0]}' are {np.asarray(values).dtype} numbers; "
+                                   "vertex indices are integers (a PLY list of int, uint, ...)")
             if rows.dtype == object:  # polygons, or any ASCII file: a row per face, split into fans here
                 counts = np.array([len(r) for r in rows], dtype=np.int64)
                 if counts.min() < 3:

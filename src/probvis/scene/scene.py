@@ -126,6 +126,17 @@ class Scene:
     def validate_camera(self):
         if problem := camera_problem(self.camera):
             raise ProbvisError(problem)
+        if self.environment is None and len(self.triangles):  # clip planes that leave nothing to see: black
+            c = self.camera
+            lo, hi = self.triangles.min(axis=(0, 1)), self.triangles.max(axis=(0, 1))
+            corners = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
+            axis = c.to_world[:3, 2] / np.linalg.norm(c.to_world[:3, 2])
+            depth = (corners - c.to_world[:3, 3]) @ axis  # the clip planes cut along the view axis
+            nearest, farthest = float(depth.min()), float(depth.max())
+            if c.near_clip > farthest or c.far_clip < nearest:
+                raise ProbvisError(f"the clip range [{c.near_clip:g}, {c.far_clip:g}] (near_clip, far_clip) leaves "
+                                   f"out the whole scene, {nearest:g} to {farthest:g} deep in the camera's view: "
+                                   "the image would be black")
 
 
 class SceneBuilder:

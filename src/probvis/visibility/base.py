@@ -130,8 +130,10 @@ def _show(x):
 
 def _number(value, kind, bad):
     """`value` (string or number) as a finite int or float; `bad` is raised otherwise."""
-    if isinstance(value, bool):
+    if isinstance(value, (bool, np.bool_)):
         raise bad
+    if isinstance(value, (np.integer, np.floating)):  # NumPy's numbers are numbers, as the render's arguments take them
+        value = value.item()
     if isinstance(value, str):
         try:
             value = parse_float(value) if kind is float else parse_int(value)
