@@ -42,7 +42,7 @@ from .visibility import (RenderPath, ShadingPoints, ShadowQuery, VisibilityEstim
 
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keeps progress and Ctrl-C prompt)
 TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
-COMPILE_TIME = "half a minute to a minute"  # a first run's compilation on 2 cores (20-26 s exact, 48-54 s probvis)
+COMPILE_TIME = "about half a minute"  # a first run's compilation on 2 cores (17-26 s exact, 33-36 s probvis)
 MEMORY_HINTS = {"film": "the resolution (-D res, resolution=)", "photons": "--photons",
                 "lookups": "--neighbours or --shadow-rays", "batch": "--spp or --shadow-rays"}
 

@@ -137,9 +137,10 @@ def _float32(path, values):
     written as infinities."""
     values = np.asarray(values, dtype=np.float64)
     biggest = float(np.max(np.abs(values), initial=0.0))
-    if biggest > np.finfo(np.float32).max:
+    limit = float(np.finfo(np.float32).max)
+    if biggest > limit:
         raise ProbvisError(f"cannot write '{path}': the image has values up to {biggest:.3g}, beyond what a float32 "
-                           f"file holds ({np.finfo(np.float32).max:.3g}): lower the emitters' radiance or scale")
+                           f"file holds ({limit:.3g}): lower the emitters' radiance or scale")
     return np.ascontiguousarray(values, dtype=np.float32)
 
 
