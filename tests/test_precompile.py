@@ -105,3 +105,12 @@ def test_the_warm_up_uses_the_sizes_options_declare(monkeypatch):
     monkeypatch.setattr(integrator, "render_pass", lambda scene, settings, estimator: seen.append(estimator))
     integrator.warm_up_render(estimator_class("occlusion-map"), {"photons": 10**6, "neighbours": 7})
     assert (seen[0].params.photons, seen[0].params.neighbours) == (4096, 7)
+
+
+def test_the_first_run_s_progress_bar_starts():
+    """On a terminal a cold first run shows a bar over Numba's compile events (it failed Numba's check that a
+    listener is an `event.Listener`) and the workers' kernels."""
+    with integrator._CompileProgress() as shown:
+        shown.bar.reset(total=2)
+        shown.bar.update(1)
+        assert shown.bar.n == 1

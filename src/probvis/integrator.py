@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numba
 import numpy as np
+from numba.core import event
 from threadpoolctl import threadpool_limits
 
 from . import memory, precompile
@@ -217,12 +218,11 @@ def _cold_cache():
     return index is not None and not Path(index).exists()
 
 
-class _CompileProgress:
+class _CompileProgress(event.Listener):
     """A progress bar over the kernels compiled in this process (Numba's compile events) or, through `bar`,
     by `precompile`."""
 
     def __init__(self):
-        from numba.core import event
         from tqdm import tqdm
 
         self.bar = tqdm(desc="compiling kernels", unit=" kernels", leave=False)
