@@ -36,7 +36,8 @@ def test_user_mistakes_give_one_line_and_exit_2(tmp_path, capsys):
         (["render", str(bad), "-o", str(tmp_path / "x.exr")], "bad.xml:3: malformed XML"),
         (["render", "quad-shadow", "-o", str(tmp_path / "no" / "x.exr")], "does not exist"),
         (["render", "quad-shadow", "-o", str(tmp_path / "x.jpg")], "output must be a .exr, .pfm, .png file"),
-        (["render", "quad-shadow", "-D", "res=0", "-o", str(tmp_path / "x.exr")], "parameter res (-D res=, res=) must be from 1"),
+        (["render", "quad-shadow", "-D", "res=0", "-o", str(tmp_path / "x.exr")],
+         "parameter res (-D res=, res=) must be from 1"),
         (["render", "quad-shadow", "-D", "bogus", "-o", str(tmp_path / "x.exr")], "-D expects name=value"),
         (["info", "nope"], "neither a scene file"),
     ]

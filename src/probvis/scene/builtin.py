@@ -10,7 +10,7 @@ from ..settings import RenderSettings, parse_int
 from . import shapes as shp
 from . import transform as tf
 from .scene import SceneBuilder
-from .sensor import Camera
+from .sensor import MAX_FILM_SIDE, Camera
 
 
 def _cornell_walls(b, white, red, green):
@@ -182,7 +182,6 @@ BUILTINS = {
 
 
 PARAMETERS = ("res", "spp", "shadow_rays", "seed")
-MAX_RES = 1 << 15  # the largest film side a camera takes
 
 
 def builtin_scene(name, **defaults):
@@ -198,6 +197,6 @@ def builtin_scene(name, **defaults):
             kwargs[key] = parse_int(val) if isinstance(val, str) else int(val)
         except (TypeError, ValueError):
             raise ProbvisError(f"parameter {key} must be an integer, got '{val}'") from None
-    if not 1 <= kwargs.get("res", 1) <= MAX_RES:
-        raise ProbvisError(f"parameter res (-D res=, res=) must be from 1 to {MAX_RES}, got {kwargs['res']}")
+    if not 1 <= kwargs.get("res", 1) <= MAX_FILM_SIDE:
+        raise ProbvisError(f"parameter res (-D res=, res=) must be from 1 to {MAX_FILM_SIDE}, got {kwargs['res']}")
     return gen(**kwargs)

@@ -18,7 +18,7 @@ from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import MAX_COORDINATE, SceneBuilder
-from .sensor import MAX_FILTER_RADIUS, Camera, camera_problem
+from .sensor import MAX_FILM_SIDE, MAX_FILTER_RADIUS, Camera, camera_problem
 from .spectrum import spectrum_to_rgb
 
 # Mitsuba's named indices of refraction (its `ior.h`) and conductor materials (its spectral data files)
@@ -865,8 +865,8 @@ class _Reader:
                     self.fail(ch, "only one reconstruction filter per film")
                 rfilter = self.rfilter(ch)
             width, height = props.get("width", width), props.get("height", height)
-            if width < 1 or height < 1 or width > 1 << 15 or height > 1 << 15:
-                self.fail(node, f"film size {width}x{height} is out of range (1 to 32768)")
+            if width < 1 or height < 1 or width > MAX_FILM_SIDE or height > MAX_FILM_SIDE:
+                self.fail(node, f"film size {width}x{height} is out of range (1 to {MAX_FILM_SIDE})")
         cx, cy = props.get("crop_offset_x", 0), props.get("crop_offset_y", 0)
         cw, ch_ = props.get("crop_width", width - cx), props.get("crop_height", height - cy)
         if not (0 <= cx and cw >= 1 and cx + cw <= width and 0 <= cy and ch_ >= 1 and cy + ch_ <= height):

@@ -128,7 +128,7 @@ class Scene:
             raise ProbvisError(problem)
         if self.environment is None and len(self.triangles):  # clip planes that leave nothing to see: black
             c = self.camera
-            lo, hi = self.triangles.min(axis=(0, 1)), self.triangles.max(axis=(0, 1))
+            lo, hi = self.bounds()
             corners = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
             axis = c.to_world[:3, 2] / np.linalg.norm(c.to_world[:3, 2])
             depth = (corners - c.to_world[:3, 3]) @ axis  # the clip planes cut along the view axis

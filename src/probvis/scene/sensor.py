@@ -5,6 +5,7 @@ from dataclasses import dataclass
 import numpy as np
 
 
+MAX_FILM_SIDE = 1 << 15  # pixels along a film's side
 MAX_FILTER_RADIUS = 32.0  # pixels a film's reconstruction filter may reach (splatting cost grows with its square)
 MAX_PRINCIPAL_OFFSET = 1e3  # film sizes: beyond, the view's axis is within a thousandth of a radian of the film plane
 MAX_APERTURE_RATIO = 1e3  # lens radius per focus distance: beyond, every ray leaves the lens nearly along its plane
@@ -52,8 +53,8 @@ def camera_problem(c):
     no render can use, or a principal point or aperture so far beyond the film that its rays miss the view (Mitsuba
     renders those black)."""
     for what, val in (("width", c.width), ("height", c.height)):
-        if int(val) != val or not 1 <= val <= 1 << 15:
-            return f"{what} must be a whole number from 1 to {1 << 15}, got {val}"
+        if int(val) != val or not 1 <= val <= MAX_FILM_SIDE:
+            return f"{what} must be a whole number from 1 to {MAX_FILM_SIDE}, got {val}"
     if not 0.0 < c.fov_x < 180.0:
         return f"field of view must be between 0 and 180 degrees, got {c.fov_x:g}"
     if not 0.0 < c.near_clip < c.far_clip:
