@@ -149,7 +149,7 @@ def test_parallel_build_gives_the_single_threaded_tree():
     """Subtrees below the top levels are built concurrently and spliced in: the same arrays as one thread."""
     import numba
 
-    from probvis.accel.bvh import PARALLEL_MIN_TRIANGLES
+    from probvis.accel.sah_build import PARALLEL_MIN_TRIANGLES
 
     rng = np.random.default_rng(5)
     tris = random_soup(rng, PARALLEL_MIN_TRIANGLES + 5000, size=0.02)
