@@ -98,6 +98,23 @@ def test_keys_follow_scene_content_and_settings():
     assert refs[0].key != refs2[0].key and not {t.key for t in cells} & {t.key for t in cells2}
 
 
+def test_a_local_cluster_that_cannot_start_is_one_clear_error(monkeypatch):
+    """Under `ulimit -f 0` Dask finds no usable temporary folder and raises a RuntimeError from the cause."""
+    import dask.distributed
+
+    from probvis.experiments import runner
+
+    def failing(**_):
+        try:
+            raise FileNotFoundError(errno.ENOENT, "No usable temporary directory found in ['/tmp']")
+        except FileNotFoundError as exc:
+            raise RuntimeError(f"Cluster failed to start: {exc}") from exc
+
+    monkeypatch.setattr(dask.distributed, "LocalCluster", failing)
+    with pytest.raises(ProbvisError, match=r"^cannot start a local Dask cluster: \[Errno 2\] No usable temporary"):
+        runner._open_client(1, None)
+
+
 def test_unreachable_scheduler_is_one_clear_error(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

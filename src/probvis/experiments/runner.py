@@ -190,6 +190,8 @@ def _open_client(workers, scheduler):
             warnings.filterwarnings("ignore", message="Port .* is already in use")
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                    silence_logs=logging.CRITICAL)
+    except (RuntimeError, OSError) as exc:  # Dask wraps the cause ("Cluster failed to start: ...")
+        raise ProbvisError(f"cannot start a local Dask cluster: {exc.__cause__ or exc}") from None
     finally:
         if main:
             signal.signal(signal.SIGINT, previous)
