@@ -143,6 +143,21 @@ def test_full_disk_while_writing_the_report_keeps_the_renders(tiny_run, tmp_path
     assert all(cache.has(t.key) for t in run.tasks)
 
 
+def test_methods_that_match_the_reference_plot_without_warnings(tiny_run, tmp_path):
+    """relMSE 0 (exact methods rendering the reference's own image) has no place on a log axis: left out, not
+    warned about. matplotlib warns once a log axis holds only such values (here the target line's)."""
+    import dataclasses
+    import warnings
+
+    _, results, _, run = tiny_run
+    summary = [dict(r, relmse=0.0) for r in results.summary]
+    zero = dataclasses.replace(results, summary=summary)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        report_module.write_report(parse_experiment(TINY), run, zero, tmp_path / "report")
+    assert (tmp_path / "report" / "plots" / "quad-convergence.png").is_file()
+
+
 def test_reference_file_of_the_wrong_size_is_named(tmp_path):
     from probvis.io import write_exr
 
