@@ -35,6 +35,7 @@ def _swap_rows(tri_lo, tri_hi, cent, idx, a, b):
         tri_hi[a, k], tri_hi[b, k] = tri_hi[b, k], tri_hi[a, k]
         cent[a, k], cent[b, k] = cent[b, k], cent[a, k]
 
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _bins_union(bin_box, axis, first, last, out, row):
     """The union of the boxes of bins first..last-1 on `axis`, into out[row, :6]."""
@@ -221,6 +222,7 @@ def _build(tri_lo, tri_hi, cent, idx, first, last, n_bins, max_leaf, trav_cost, 
         sp += 1
     return bounds[:n_nodes], node_index[:n_nodes], node_count[:n_nodes], deferred[:n_deferred]
 
+
 def _build_concurrently(lo, hi, cent, idx, n_bins, max_leaf, threads):
     """The tree over all rows as pieces built on `threads` threads: each task builds its range's top levels,
     leaving every child of at most half its size as a placeholder for a new task, until the ranges are small
@@ -285,6 +287,7 @@ def _flatten(pieces, links):
         _place(bounds, node_index, node_count, final, out_b, out_i, out_c)
         todo.extend((c, int(final[node])) for c, node in zip(links[p], deferred[:, 0]))
     return out_b, out_i, out_c
+
 
 def node_arrays(lo, hi, cent, idx, n_bins, max_leaf):
     """Bounds (nodes, 6), right child or first primitive, and leaf primitive count of the tree over the
