@@ -72,8 +72,10 @@ def main():
     try:
         from .cli import main as cli_main
     except KeyboardInterrupt:
-        print("probvis: interrupted, nothing written", file=sys.stderr)
-        return 130
+        print("probvis: interrupted, nothing written", file=sys.stderr, flush=True)
+        # at once: an interrupt raised in code a C extension ran during an import (PyRun_*) leaves CPython's
+        # "unhandled KeyboardInterrupt" flag set, which turned a normal exit 130 into death by SIGINT
+        os._exit(130)
     except (ImportError, OSError, MemoryError) as exc:
         print(_start_failure(exc), file=sys.stderr)
         return 1
