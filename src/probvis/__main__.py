@@ -73,8 +73,8 @@ def main():
         from .cli import main as cli_main
     except KeyboardInterrupt:
         print("probvis: interrupted, nothing written", file=sys.stderr, flush=True)
-        # at once: an interrupt raised in code a C extension ran during an import (PyRun_*) leaves CPython's
-        # "unhandled KeyboardInterrupt" flag set, which turned a normal exit 130 into death by SIGINT
+        # at once: a normal exit after an interrupted import sometimes died by SIGINT (-2) instead, most likely
+        # through CPython's unhandled-KeyboardInterrupt flag left set by the import
         os._exit(130)
     except (ImportError, OSError, MemoryError) as exc:
         print(_start_failure(exc), file=sys.stderr)
