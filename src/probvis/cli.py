@@ -24,6 +24,8 @@ def _defines(items):
         if "=" not in item:
             raise ProbvisError(f"-D expects name=value, got '{item}'")
         k, v = item.split("=", 1)
+        if not k.strip():
+            raise ProbvisError(f"-D expects name=value, got '{item}' (the name is empty)")
         if k.strip() in out and out[k.strip()] != v.strip():
             raise ProbvisError(f"-D {k.strip()} given twice ({out[k.strip()]}, {v.strip()}): give it once")
         out[k.strip()] = v.strip()
@@ -407,10 +409,14 @@ def _cmd_tables(args):
     from .visibility.probabilistic import power, shifted, standard
 
     p = args.probabilities or (1 / 3, 1 / 3, 1 / 3)
-    try:
-        decs = [standard(p), shifted(p, args.shifts or (1 / 3, 1 / 3, 1 / 3)), power(args.power, p)]
-    except ValueError as exc:
-        raise ProbvisError(str(exc)) from None
+    decs = []
+    for flag, make in (("--probabilities", lambda: standard(p)),
+                       ("--shifts", lambda: shifted(p, args.shifts or (1 / 3, 1 / 3, 1 / 3))),
+                       ("--power", lambda: power(args.power, p))):
+        try:
+            decs.append(make())
+        except ValueError as exc:
+            raise ProbvisError(f"{flag}: {exc}") from None
     out = [{"decomposition": d.name, "probabilities": d.p.tolist(), "terms": list(d.labels), "rows": d.rows()}
            for d in decs]
     if args.json:
@@ -438,7 +444,10 @@ def _cmd_experiment(args):
         raise ProbvisError("give an experiment file or --quick (not both)")
     if args.scheduler and args.workers != 1:
         raise ProbvisError("--workers applies to the embedded LocalCluster, not to --scheduler")
-    if args.scheduler and not re.fullmatch(r"(?:(?:tcp|tls|ws|wss|ucx|inproc)://)?[\w.\-\[\]]+(?::\d{1,5})?/?",
+    if args.scheduler and args.scheduler.startswith("inproc://"):
+        raise ProbvisError(f"--scheduler '{args.scheduler}': an inproc:// address names a scheduler inside one "
+                           "process, which the command line cannot reach; give tcp://host:port")
+    if args.scheduler and not re.fullmatch(r"(?:(?:tcp|tls|ws|wss|ucx)://)?[\w.\-\[\]]+(?::\d{1,5})?/?",
                                            args.scheduler):
         raise ProbvisError(f"--scheduler '{args.scheduler}' is not a scheduler address (tcp://host:port)")
     exp = quick_experiment() if args.quick else load_experiment(args.file)
@@ -569,13 +578,16 @@ def _repeated_option(argv, cls):
     return None
 
 
+_NEGATIVE = re.compile(r"-(?:[0-9.]+(?:e[+-]?[0-9]+)?|inf|infinity|nan)(?:,\S*)?", re.IGNORECASE)
+
+
 def _negative_values(argv):
-    """`--exposure -inf` as `--exposure=-inf`: argparse takes a value starting with '-' that is not a plain
-    number for a flag, and would say only "expected one argument"."""
+    """`--exposure -inf` as `--exposure=-inf`, `--shifts -1,1,1` as `--shifts=-1,1,1`: argparse takes a value
+    starting with '-' that is not a plain number for a flag, and would say only "expected one argument"."""
     out = list(argv)
     for i in range(len(out) - 1):
-        if out[i] == "--exposure" and out[i + 1].startswith("-"):
-            out[i:i + 2] = [f"--exposure={out[i + 1]}", None]
+        if out[i] and out[i].startswith("--") and "=" not in out[i] and _NEGATIVE.fullmatch(out[i + 1] or ""):
+            out[i:i + 2] = [f"{out[i]}={out[i + 1]}", None]
     return [a for a in out if a is not None]
 
 

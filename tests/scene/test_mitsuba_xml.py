@@ -105,7 +105,7 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
     ("<medium type='homogeneous' id='fog'/>", "unsupported element"),
     ("<shape type='instance'><ref id='nothing'/></shape>", "reference to unknown id 'nothing'"),
     ("<shape type='serialized'><string name='filename' value='nope.serialized'/></shape>", "mesh file not found"),
-    ("<emitter type='spot'><float name='cutoff_angle' value='120'/></emitter>", "cutoff_angle must be in (0, 90]"),
+    ("<emitter type='spot'><float name='cutoff_angle' value='120'/></emitter>", "cutoff_angle must be in [0.001, 90]"),
     ("<emitter type='point'><point name='position' x='abc'/></emitter>", "attribute 'x': 'abc' is not a number"),
     ("<emitter type='point'><point name='position' x='nan'/></emitter>", "non-finite value 'nan'"),
     ("<shape type='rectangle'><transform name='to_world'><rotate x='1' angle='inf'/></transform></shape>",
@@ -327,9 +327,29 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
     ("<shape type='sphere'><float name='radius' value='1e100'/></shape>",
      "<shape>: sphere radius must be positive and at most 1e+30, got 1e+100"),
     ("<shape type='rectangle'><bsdf type='dielectric'><string name='int_ior' value='kryptonite'/></bsdf></shape>",
-     "<bsdf>: unknown material 'kryptonite' for int_ior (Mitsuba's: vacuum, helium"),
+     "<string>: unknown material 'kryptonite' for int_ior (Mitsuba's: vacuum, helium"),
     ("<shape type='rectangle'><bsdf type='roughconductor'><string name='material' value='unobtainium'/></bsdf>"
      "</shape>", "<bsdf>: unknown conductor material 'unobtainium' (Mitsuba's: Ag, Al,"),
+    ("<shape type='rectangle'><bsdf type='dielectric'><rgb name='int_ior' value='1.5'/></bsdf></shape>",
+     "<rgb>: int_ior is one number or a material name: give it as <float> or <string>"),
+    ("<shape type='rectangle'><bsdf type='plastic'><string name='diffuse_reflectance' value='red'/></bsdf></shape>",
+     "<string>: 'diffuse_reflectance' of a plastic bsdf is a colour: give it as <rgb>"),
+    ("<shape type='rectangle'><bsdf type='principled'><boolean name='base_color' value='true'/></bsdf></shape>",
+     "<boolean>: 'base_color' of a principled bsdf is a colour"),
+    ("<shape type='rectangle'><bsdf type='blendbsdf'><string name='weight' value='half'/><bsdf type='diffuse'/>"
+     "<bsdf type='diffuse'/></bsdf></shape>", "<string>: 'weight' of a blendbsdf bsdf is a colour"),
+    ("<shape type='rectangle'><bsdf type='diffuse'><spectrum name='reflectance' value='nan:0.5, 500:0.5'/></bsdf>"
+     "</shape>", "<spectrum>: non-finite wavelength or value in 'nan:0.5, 500:0.5'"),
+    ("<shape type='rectangle'><bsdf type='diffuse'><spectrum name='reflectance' value='4_00:0.5, 500:0.5'/>"
+     "</bsdf></shape>", "<spectrum>: expected wavelength:value pairs, got '4_00:0.5, 500:0.5'"),
+    ("<shape type='rectangle'><emitter type='area'><spectrum name='radiance' value='400:1e308, 500:1e308'/>"
+     "</emitter></shape>", "<spectrum>: spectrum value 1e+308 is out of range (at most 1e+30)"),
+    ("<emitter type='constant'><rgb name='radiance' value='1e-300'/></emitter>",
+     "<emitter>: radiance 1e-300 is out of range (non-zero values must be at least 1e-30"),
+    ("<shape type='cylinder'><point name='p1' x='0' y='0' z='1e-15'/></shape>",
+     "<shape>: a cylinder of radius 1 from p0 to p1 1e-15 apart is too flat"),
+    ("<emitter type='spot'><float name='cutoff_angle' value='1e-9'/></emitter>",
+     "<emitter>: cutoff_angle must be in [0.001, 90] degrees, got 1e-09"),
 ])
 def test_values_that_parse_but_would_render_nonsense_are_named_at_their_line(tmp_path, body, message):
     """Values Mitsuba would refuse, or that overflow probvis's arithmetic (NaN or black images before)."""
@@ -443,3 +463,35 @@ def test_a_sensor_s_spectral_response_is_approximated_or_refused(tmp_path):
         probvis.load_scene(write_scene(tmp_path / "s.xml", body + LIGHT))
     with pytest.raises(ProbvisError, match="srf \\(spectral response\\) must not be negative"):
         probvis.load_scene(write_scene(tmp_path / "n.xml", body.replace("'0.5'", "'-1'") + LIGHT))
+
+
+@pytest.mark.parametrize("camera, message", [
+    ("<float name='fov' value='179.9999999'/>", "fov 179.9999999 makes the view 179.9999999 degrees wide"),
+    ("<string name='focal_length' value='1e-7mm'/>", "focal_length 1e-7mm makes the view 179.9999993 degrees wide"),
+])
+def test_a_view_so_wide_the_scene_shrinks_to_a_dot_is_refused(tmp_path, camera, message):
+    """A perspective camera near 180 degrees rendered an all-black image without a word."""
+    body = sensor().replace("<float name=\"fov\" value=\"40\"/>", camera)
+    assert camera in body
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.load_scene(write_scene(tmp_path / "wide.xml", body + LIGHT))
+
+
+def test_an_emission_spectrum_outside_the_srgb_gamut_is_clamped_with_a_warning(tmp_path):
+    """A narrow green line has a negative red in sRGB: clamped to 0 (it was refused as 'must be non-negative')."""
+    body = sensor() + LIGHT.replace('<rgb name="radiance" value="1"/>',
+                                    '<spectrum name="radiance" value="500:0, 520:10, 540:0"/>')
+    with pytest.warns(UserWarning, match="outside the sRGB gamut"):
+        scene = probvis.load_scene(write_scene(tmp_path / "green.xml", body))
+    rad = scene.emitter_radiance[0]
+    assert rad.min() == 0.0 and rad[1] > 0
+
+
+def test_a_bumpmap_may_reference_its_texture(tmp_path):
+    """`<ref>` to a texture inside a bumpmap is the texture, not the wrapped BSDF."""
+    body = sensor() + ("<texture type='checkerboard' id='bumps'/><bsdf type='diffuse' id='base'>"
+                       "<rgb name='reflectance' value='0.3'/></bsdf>"
+                       "<shape type='rectangle'><bsdf type='bumpmap'><ref id='bumps'/><ref id='base'/></bsdf></shape>")
+    with pytest.warns(UserWarning, match="bumpmap"):
+        scene = probvis.load_scene(write_scene(tmp_path / "bump.xml", body + LIGHT))
+    np.testing.assert_allclose(scene.reflectance[scene.tri_material[0]], 0.3)

@@ -19,14 +19,20 @@ def load_scene(path, strict=False, **defaults):
         raise ProbvisError(f"path must be a scene file path or a built-in name, got {type(path).__name__}")
     if not isinstance(strict, bool):
         raise ProbvisError(f"strict must be True or False, got {strict!r}")
-    if isinstance(path, str) and path in BUILTINS:
-        if Path(path).is_file():
-            warnings.warn(f"'{path}' names a built-in scene and a file here: rendering the built-in (give "
-                          f"./{path} for the file)", stacklevel=2)
-        return builtin_scene(path, **defaults)
-    p = Path(path)
-    if p.suffix.lower() != ".xml" and not p.exists():
-        raise ProbvisError(f"'{path}' is neither a scene file nor a built-in scene ({', '.join(BUILTINS)})")
+    if not str(path).strip():
+        raise ProbvisError(f"the scene name is empty: give a scene file or a built-in scene ({', '.join(BUILTINS)})")
+    try:
+        if isinstance(path, str) and path in BUILTINS:
+            if Path(path).is_file():
+                warnings.warn(f"'{path}' names a built-in scene and a file here: rendering the built-in (give "
+                              f"./{path} for the file)", stacklevel=2)
+            return builtin_scene(path, **defaults)
+        p = Path(path)
+        if p.suffix.lower() != ".xml" and not p.exists():
+            raise ProbvisError(f"'{path}' is neither a scene file nor a built-in scene ({', '.join(BUILTINS)})")
+    except OSError as exc:
+        name = str(path) if len(str(path)) <= 80 else f"{str(path)[:60]}...({len(str(path))} characters)"
+        raise ProbvisError(f"scene '{name}': {exc.strerror or exc}") from None
     return read_scene(p, strict, **defaults)
 
 

@@ -18,7 +18,7 @@ from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import MAX_COORDINATE, SceneBuilder
-from .sensor import MAX_FILM_SIDE, MAX_FILTER_RADIUS, Camera, camera_problem
+from .sensor import MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV, Camera, camera_problem
 from .spectrum import spectrum_to_rgb
 
 # Mitsuba's named indices of refraction (its `ior.h`) and conductor materials (its spectral data files)
@@ -37,6 +37,7 @@ _CONDUCTORS = {"a-C", "Ag", "Al", "AlAs", "AlAs_palik", "AlSb", "AlSb_palik", "A
 MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarters of the samples out
 MAX_NESTING = 64  # elements deep: real scenes nest a handful
 MAX_EMISSION = 1e30  # radiance, intensity or scale: beyond, power sums overflow
+MIN_CUTOFF = 1e-3  # degrees: a spot's narrowest cone
 MAX_UV_SCALE = 1e9  # a texture's to_uv entries
 _APPROXIMATED_TEXTURES = ("mesh_attribute", "volume")  # Mitsuba 3's other textures
 MAX_SCENE_BYTES = 256 << 20  # a scene file larger than this is not a scene (meshes live in their own files)
@@ -247,13 +248,17 @@ class _Reader:
         """RGB of `wavelength:value` pairs, as Mitsuba's RGB variants reduce them (emission for radiance,
         intensity and irradiance, else a reflectance)."""
         try:
-            pairs = [tuple(float(x) for x in item.split(":")) for item in re.split(r",\s*|\s+(?=\d)", raw.strip())
+            pairs = [tuple(_float(x) for x in item.split(":")) for item in re.split(r",\s*|\s+(?=\d)", raw.strip())
                      if item]
             w, v = np.array(pairs, dtype=np.float64).T
         except ValueError:
             self.fail(node, f"expected wavelength:value pairs, got '{raw}'")
-        if len(w) < 2 or np.any(np.diff(w) <= 0) or not np.all(np.isfinite(v)):
-            self.fail(node, "a sampled spectrum needs two or more finite values at increasing wavelengths")
+        if not (np.all(np.isfinite(w)) and np.all(np.isfinite(v))):
+            self.fail(node, f"non-finite wavelength or value in '{raw}'")
+        if len(w) < 2 or np.any(np.diff(w) <= 0):
+            self.fail(node, "a sampled spectrum needs two or more values at increasing wavelengths")
+        if np.abs(v).max() > MAX_EMISSION:
+            self.fail(node, f"spectrum value {np.abs(v).max():g} is out of range (at most {MAX_EMISSION:g})")
         emission = node.attrs.get("name") in ("radiance", "intensity", "irradiance")
         if node.attrs.get("name") == "reflectance" and (np.any(v < 0) or np.any(v > 1)):
             self.fail(node, "reflectance must be within [0, 1] at every wavelength")
@@ -261,6 +266,11 @@ class _Reader:
         if emission and np.any(v > 0) and not np.any(rgb > 0):
             self.fail(node, f"wavelengths {w.min():g}-{w.max():g} nm lie outside 360-830 nm: this emission would be "
                             "black (give the spectrum in nanometres over the visible range)")
+        if emission and np.all(v >= 0) and np.any(rgb < 0):
+            warnings.warn(f"{self.path}:{node.line}: this emission spectrum lies outside the sRGB gamut (RGB "
+                          f"{', '.join(f'{c:.3g}' for c in rgb)}): its negative components are clamped to 0",
+                          stacklevel=2)
+            rgb = np.maximum(rgb, 0.0)
         return rgb
 
     def transform(self, node):
@@ -454,13 +464,19 @@ class _Reader:
     def nearest_diffuse(self, node, kind):
         """The diffuse colour nearest to a BSDF probvis does not model (documented in docs/decisions.md)."""
         props, objs = self.loose_params(node)
-        named = {ch.attrs.get("name"): ch for ch in objs if ch.tag == "texture"}
-        nested = [ch for ch in objs if ch.tag in ("bsdf", "ref")]
+        lines = {ch.attrs.get("name"): ch for ch in node.children if ch.tag in _PROPERTY_TAGS}
+        textures = [ch for ch in objs if ch.tag == "texture" or (ch.tag == "ref" and self.ref_kind(ch) == "texture")]
+        named = {ch.attrs.get("name"): ch for ch in textures}
+        nested = [ch for ch in objs if ch.tag in ("bsdf", "ref") and ch not in textures]
 
         def colour(name, default):
             if name in named:
                 return self.texture_colour(named[name])
-            return np.clip(np.ones(3) * props.get(name, default), 0.0, 1.0)
+            value = props.get(name, default)
+            if isinstance(value, (str, bool)):
+                self.fail(lines[name], f"'{name}' of a {kind} bsdf is a colour: give it as <rgb>, <spectrum>, "
+                                       "<float> or a nested <texture>")
+            return np.clip(np.ones(3) * value, 0.0, 1.0)
 
         if kind in ("plastic", "roughplastic"):
             return colour("diffuse_reflectance", 0.5)
@@ -472,8 +488,8 @@ class _Reader:
                                 f"{', '.join(sorted(_CONDUCTORS))})")
             return colour("specular_reflectance", 1.0)
         if kind in ("dielectric", "thindielectric", "roughdielectric"):
-            ior_in, ior_out = (self.ior(node, props, key, default) for key, default in (("int_ior", "bk7"),
-                                                                                        ("ext_ior", "air")))
+            ior_in, ior_out = (self.ior(lines.get(key, node), props, key, default)
+                               for key, default in (("int_ior", "bk7"), ("ext_ior", "air")))
             if not (0.0 < ior_in < np.inf and 0.0 < ior_out < np.inf):
                 self.fail(node, f"int_ior and ext_ior must be positive (got {ior_in:g} and {ior_out:g})")
             eta = ior_in / ior_out
@@ -488,6 +504,8 @@ class _Reader:
     def ior(self, node, props, key, default):
         """An index of refraction given as a number or by one of Mitsuba's material names."""
         value = props.get(key, default)
+        if isinstance(value, (np.ndarray, bool)):
+            self.fail(node, f"{key} is one number or a material name: give it as <float> or <string>")
         if isinstance(value, str):
             if value.lower() not in _IORS:
                 self.fail(node, f"unknown material '{value}' for {key} (Mitsuba's: {', '.join(_IORS)})")
@@ -497,6 +515,10 @@ class _Reader:
     def define(self, node, kind, value):
         """Name `value` (a `kind`) by the node's id (unique in the file: `_unique_ids`)."""
         self.ids[node.attrs["id"]] = (kind, value)
+
+    def ref_kind(self, node):
+        """The kind ('bsdf', 'texture', ...) of the object a `<ref>` names; None if it names nothing defined."""
+        return self.ids.get(node.attrs.get("id"), (None,))[0]
 
     def resolve(self, node, kind):
         self.check_attrs(node, ("id", "name"))
@@ -533,6 +555,10 @@ class _Reader:
         if np.any(rgb > MAX_EMISSION):
             self.fail(node, f"{name} {rgb.max():g} is out of range (at most {MAX_EMISSION:g}: rescale the scene's "
                             "emitters together)")
+        if np.any((rgb > 0) & (rgb < 1.0 / MAX_EMISSION)):
+            self.fail(node, f"{name} {rgb[rgb > 0].min():g} is out of range (non-zero values must be at least "
+                            f"{1.0 / MAX_EMISSION:g}, or they vanish in single precision: rescale the scene's emitters "
+                            "together)")
         return rgb
 
     def delta_emitter(self, node, builder):
@@ -575,8 +601,9 @@ class _Reader:
             return
         cutoff = props.get("cutoff_angle", 20.0)
         beam = props.get("beam_width", 0.75 * cutoff)
-        if not 0.0 < cutoff <= 90.0:
-            self.fail(node, f"cutoff_angle must be in (0, 90] degrees, got {cutoff:g}")
+        if not MIN_CUTOFF <= cutoff <= 90.0:
+            self.fail(node, f"cutoff_angle must be in [{MIN_CUTOFF:g}, 90] degrees, got {cutoff:g}"
+                            + (" (a narrower cone carries no power in double precision)" if cutoff < MIN_CUTOFF else ""))
         if not 0.0 <= beam <= cutoff:
             self.fail(node, f"beam_width must be in [0, cutoff_angle], got {beam:g}")
         axis = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
@@ -609,6 +636,9 @@ class _Reader:
             if m is not None and not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-6):
                 self.fail(node, "an envmap's to_world must be a rotation (no scale or shear)")
             self.emission(node, "scale", scale)
+            if 0.0 < image.max() * scale < 1.0 / MAX_EMISSION:
+                self.fail(node, f"scale {scale:g} times the map's largest value {image.max():g} is below "
+                                f"{1.0 / MAX_EMISSION:g}: the environment would vanish in single precision")
         try:
             builder.add_environment(image, m, scale, constant=kind == "constant")
         except ProbvisError as exc:
@@ -731,6 +761,10 @@ class _Reader:
         length = float(np.linalg.norm(axis))
         if not (r > 0 and length > 0):
             self.fail(node, "a cylinder needs a positive radius and p0 != p1")
+        if (length / r if r >= length else (r / length) ** 2) < 1e-12:
+            self.fail(node, f"a cylinder of radius {r:g} from p0 to p1 {length:g} apart is too "
+                            f"{'flat' if r >= length else 'thin'} to hold any area in double precision: move p0 and "
+                            "p1 apart or change the radius")
         z = axis / length
         # Mitsuba's Frame3f(z): Duff et al.'s orthonormal basis, which fixes where the uv's phi starts
         sign = 1.0 if z[2] >= 0.0 else -1.0
@@ -817,7 +851,7 @@ class _Reader:
         else:
             text = str(props.get("focal_length", "50mm")).strip()
             try:
-                f = float(text[:-2] if text.endswith("mm") else text)
+                f = _float(text[:-2] if text.endswith("mm") else text)
             except ValueError:
                 self.fail(node, f"focal_length must be of the form <x>mm, got '{text}'")
             if not f > 0 or not np.isfinite(f):
@@ -836,7 +870,12 @@ class _Reader:
             t /= np.sqrt(1.0 + 1.0 / (aspect * aspect))
         elif axis != "x":
             self.fail(node, f"unknown fov_axis '{axis}' (x, y, diagonal, smaller, larger)")
-        return float(np.degrees(2.0 * np.arctan(t)))
+        fov_x = float(np.degrees(2.0 * np.arctan(t)))
+        if fov_x > MAX_FOV:
+            given = f"fov {fov:.10g}" if "fov" in props else f"focal_length {props.get('focal_length')}"
+            self.fail(node, f"{given} makes the view {fov_x:.10g} degrees wide (at most {MAX_FOV:g}: wider, a "
+                            "perspective image shrinks the whole scene to a few pixels at its centre)")
+        return fov_x
 
     def film(self, node):
         """The film's size, crop window and reconstruction filter as `Camera` fields (Mitsuba's defaults

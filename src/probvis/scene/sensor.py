@@ -8,6 +8,7 @@ import numpy as np
 MAX_FILM_SIDE = 1 << 15  # pixels along a film's side
 MAX_FILTER_RADIUS = 32.0  # pixels a film's reconstruction filter may reach (splatting cost grows with its square)
 MAX_PRINCIPAL_OFFSET = 1e3  # film sizes: beyond, the view's axis is within a thousandth of a radian of the film plane
+MAX_FOV = 179.5  # degrees across the film: wider, a perspective image shrinks the scene to a few pixels at its centre
 MAX_APERTURE_RATIO = 1e3  # lens radius per focus distance: beyond, every ray leaves the lens nearly along its plane
 
 
@@ -55,8 +56,9 @@ def camera_problem(c):
     for what, val in (("width", c.width), ("height", c.height)):
         if int(val) != val or not 1 <= val <= MAX_FILM_SIDE:
             return f"{what} must be a whole number from 1 to {MAX_FILM_SIDE}, got {val}"
-    if not 0.0 < c.fov_x < 180.0:
-        return f"field of view must be between 0 and 180 degrees, got {c.fov_x:g}"
+    if not 0.0 < c.fov_x <= MAX_FOV:
+        return (f"field of view must be above 0 and at most {MAX_FOV:g} degrees across, got {c.fov_x:.10g} (wider, a "
+                "perspective image shrinks the whole scene to a few pixels at its centre)")
     if not 0.0 < c.near_clip < c.far_clip:
         return "near_clip must be positive and smaller than far_clip"
     fw, fh = c.film_size

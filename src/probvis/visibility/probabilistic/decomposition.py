@@ -66,9 +66,13 @@ MIN_PROBABILITY = 1e-6  # a term's 1/p weight stays within 1e6 (a subnormal p ma
 
 def probabilities(p):
     p = np.asarray(p, dtype=float)
-    if p.shape != (3,) or np.any(~np.isfinite(p)) or np.any(p <= 0) or not np.isclose(p.sum(), 1.0):
-        raise ValueError(f"probabilities must be three positive numbers summing to 1, got {p.tolist()} (a term "
-                         f"chosen with probability 0 is never evaluated: its share of V_A V_B would be lost)")
+    if p.shape != (3,) or np.any(~np.isfinite(p)):
+        raise ValueError(f"probabilities must be three finite numbers, got {p.tolist()}")
+    if np.any(p <= 0):
+        raise ValueError(f"probabilities must each be positive, got {p.tolist()} (a term chosen with probability 0 "
+                         "is never evaluated: its share of V_A V_B would be lost)")
+    if not np.isclose(p.sum(), 1.0):
+        raise ValueError(f"probabilities must sum to 1, got {p.tolist()} (sum {p.sum():g})")
     if np.any(p < MIN_PROBABILITY):
         raise ValueError(f"probabilities must each be at least {MIN_PROBABILITY:g}, got {p.tolist()} (a term's "
                          f"estimate is weighted by 1/p: a rarer term makes the variance unbounded in practice)")
