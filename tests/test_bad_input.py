@@ -57,7 +57,7 @@ CASES = [
     (["render", "quad-shadow", "--visibility", "occlusion-map", "--neighbours", "100000000"],
      "neighbours must be from 1 to 1,024"),
     (["render", "quad-shadow", "--visibility", "probvis", "--probabilities", "0,0.5,0.5"],
-     "probabilities must be three positive numbers"),
+     "probabilities must each be positive"),
     (["render", "quad-shadow", "--visibility", "occlusion-map", "--radius", "1e300"],
      "radius 1e+300 is larger than the scene"),
     (["render", "quad-shadow", "--visibility", "occlusion-map", "--radius", "inf"], "radius expects number"),
@@ -95,6 +95,17 @@ CASES = [
     (["render", "quad-shadow", "--spp", "\u0662"], "argument --spp: expected a whole number"),
     (["render", "quad-shadow", "-D", "res=1_6"], "parameter res must be an integer, got '1_6'"),
     (["render", "quad-shadow", "--output="], "an output needs a file name (got an empty one)"),
+    (["render", "", "-o", "out.exr"], "the scene name is empty"),
+    (["render", "x" * 5000, "-o", "out.exr"], "File name too long"),
+    (["render", "quad-shadow", "-D", "=5"], "-D expects name=value, got '=5' (the name is empty)"),
+    (["render", "quad-shadow", "--visibility", "occlusion-map", "--verify", "1e-9"],
+     "verify must be auto, off or a probability from 0.001 to 1, got '1e-9'"),
+    (["render", "quad-shadow", "--visibility", "proxy", "--q", "1e-300"], "q must be auto or a probability from"),
+    (["render", "quad-shadow", "--visibility", "probvis", "--probabilities", "-0.1,0.6,0.5"],
+     "argument --probabilities: probabilities must be from 0 to 1, got '-0.1,0.6,0.5'"),
+    (["tables", "--shifts", "1e300,-1e300,1"], "--shifts: shifts must be three numbers summing to 1, each within"),
+    (["tables", "--probabilities", "0.5,0.5,0.5"], "--probabilities: probabilities must sum to 1"),
+    (["experiment", "--quick", "--scheduler", "inproc://nothing"], "an inproc:// address names a scheduler"),
 ]
 
 

@@ -187,8 +187,8 @@ def test_a_mesh_the_decimator_cannot_handle_keeps_its_triangles(monkeypatch):
 @pytest.mark.parametrize("options, message", [
     ({"ratio": 0}, "ratio must be in (0, 1)"),
     ({"ratio": 1.5}, "ratio must be in (0, 1)"),
-    ({"q": "0"}, "q must be auto or a probability in (0, 1]"),
-    ({"q": "1.5"}, "q must be auto or a probability in (0, 1]"),
+    ({"q": "0"}, "q must be auto or a probability from 0.001 to 1"),
+    ({"q": "1.5"}, "q must be auto or a probability from 0.001 to 1"),
     ({"triangles": 30000, "min_triangles": 1000}, "triangles 30000 is not below the 20480 of mesh 'blob'"),
 ])
 def test_bad_options_name_the_option(options, message):

@@ -19,11 +19,13 @@ from ..accel import build_bvh, occluded_segments
 from ..errors import ProbvisError
 from ..proxies import KINDS, MIN_TRIANGLES, build_proxies
 from ..rng import uniforms
+from ..settings import parse_float
 from ..shading import ShadedBatch
 from ..shells import ShellTests, shell_memory, shell_tests
 from ..transmittance import RESOLUTION as VOLUME_RESOLUTION, transmittances
 from .base import Option, Phase, RenderPath, Switch, VisibilityEstimator, VisibilityResult
 from .exact import meshes_for_shells, survey_heavy_meshes
+from .occlusion_map.verification import Q_LOWEST
 from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SUM_BOTH,
                            SUM_INV_P, SUM_MISMATCH, SUM_MISMATCH_W, SUM_W, SUM_WV, SUM_WV2, VOLUME_VOXEL,
                            WEIGHT_FLOOR, Correction, geometry_tests, shade_proxy)
@@ -33,13 +35,15 @@ PILOT_Q = 0.5  # q where the pilot measured nothing (it found no segment)
 
 
 def _parse_q(value):
-    if value == "auto":
+    if isinstance(value, str) and value == "auto":
         return None
     try:
-        q = float(value)
-    except ValueError:
-        return f"must be auto or a probability in (0, 1], got {value!r}"
-    return None if 0.0 < q <= 1.0 else f"must be auto or a probability in (0, 1], got {value!r}"
+        q = parse_float(value) if isinstance(value, str) else float(value)
+    except (TypeError, ValueError):
+        q = None
+    if isinstance(value, bool) or q is None or not Q_LOWEST <= q <= 1.0:  # NaN fails too
+        return f"must be auto or a probability from {Q_LOWEST:g} to 1, got {value!r}"
+    return None
 
 
 class ProxyVisibility(VisibilityEstimator):
@@ -54,7 +58,7 @@ class ProxyVisibility(VisibilityEstimator):
         Option("kind", str, "auto", "proxy of a heavy mesh: a decimated mesh, an extinction grid (volume), or auto: "
                "volume for meshes of mostly separate small parts (foliage), mesh otherwise", choices=KINDS),
         Option("q", str, "auto", "probability of also testing a segment exactly: auto (efficiency-aware, per "
-               "emitter) or a number in (0, 1]", check=_parse_q, metavar="auto|Q"),
+               "emitter) or a number from 0.001 to 1", check=_parse_q, metavar="auto|Q"),
         Option("shells", Switch, "auto", "decide segments exactly by conservative shells of the heavy meshes first; "
                "auto: of the closed ones that the segments often cross, kept where the pilot predicts they pay"),
         Option("cache", bool, True, "cache proxies and shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),

@@ -46,7 +46,7 @@ MAP_OPTIONS = (
                                      "segment's light end"),
     Option("verify", str, "auto", "how often the map's shortcuts (lit, shadowed, candidate lists) are checked "
                                   "against the whole scene with an unbiased correction term: auto (per pair from "
-                                  "its photons), a probability in (0, 1], or off (biased)",
+                                  "its photons), a probability from 0.001 to 1, or off (biased)",
            check=verification.parse_verify, metavar="auto|Q|off"),
     Option("cache", bool, True, "cache the scene's connected components and closed meshes' orientation on disk "
                                 "($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),

@@ -27,23 +27,26 @@ from numba import njit
 
 from ...cases import CASE_LIT, CASE_PENUMBRA, CASE_SHADOWED, CASE_VERIFIED
 from ...rng import mix64, uniform
+from ...settings import parse_float
 
 Q_MIN = 0.05  # auto: never verify less often than this
+Q_LOWEST = 0.001  # a fixed q: the least a user may ask for (as --q of the proxies and caches)
 MIN_MEASURED = 64  # verified segments of a case before its measured mismatch rate raises q
 SEGMENT_DIM = 1 << 20  # rng dimension of a segment's verification draw, above any estimator's own
 _PAIR_SALT = np.uint64(0x5645524946590000)  # derives a camera sample's verification key from its rng key
 
 
 def parse_verify(value):
-    """'auto', 'off' or a probability in (0, 1]: the error message for anything else, or None."""
-    if value in ("auto", "off"):
+    """'auto', 'off' or a probability from Q_LOWEST to 1: the error message for anything else, or None."""
+    if isinstance(value, str) and value in ("auto", "off"):
         return None
     try:
-        q = float(value)
-    except ValueError:
-        return f"must be auto, off or a probability in (0, 1], got {value!r}"
-    if not 0.0 < q <= 1.0:  # NaN fails too
-        return f"must be auto, off or a probability in (0, 1], got {value!r}"
+        q = parse_float(value) if isinstance(value, str) else float(value)
+    except (TypeError, ValueError):
+        q = None
+    if isinstance(value, bool) or q is None or not Q_LOWEST <= q <= 1.0:  # NaN fails too
+        return (f"must be auto, off or a probability from {Q_LOWEST:g} to 1, got {value!r} (below, each correction "
+                "weighs more than a thousand segments: the image is the unverified one in practice)")
     return None
 
 
