@@ -106,6 +106,8 @@ CASES = [
     (["tables", "--shifts", "1e300,-1e300,1"], "--shifts: shifts must be three numbers summing to 1, each within"),
     (["tables", "--probabilities", "0.5,0.5,0.5"], "--probabilities: probabilities must sum to 1"),
     (["experiment", "--quick", "--scheduler", "inproc://nothing"], "an inproc:// address names a scheduler"),
+    (["experiment", "--quick", "-o", ""], "-o needs a folder name (got an empty one)"),
+    (["experiment", "--quick", "--cache", " "], "--cache needs a folder name (got an empty one)"),
 ]
 
 

@@ -214,3 +214,12 @@ def test_a_file_named_like_a_built_in_scene_is_said(tmp_path, monkeypatch):
     (tmp_path / "quad-shadow").write_text("garbage")
     with pytest.warns(UserWarning, match=r"'quad-shadow' names a built-in scene and a file here"):
         probvis.load_scene("quad-shadow", res=8)
+
+
+def test_numpy_whole_numbers_are_taken_as_python_ints():
+    """np.uint8 shadow rays overflowed the batch planner's arithmetic; np.int64 threads failed in threadpoolctl."""
+    r = probvis.render("quad-shadow", spp=np.int16(2), shadow_rays=np.uint8(200), threads=np.int64(1),
+                       seed=np.uint64(3), resolution=(4, 4))
+    plain = probvis.render("quad-shadow", spp=2, shadow_rays=200, threads=1, seed=3, resolution=(4, 4))
+    np.testing.assert_array_equal(r.image, plain.image)
+    assert type(r.stats["spp"]) is int and type(r.stats["seed"]) is int

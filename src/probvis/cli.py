@@ -450,6 +450,9 @@ def _cmd_experiment(args):
     if args.scheduler and not re.fullmatch(r"(?:(?:tcp|tls|ws|wss|ucx)://)?[\w.\-\[\]]+(?::\d{1,5})?/?",
                                            args.scheduler):
         raise ProbvisError(f"--scheduler '{args.scheduler}' is not a scheduler address (tcp://host:port)")
+    for flag, value in (("-o", args.output), ("--cache", args.cache)):
+        if value is not None and not value.strip():
+            raise ProbvisError(f"{flag} needs a folder name (got an empty one)")
     exp = quick_experiment() if args.quick else load_experiment(args.file)
     if args.seeds:
         exp = dataclasses.replace(exp, seeds=args.seeds)

@@ -66,4 +66,7 @@ class RenderSettings:
             raise ProbvisError(f"threads must be a positive whole number, got {self.threads!r}")
         if not isinstance(self.filter_importance, bool):
             raise ProbvisError(f"filter_importance must be True or False, got {self.filter_importance!r}")
+        for name in ("spp", "shadow_rays", "seed", "threads"):  # numpy's or a float's whole numbers as Python ints,
+            if getattr(self, name) is not None:  # whose arithmetic neither wraps nor rounds
+                object.__setattr__(self, name, int(getattr(self, name)))
         return self

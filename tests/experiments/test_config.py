@@ -2,6 +2,7 @@
 import os
 import re
 
+import numpy as np
 import pytest
 
 from probvis.errors import ProbvisError
@@ -177,3 +178,29 @@ def test_the_experiment_api_names_wrong_argument_types(tmp_path):
             experiment(quick_experiment(), tmp_path / "rep", **kwargs)
     with pytest.raises(ProbvisError, match="base must be the folder relative paths start from"):
         parse_experiment(doc(), base=5)
+
+
+def test_an_experiment_built_in_python_may_use_tuples_and_numpy():
+    """Tuples, NumPy arrays and NumPy scalars read as TOML's lists and numbers (they were refused, or a key of
+    the wrong type failed deep inside the runner)."""
+    plain = parse_experiment(doc(spp=2, resolution=[8, 8], shadow_rays=[1, 4],
+                                 methods=[{"name": "p", "visibility": "probvis",
+                                           "options": {"probabilities": [0.2, 0.4, 0.4]}}]))
+    numpy = parse_experiment(doc(spp=np.int64(2), resolution=np.array([8, 8]), shadow_rays=(1, np.uint8(4)),
+                                 scenes=tuple(MINIMAL["scenes"]),
+                                 methods=[{"name": "p", "visibility": "probvis",
+                                           "options": {"probabilities": np.array([0.2, 0.4, 0.4])}}]))
+    assert numpy == plain
+    with pytest.raises(ProbvisError, match=r"scenes\[0\].defines: parameter names must be non-empty strings, got 1"):
+        parse_experiment(doc(scenes=[dict(MINIMAL["scenes"][0], defines={1: 2})]))
+
+
+def test_the_experiment_api_takes_numpy_workers_and_refuses_empty_folders(tmp_path):
+    from probvis.experiments import experiment, quick_experiment
+
+    for kwargs, message in ((dict(cache=""), "cache must name a folder, got an empty name"),
+                            (dict(workers=np.int64(0)), "workers")):
+        with pytest.raises(ProbvisError, match=message):
+            experiment(quick_experiment(), tmp_path / "rep", **kwargs)
+    with pytest.raises(ProbvisError, match="out must name a folder"):
+        experiment(quick_experiment(), "")

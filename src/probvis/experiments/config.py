@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import ProbvisError
 from ..scene import BUILTINS
 from ..settings import MAX_SEED, MAX_SHADOW_RAYS, MAX_SPP
@@ -145,6 +147,11 @@ def _scene(where, table, base):
                                      f"(looked for {path})")
         source = str(path)
     defines = _table(f"{where}.defines", table.get("defines", {}))
+    for key, value in defines.items():
+        if not isinstance(key, str) or not key.strip():
+            _fail(f"{where}.defines", f"parameter names must be non-empty strings, got {key!r}")
+        if isinstance(value, (dict, list)):
+            _fail(f"{where}.defines.{key}", f"expected a number, string or boolean, got {value!r}")
     reference = table.get("reference")
     if reference is not None:
         ref = (base / _str(f"{where}.reference", reference)).resolve()
@@ -194,13 +201,27 @@ def _method(where, table, base):
     return MethodSpec(name, vis, options)
 
 
+def _as_toml(value):
+    """A document built in Python as TOML would give it: tuples and NumPy arrays as lists, NumPy scalars as
+    Python's."""
+    if isinstance(value, dict):
+        return {k: _as_toml(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_as_toml(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
 def parse_experiment(data, base=Path("."), source=""):
-    """Validate a parsed TOML document into an `Experiment`; `base` resolves relative paths."""
+    """Validate a parsed TOML document (or one built in Python) into an `Experiment`; `base` resolves relative
+    paths."""
     where = source or "experiment"
     if not isinstance(base, (str, Path)):
         raise ProbvisError(f"base must be the folder relative paths start from (a path), got {type(base).__name__}")
     if not isinstance(data, dict):
         raise ProbvisError(f"an experiment is a table (dict) of its keys, got {type(data).__name__}")
+    data = _as_toml(data)
     base = Path(base)
     _check_keys(where, data, TOP_KEYS)
     scenes = data.get("scenes")
