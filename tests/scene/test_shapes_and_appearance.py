@@ -1,5 +1,6 @@
 """Mitsuba shapes beyond meshes (disk, cylinder) against Mitsuba 3, and appearance probvis approximates:
 one warning per plugin type naming file:line, or an error with --strict."""
+import re
 import warnings
 
 import numpy as np
@@ -111,6 +112,42 @@ def test_serialized_meshes_by_shape_index(tmp_path, version):
     bad.write_bytes(b"\x1c\x04\x09\x00" + b"\0" * 16)
     with pytest.raises(ProbvisError, match="serialized format version 9 is not supported"):
         shapes.load_serialized(bad)
+
+
+def test_corrupt_serialized_tables_and_streams_are_named(tmp_path):
+    """A corrupt offset table was a struct.error traceback; megabytes of zeros after a valid mesh were all
+    decompressed (3 GiB in the sweep): only the bytes the mesh's header declares are."""
+    import struct
+    import tracemalloc
+    import zlib
+
+    from probvis.scene import shapes
+
+    good = write_serialized(tmp_path / "m.serialized", [TETRA, TETRA]).read_bytes()
+    for name, data, message in (
+            ("count", good[:-4] + struct.pack("<I", 10 ** 9), "its table lists 1000000000 meshes"),
+            ("offset", good[:-12] + struct.pack("<Q", 10 ** 12) + good[-4:], "mesh 1 starts at byte 1000000000000"),
+            ("counts", good[:4] + zlib.compress(struct.pack("<I", 0x2000) + b"m\0" + struct.pack("<QQ", 2**40, 1))
+             + struct.pack("<QI", 0, 1), "it declares 1099511627776 vertices and 1 triangles"),
+            ("short", good[:4] + zlib.compress(struct.pack("<I", 0x2000) + b"m\0" + struct.pack("<QQ", 400, 1))
+             + struct.pack("<QI", 0, 1), "but its data ends after")):
+        path = tmp_path / f"{name}.serialized"
+        path.write_bytes(data)
+        with pytest.raises(ProbvisError, match=re.escape(message)):
+            shapes.load_serialized(path, 1 if name == "offset" else 0)
+    v, f, _ = TETRA
+    body = struct.pack("<I", 0x2000) + b"m\0" + struct.pack("<QQ", len(v), len(f)) + np.asarray(v, "<f8").tobytes() \
+        + np.asarray(f, "<u4").tobytes()
+    padded = tmp_path / "padded.serialized"
+    padded.write_bytes(struct.pack("<HH", 0x041C, 4) + zlib.compress(body + bytes(64 << 20)) + struct.pack("<QI", 0, 1))
+    tracemalloc.start()
+    try:
+        _, faces, _, _ = shapes.load_serialized(padded)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_array_equal(faces, f)
+    assert peak < 16 << 20  # the file (64 KiB) and its mesh, not the 64 MiB of zeros after it
 
 
 def test_serialized_shapegroups_and_instances_match_mitsuba(tmp_path):

@@ -602,8 +602,8 @@ class _Reader:
         cutoff = props.get("cutoff_angle", 20.0)
         beam = props.get("beam_width", 0.75 * cutoff)
         if not MIN_CUTOFF <= cutoff <= 90.0:
-            self.fail(node, f"cutoff_angle must be in [{MIN_CUTOFF:g}, 90] degrees, got {cutoff:g}"
-                            + (" (a narrower cone carries no power in double precision)" if cutoff < MIN_CUTOFF else ""))
+            why = " (a narrower cone carries no power in double precision)" if cutoff < MIN_CUTOFF else ""
+            self.fail(node, f"cutoff_angle must be in [{MIN_CUTOFF:g}, 90] degrees, got {cutoff:g}{why}")
         if not 0.0 <= beam <= cutoff:
             self.fail(node, f"beam_width must be in [0, cutoff_angle], got {beam:g}")
         axis = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
