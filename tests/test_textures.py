@@ -119,13 +119,37 @@ def test_texture_is_looked_up_per_point(folder):
     ('<texture type="bitmap" name="reflectance"><string name="filename" value="pic.exr"/>'
      '<string name="wrap_mode" value="tile"/></texture>', "wrap_mode must be one of"),
     ('<ref name="reflectance" id="nothing"/>', "unknown id 'nothing'"),
+    ('<texture type="bitmap" name="reflectance"><string name="filename" value=""/></texture>',
+     "<texture>: the filename is empty"),
+    ('<texture type="bitmap" name="reflectance"><string name="filename" value="huge.exr"/></texture>',
+     "huge.exr: its header declares a 30000x30000 image"),
+    ('<texture type="bitmap" name="reflectance"><string name="filename" value="cut.exr"/></texture>',
+     "cut.exr: .*the file is truncated or not an OpenEXR image"),
 ])
 def test_bad_texture_names_file_and_line(folder, texture, message):
+    """A huge header was a 10 GiB allocation, a truncated file a line from the library and a wrong reason."""
+    import struct
+
     (folder / "bad.png").write_text("not a png")
+    exr = (folder / "pic.exr").read_bytes()
+    at = exr.index(b"dataWindow\0box2i\0") + len(b"dataWindow\0box2i\0") + 4
+    (folder / "huge.exr").write_bytes(exr[:at] + struct.pack("<4i", 0, 0, 29999, 29999) + exr[at + 16:])
+    (folder / "cut.exr").write_bytes(exr[:-40])
     path = write_scene(folder / "bad.xml", sensor() + LIGHT + textured("rectangle", texture))
     with pytest.raises(ProbvisError, match=message) as err:
         probvis.load_scene(path)
     assert "bad.xml:" in str(err.value)
+
+
+def test_shapes_naming_the_same_image_share_one_texture(folder):
+    """Each shape decoded its own copy of the file and the film packed them all (12.5 GB for 1000 shapes)."""
+    from probvis.texture import texture_arrays
+
+    body = "".join(textured("rectangle", '<texture type="bitmap" name="reflectance"><string name="filename" '
+                                         'value="pic.png"/></texture>', f'<translate x="{k}"/>') for k in range(50))
+    scene = probvis.load_scene(write_scene(folder / "many.xml", sensor() + LIGHT + body))
+    assert len(scene.textures) == 1
+    assert len(texture_arrays(scene.textures).data) == 12 * 16
 
 
 def test_texture_on_a_cube_warns_and_strict_refuses(folder):

@@ -28,6 +28,14 @@ class Texture:
     wrap: int = REPEAT
     bilinear: bool = True
 
+    def same_as(self, other):
+        """Whether `other` looks up the same colours: the same settings over the same image (one decoded file is
+        one array) or colours. Shapes that each name the same file share one texture."""
+        return self is other or (self.kind == other.kind and self.wrap == other.wrap
+                                 and self.bilinear == other.bilinear and np.array_equal(self.to_uv, other.to_uv)
+                                 and self.image is other.image
+                                 and (self.colours is other.colours or np.array_equal(self.colours, other.colours)))
+
     def mean(self):
         """Its mean colour (what appearance that cannot carry a texture falls back to)."""
         return self.image.reshape(-1, 3).mean(0) if self.kind == BITMAP else self.colours.mean(0)

@@ -159,30 +159,77 @@ def write_exr(path, image, channels=None):
 
 
 def read_exr(path, channel=None):
-    """Read an RGB EXR as (h, w, 3) float32, or one named `channel` as (h, w)."""
-    import OpenEXR
-
+    """Read an RGB EXR as (h, w, 3) float32, or one named `channel` as (h, w). The header is read first: a size
+    no image needs is refused before its pixels are allocated."""
     path = Path(path)
     if not path.is_file():
         raise ProbvisError(f"image not found: {path}")
-    try:
-        with OpenEXR.File(str(path)) as f:
-            ch = f.channels()
-            if channel is not None:
-                if channel not in ch:
-                    raise ProbvisError(f"{path}: no channel {channel} (found {', '.join(ch)})")
-                return np.array(ch[channel].pixels, dtype=np.float32)
-            if "RGB" in ch:
-                return np.array(ch["RGB"].pixels, dtype=np.float32)
-            if "RGBA" in ch:  # alpha dropped, as for PNG (Mitsuba reads RGBA EXRs)
-                return np.array(ch["RGBA"].pixels, dtype=np.float32)[..., :3]
-            if all(c in ch for c in "RGB"):
-                return np.stack([np.array(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
-            raise ProbvisError(f"{path}: no RGB channels (found {', '.join(ch)})")
-    except ProbvisError:
-        raise
-    except Exception as exc:
-        raise ProbvisError(f"cannot read EXR {path}: {exc}") from None
+    with _library_output() as said:  # the library reports a failed read (a truncated file) as a line of its own
+        try:
+            return _exr_pixels(path, channel, said)
+        except (ProbvisError, MemoryError):
+            raise
+        except Exception as exc:
+            raise ProbvisError(f"cannot read EXR {path}: {said() or exc} (the file is truncated or not an OpenEXR "
+                               "image)") from None
+
+
+def _exr_pixels(path, channel, said):
+    import OpenEXR
+
+    with OpenEXR.File(str(path), header_only=True) as head:
+        lo, hi = (np.asarray(c, dtype=np.int64) for c in head.header()["dataWindow"])
+    w, h = hi - lo + 1
+    if w * h > MAX_IMAGE_PIXELS or min(w, h) < 1:
+        raise ProbvisError(f"{path}: its header declares a {w}x{h} image ({w * h / 1e6:.0f} Mpixel), outside the 1 "
+                           f"to {MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads")
+    with OpenEXR.File(str(path)) as f:
+        if said():
+            raise ValueError(said())
+        ch = f.channels()
+        if channel is not None:
+            if channel not in ch:
+                raise ProbvisError(f"{path}: no channel {channel} (found {', '.join(ch)})")
+            return np.array(ch[channel].pixels, dtype=np.float32)
+        if "RGB" in ch:
+            return np.array(ch["RGB"].pixels, dtype=np.float32)
+        if "RGBA" in ch:  # alpha dropped, as for PNG (Mitsuba reads RGBA EXRs)
+            return np.array(ch["RGBA"].pixels, dtype=np.float32)[..., :3]
+        if all(c in ch for c in "RGB"):
+            return np.stack([np.array(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
+        raise ProbvisError(f"{path}: no RGB channels (found {', '.join(ch)})")
+
+
+@contextmanager
+def _library_output():
+    """Capture what a library prints while the block runs (through Python's sys.stdout, as pybind11's print does,
+    or on the process's standard output and error, as OpenEXR's C core does); yields a function that returns it so
+    far, as one line."""
+    import ctypes
+    import io
+    import sys
+    from contextlib import redirect_stdout
+
+    libc = ctypes.CDLL(None)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with tempfile.TemporaryFile() as sink, redirect_stdout(io.StringIO()) as text:
+        os.dup2(sink.fileno(), 1)
+        os.dup2(sink.fileno(), 2)
+
+        def said():
+            libc.fflush(None)
+            sink.seek(0)
+            return " ".join((text.getvalue() + sink.read().decode(errors="replace")).split())
+
+        try:
+            yield said
+        finally:
+            libc.fflush(None)
+            for fd, copy in enumerate(saved, 1):
+                os.dup2(copy, fd)
+                os.close(copy)
 
 
 def srgb_to_linear(v):

@@ -149,6 +149,7 @@ class _Reader:
         self.used = set()  # overridden parameters the scene refers to
         self.ids = {}
         self.referenced = set()  # ids a <ref> resolved
+        self.images = {}  # decoded image files by (resolved path, raw)
 
     # --- errors and values -------------------------------------------------------------------
     def fail(self, node, msg):
@@ -424,11 +425,7 @@ class _Reader:
                 self.fail(node, f"filter_type must be bilinear or nearest, got '{filt}'")
             if wrap not in WRAP_MODES:
                 self.fail(node, f"wrap_mode must be one of {', '.join(WRAP_MODES)}, got '{wrap}'")
-            path = self.input_file(props["filename"])
-            try:
-                image = read_linear_rgb(path, raw=props.get("raw", False))
-            except ProbvisError as exc:
-                self.fail(node, str(exc))
+            image = self.image(node, self.input_file(node, props["filename"]), props.get("raw", False))
             out = Texture(BITMAP, self.checked(node, self.to_uv, props), image=image, wrap=WRAP_MODES[wrap],
                           bilinear=filt == "bilinear")
         elif kind == "checkerboard":
@@ -446,6 +443,18 @@ class _Reader:
         if "id" in node.attrs:
             self.define(node, "texture", out)
         return out
+
+    def image(self, node, path, raw=False):
+        """The linear RGB of image file `path` (`input_file`), decoded once per file however many shapes name it
+        (read-only: textures share it)."""
+        key = (path.resolve(), raw)
+        if key not in self.images:
+            try:
+                self.images[key] = read_linear_rgb(path, raw=raw)
+            except ProbvisError as exc:
+                self.fail(node, str(exc))
+            self.images[key].flags.writeable = False
+        return self.images[key]
 
     @staticmethod
     def to_uv(props):
@@ -622,11 +631,8 @@ class _Reader:
                                           "mis_compensation": ("boolean",)})
             if "filename" not in props:
                 self.fail(node, "envmap needs a 'filename'")
-            path = self.input_file(props["filename"])
-            try:
-                image = read_linear_rgb(path)
-            except ProbvisError as exc:
-                self.fail(node, str(exc))
+            path = self.input_file(node, props["filename"])
+            image = self.image(node, path)
             if image.shape[1] < 2 or image.shape[0] < 3:
                 self.fail(node, f"{path}: the environment map resolution must be at least 2x3 pixels")
             if not (np.all(np.isfinite(image)) and image.min() >= 0.0 and image.max() <= MAX_EMISSION):
@@ -705,7 +711,7 @@ class _Reader:
             fname = props.get("filename")
             if fname is None:
                 self.fail(node, "missing 'filename'")
-            mesh_path = self.input_file(fname)
+            mesh_path = self.input_file(node, fname)
             if not mesh_path.exists():
                 self.fail(node, f"mesh file not found: {mesh_path}")
             if not mesh_path.is_file():
@@ -973,8 +979,10 @@ class _Reader:
             self.fail(node, f"emitter_samples must be at least 1, got {sr}")
         return sr
 
-    def input_file(self, name):
+    def input_file(self, node, name):
         """The file a scene parameter names, relative to the scene file's folder, recorded among the inputs."""
+        if not name.strip():
+            self.fail(node, "the filename is empty")
         path = Path(name) if Path(name).is_absolute() else self.path.parent / name
         self.inputs.append(path)
         return path

@@ -159,7 +159,7 @@ class SceneBuilder:
         """The id of a diffuse material: its `reflectance`, or a `Texture` (reflectance then its mean)."""
         t = -1
         if texture is not None:
-            t = next((k for k, x in enumerate(self.textures) if x is texture), len(self.textures))
+            t = next((k for k, x in enumerate(self.textures) if x.same_as(texture)), len(self.textures))
             if t == len(self.textures):
                 self.textures.append(texture)
             reflectance = texture.mean()
