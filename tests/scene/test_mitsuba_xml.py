@@ -350,6 +350,8 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
      "<shape>: a cylinder of radius 1 from p0 to p1 1e-15 apart is too flat"),
     ("<emitter type='spot'><float name='cutoff_angle' value='1e-9'/></emitter>",
      "<emitter>: cutoff_angle must be in [0.001, 90] degrees, got 1e-09"),
+    ("<emitter type='point'><transform name='to_world'><matrix value='1 0 0 0 0 1 0 0 0 0 1 0 0 0 1 1'/>"
+     "</transform></emitter>", "<emitter>: the light's to_world is projective (its last row must be 0 0 0 1)"),
 ])
 def test_values_that_parse_but_would_render_nonsense_are_named_at_their_line(tmp_path, body, message):
     """Values Mitsuba would refuse, or that overflow probvis's arithmetic (NaN or black images before)."""
@@ -495,3 +497,19 @@ def test_a_bumpmap_may_reference_its_texture(tmp_path):
     with pytest.warns(UserWarning, match="bumpmap"):
         scene = probvis.load_scene(write_scene(tmp_path / "bump.xml", body + LIGHT))
     np.testing.assert_allclose(scene.reflectance[scene.tri_material[0]], 0.3)
+
+
+def test_a_shape_without_area_is_left_out_with_a_warning(tmp_path):
+    """A sphere of radius 1e-12 away from the origin vanished without a word."""
+    body = sensor() + LIGHT + ("<shape type='sphere'><float name='radius' value='1e-12'/>"
+                               "<point name='center' x='0' y='0' z='1'/></shape>")
+    with pytest.warns(UserWarning, match=r"shape 'sphere' has no area \(all 3968 of its triangles are degenerate"):
+        probvis.load_scene(write_scene(tmp_path / "tiny.xml", body))
+
+
+def test_an_up_vector_of_any_length_is_a_direction():
+    """up = 1e300 overflowed in the cross product (numpy warnings, then 'parallel to the viewing direction')."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_allclose(tf.look_at([0, 0, 4], [0, 0, 0], [0, 1e300, 0]),
+                                   tf.look_at([0, 0, 4], [0, 0, 0], [0, 1, 0]))

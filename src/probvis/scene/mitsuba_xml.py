@@ -599,6 +599,8 @@ class _Reader:
         props, _ = self.params(node, allowed)
         intensity = self.emission(node, "intensity", props.get("intensity", np.ones(3)))
         m = props.get("to_world", np.eye(4))
+        if not np.all(m[3] == (0, 0, 0, 1)):
+            self.fail(node, "the light's to_world is projective (its last row must be 0 0 0 1)")
         position = props.get("position", m[:3, 3])
         if not np.all(np.abs(position) <= MAX_COORDINATE):
             self.fail(node, f"the light's position {', '.join(f'{x:g}' for x in position)} is beyond ±"
@@ -757,6 +759,9 @@ class _Reader:
         if radiance is not None and kept == 0:
             self.fail(node, "an area emitter on a shape without area (every triangle degenerate) emits nothing: "
                             "check the shape's size and to_world")
+        if kept == 0:
+            warnings.warn(f"{self.path}:{node.line}: shape '{kind}' has no area (all {len(f)} of its triangles are "
+                          "degenerate once transformed): it is left out; check its size and to_world", stacklevel=2)
 
     def cylinder_frame(self, node, props):
         """Object-to-shape transform of Mitsuba's cylinder from p0 to p1 with a radius (the unit cylinder's z
