@@ -99,8 +99,22 @@ def test_a_nan_in_an_ascii_ply_is_named_without_a_warning(tmp_path):
                     "end_header\n0 0 0 nan 0\n1 0 0 1 0\n0 1 0 0 1\n3 0 1 2\n")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        with pytest.raises(ProbvisError, match="has NaN or infinite texture coordinates"):
+        with pytest.raises(ProbvisError, match="m.ply:12: mesh m.ply has NaN or infinite texture coordinates"):
             shapes.load_mesh(path)
+
+
+def test_other_face_lists_are_ignored_and_unknown_formats_refused(tmp_path):
+    """A per-face texcoord list beside the indices was refused as truncated; binary_middle_endian was read."""
+    from probvis.errors import ProbvisError
+
+    head = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 1\nproperty list uchar int vertex_indices\nproperty list uchar float texcoord\nend_header\n")
+    path = tmp_path / "lists.ply"
+    path.write_text(head + "0 0 0\n1 0 0\n0 1 0\n3 0 1 2 6 0 0 1 0 0 1\n")
+    np.testing.assert_array_equal(shapes.load_mesh(path).faces, [[0, 1, 2]])
+    path.write_text(head.replace("ascii", "binary_middle_endian") + "0 0 0\n1 0 0\n0 1 0\n3 0 1 2 6 0 0 1 0 0 1\n")
+    with pytest.raises(ProbvisError, match="PLY format 'binary_middle_endian' is not one of ascii, binary_little"):
+        shapes.load_mesh(path)
 
 
 @pytest.mark.parametrize("face, problem", [("4 0 1 2", "early end-of-line"), ("3 0 1 2.5", "malformed input")])

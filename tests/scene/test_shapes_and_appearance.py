@@ -247,5 +247,6 @@ def test_zero_or_nan_vertex_normals_in_a_file_are_an_error_naming_it(tmp_path):
 
     for name, bad in (("zero.obj", "0 0 0"), ("nan.obj", "nan 0 1")):
         (tmp_path / name).write_text(FLOOR_OBJ.replace("0.5 0.0 1.0", bad, 1))
-        with pytest.raises(ProbvisError, match=f"{name} has NaN, infinite or zero vertex normals"):
+        line = FLOOR_OBJ.split("0.5 0.0 1.0")[0].count("\n") + 1
+        with pytest.raises(ProbvisError, match=f"{name}:{line}: mesh {name} has NaN, infinite or zero vertex normals"):
             load_mesh(tmp_path / name)

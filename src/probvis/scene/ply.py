@@ -15,6 +15,8 @@ from ..errors import ProbvisError
 from .obj import fans
 
 UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
+FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
+INDEX_NAMES = ("vertex_indices", "vertex_index")  # the face list that holds the corners, where there are several
 HEADER_LINES = 1000  # a header longer than this is left to the general reader
 
 
@@ -45,18 +47,21 @@ def read_ply(path):
 
     with open(path, "rb") as fh:
         header = _header(fh)
-    if header is None or header[0] not in ("ascii", "binary_little_endian", "binary_big_endian"):
+    if header is None:
         return None
+    if header[0] not in FORMATS:
+        raise ProbvisError(f"mesh {path}: PLY format '{header[0]}' is not one of {', '.join(FORMATS)}")
     elements = header[1]
     vertex, face = elements.get("vertex", []), elements.get("face", [])
     lists = [name for name, is_list in face if is_list]
-    if len(lists) != 1 or any(is_list for _, is_list in vertex):
+    index = next((name for name in INDEX_NAMES if name in lists), lists[0] if len(lists) == 1 else None)
+    if index is None or any(is_list for _, is_list in vertex):
         return None
     try:
         # plyfile reads ASCII through a text wrapper it leaves open: over bytes in memory nothing is left open
         with (io.BytesIO(Path(path).read_bytes()) if header[0] == "ascii" else open(path, "rb")) as fh:
-            try:
-                ply = PlyData.read(fh, known_list_len={"face": {lists[0]: 3}})
+            try:  # the faces' other lists (per-face texture coordinates, say) have no known length
+                ply = PlyData.read(fh, known_list_len={"face": {index: 3}} if len(lists) == 1 else {})
             except PlyElementParseError as exc:
                 if "unexpected list length" not in str(exc):  # a binary file's polygon breaks the fixed length
                     if header[0] == "ascii" and "end-of-file" not in str(exc):
@@ -64,10 +69,10 @@ def read_ply(path):
                     return None
                 fh.seek(0)
                 ply = PlyData.read(fh)
-            rows = ply["face"].data[lists[0]]
+            rows = ply["face"].data[index]
             values = rows[0] if rows.dtype == object and len(rows) else rows
             if np.asarray(values).dtype.kind not in "iu":
-                raise ProbvisError(f"mesh {path}: the faces' '{lists[0]}' are {np.asarray(values).dtype} numbers; "
+                raise ProbvisError(f"mesh {path}: the faces' '{index}' are {np.asarray(values).dtype} numbers; "
                                    "vertex indices are integers (a PLY list of int, uint, ...)")
             if rows.dtype == object:  # polygons, or any ASCII file: a row per face, split into fans here
                 counts = np.array([len(r) for r in rows], dtype=np.int64)

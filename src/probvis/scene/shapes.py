@@ -244,17 +244,41 @@ def load_mesh(path, flip_tex_coords=None, fmt=None):
     v = np.asarray(v, dtype=np.float64)
     f = np.asarray(f, dtype=np.int64)
     n = None if n is None or np.shape(n) != v.shape else np.asarray(n, dtype=np.float64)  # else from the faces
-    if n is not None and not (np.all(np.isfinite(n)) and np.all(np.einsum("ij,ij->i", n, n) > 0.0)):
-        raise ProbvisError(f"mesh {path} has NaN, infinite or zero vertex normals")
-    if uv is not None and len(uv) == len(v):
-        uv = np.asarray(uv, dtype=np.float64).copy()
-        if not np.all(np.isfinite(uv)):
-            raise ProbvisError(f"mesh {path} has NaN or infinite texture coordinates")
-        if obj if flip_tex_coords is None else flip_tex_coords:
-            uv[:, 1] = 1.0 - uv[:, 1]
-    else:
-        uv = None
+    uv = np.asarray(uv, dtype=np.float64).copy() if uv is not None and len(uv) == len(v) else None
+    for what, values, statement, good in (
+            ("NaN or infinite vertex coordinates", v, b"v", np.isfinite(v).all(axis=1)),
+            ("NaN, infinite or zero vertex normals", n, b"vn",
+             None if n is None else np.isfinite(n).all(axis=1) & (np.einsum("ij,ij->i", n, n) > 0.0)),
+            ("NaN or infinite texture coordinates", uv, b"vt", None if uv is None else np.isfinite(uv).all(axis=1))):
+        if values is not None and not good.all():
+            where = _bad_row(path, obj, statement, int(np.argmin(good)), read is not None)
+            raise ProbvisError(f"{where}: mesh {path.name} has {what}")
+    if uv is not None and (obj if flip_tex_coords is None else flip_tex_coords):
+        uv[:, 1] = 1.0 - uv[:, 1]
     return MeshData(v, f, n, uv)
+
+
+def _bad_row(path, obj, statement, index, in_file_order):
+    """Where a mesh's bad vertex row is: file:line of an OBJ's first `statement` (v, vn, vt) whose numbers are not
+    all finite and non-zero, of an ASCII PLY's row `index` of its first element; else the file and the row."""
+    if obj:
+        data = path.read_bytes()
+        for m in re.finditer(rb"(?m)^[ \t]*" + statement + rb"[ \t]+([^\r\n]*)", data):
+            try:
+                row = np.array([float(x) for x in m.group(1).split()[:3]])
+            except ValueError:
+                continue
+            if not (np.isfinite(row).all() and (statement != b"vn" or np.any(row != 0.0))):
+                line = data.count(b"\n", 0, m.start()) + 1
+                return f"{path}:{line}"
+        return f"{path} (vertex {index})"
+    with open(path, "rb") as fh:
+        head = [fh.readline(1024) for _ in range(1000)]
+    ends = [k for k, line in enumerate(head) if line.strip() == b"end_header"]
+    elements = [line.split()[1] for line in head if line.startswith(b"element ")]
+    if in_file_order and ends and b"format ascii" in b"".join(head) and elements[:1] == [b"vertex"]:
+        return f"{path}:{ends[0] + 2 + index}"
+    return f"{path} (vertex {index})"
 
 
 def _read_general(path, fmt):
