@@ -316,13 +316,21 @@ def test_a_non_ascii_name_under_an_ascii_locale_is_escaped(tmp_path):
     assert r.returncode == 0 and b"sortie-\\xe9.exr" in r.stdout, r.stderr
 
 
-@pytest.mark.parametrize("value", ["0", "abc"])
-def test_a_numba_thread_count_that_is_none_is_one_line(tmp_path, value):
-    """NUMBA_NUM_THREADS=0 was Numba's traceback at import; 'abc' its warning, then a render."""
+@pytest.mark.parametrize("name, value, message", [
+    ("NUMBA_NUM_THREADS", "0", "is not a thread count"), ("NUMBA_NUM_THREADS", "abc", "is not a thread count"),
+    ("NUMBA_NUM_THREADS", "99999", "is not a thread count from 1 to 1024"),
+    ("NUMBA_THREADING_LAYER", "bogus", "is not one of Numba's threading layers"),
+    ("NUMBA_OPT", "abc", "is not an optimisation level"), ("OMP_NUM_THREADS", "abc", "is not a thread count"),
+    ("GOMP_SPINCOUNT", "abc", "is not a spin count"),
+])
+def test_an_environment_setting_the_libraries_cannot_use_is_one_line(tmp_path, name, value, message):
+    """NUMBA_NUM_THREADS=0 was Numba's traceback at import, 'abc' its warning then a render, 99999 a crash
+    (SIGSEGV); a bogus threading layer a traceback, NUMBA_OPT=abc a warning with a traceback's text, libgomp's
+    settings a line of the library's own."""
     r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-o", "o.exr"], capture_output=True,
-                       text=True, cwd=tmp_path, timeout=TIME_LIMIT, env={**os.environ, "NUMBA_NUM_THREADS": value})
-    assert r.returncode == 1 and r.stderr.startswith(f"probvis: error: NUMBA_NUM_THREADS='{value}' is not a thread "
-                                                     "count") and r.stderr.count("\n") == 1, r.stderr
+                       text=True, cwd=tmp_path, timeout=TIME_LIMIT, env={**os.environ, name: value})
+    assert r.returncode == 1 and r.stderr.startswith(f"probvis: error: {name}='{value}' {message}") \
+        and r.stderr.count("\n") == 1, r.stderr
     assert not list(tmp_path.iterdir())
 
 

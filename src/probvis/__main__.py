@@ -1,7 +1,9 @@
 """The `probvis` console command and `python -m probvis`: starts the command line, and reports a start that
 fails (Ctrl-C or SIGTERM while the libraries load, a compiled library that cannot load under the process's
 limits) in one line."""
+import importlib.util
 import os
+import re
 import signal
 import sys
 
@@ -54,12 +56,39 @@ def _start_failure(exc):
     return f"probvis: error: cannot load its libraries ({type(exc).__name__}: {reason}): reinstall probvis"
 
 
+MAX_NUMBA_THREADS = 1024  # beyond, thread creation fails or the process crashes (65536 on a 2-core machine)
+_THREADING_LAYERS = ("default", "safe", "forksafe", "threadsafe", "omp", "workqueue", "tbb")
+# libgomp's own settings: an invalid one is reported by the library on a line of its own, then ignored
+_COUNT_LIST = re.compile(r"\s*[1-9][0-9]*(\s*,\s*[1-9][0-9]*)*\s*")
+_SPIN_COUNT = re.compile(r"\s*(?:[0-9]+\s*[kKmMgGtT]?|infinite|infinity)\s*")
+
+
+def _bad_setting(name, value, want):
+    hint = " (--threads bounds a render's threads)" if name.endswith("NUM_THREADS") else ""
+    return f"probvis: error: {name}='{value}' is not {want}: unset it or correct it{hint}"
+
+
 def _bad_environment():
-    """The one line for an environment setting Numba would fail on with a traceback (NUMBA_NUM_THREADS=0)."""
-    threads = os.environ.get("NUMBA_NUM_THREADS")
-    if threads is not None and not (threads.strip().isdigit() and threads.isascii() and int(threads) > 0):
-        return (f"probvis: error: NUMBA_NUM_THREADS='{threads}' is not a thread count: unset it, or give a positive "
-                "whole number (--threads bounds a render's threads)")
+    """The one line for an environment setting Numba or OpenMP would fail on with a traceback, a crash or a line
+    of their own (NUMBA_NUM_THREADS=0, NUMBA_THREADING_LAYER=tbb without TBB, OMP_NUM_THREADS=abc)."""
+    env = os.environ
+    threads = env.get("NUMBA_NUM_THREADS")
+    if threads is not None and not (threads.strip().isdigit() and threads.isascii()
+                                    and 0 < int(threads) <= MAX_NUMBA_THREADS):
+        return _bad_setting("NUMBA_NUM_THREADS", threads, f"a thread count from 1 to {MAX_NUMBA_THREADS}")
+    layer = env.get("NUMBA_THREADING_LAYER")
+    if layer is not None and layer.strip().lower() not in _THREADING_LAYERS:
+        return _bad_setting("NUMBA_THREADING_LAYER", layer, f"one of Numba's threading layers "
+                                                           f"({', '.join(_THREADING_LAYERS)})")
+    if layer is not None and layer.strip().lower() == "tbb" and importlib.util.find_spec("tbb") is None:
+        return _bad_setting("NUMBA_THREADING_LAYER", layer, "usable here: Intel TBB is not installed (pip install tbb)")
+    opt = env.get("NUMBA_OPT")
+    if opt is not None and opt.strip().lower() not in ("0", "1", "2", "3", "max"):
+        return _bad_setting("NUMBA_OPT", opt, "an optimisation level (0, 1, 2, 3 or max)")
+    for name, form, want in (("OMP_NUM_THREADS", _COUNT_LIST, "a thread count (or a comma-separated list of them)"),
+                             ("GOMP_SPINCOUNT", _SPIN_COUNT, "a spin count (a whole number or infinite)")):
+        if env.get(name) is not None and not form.fullmatch(env[name]):
+            return _bad_setting(name, env[name], want)
     return _stack_too_small() or _address_space_too_small()
 
 
