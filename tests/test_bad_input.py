@@ -438,3 +438,11 @@ def test_numpy_numbers_are_numbers_for_estimator_options():
     from probvis.visibility import estimator_class
 
     assert estimator_class("occlusion-map")(photons=np.int64(2000)).params.photons == 2000
+
+
+def test_kernels_run_as_python_do_not_warn_of_their_hashes_wrapping(tmp_path):
+    """Under NUMBA_DISABLE_JIT=1 the random hashes' uint64 arithmetic warned six times of overflow."""
+    r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-D", "res=4", "--spp", "1", "-q",
+                        "-o", "o.exr"], capture_output=True, text=True, cwd=tmp_path, timeout=TIME_LIMIT,
+                       env={**os.environ, "NUMBA_DISABLE_JIT": "1"})
+    assert r.returncode == 0 and r.stderr == "", r.stderr

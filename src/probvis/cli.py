@@ -622,6 +622,8 @@ def main(argv=None):
     # Numba guards its first parallel launch with a multiprocessing lock; without one (no /dev/shm, a file size
     # limit) it warns at length, though a render runs one process
     warnings.filterwarnings("ignore", message=".*Could not obtain multiprocessing lock")
+    if os.environ.get("NUMBA_DISABLE_JIT", "0").strip() not in ("", "0"):  # kernels run as Python, on NumPy
+        warnings.filterwarnings("ignore", message="overflow encountered in scalar")  # scalars: the hashes wrap
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
     if hasattr(sys.stdout, "reconfigure"):  # a scene's non-ASCII name under an ASCII locale: escaped, not a crash
