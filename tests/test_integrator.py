@@ -223,3 +223,8 @@ def test_numpy_whole_numbers_are_taken_as_python_ints():
     plain = probvis.render("quad-shadow", spp=2, shadow_rays=200, threads=1, seed=3, resolution=(4, 4))
     np.testing.assert_array_equal(r.image, plain.image)
     assert type(r.stats["spp"]) is int and type(r.stats["seed"]) is int
+
+
+def test_more_shadow_rays_per_pixel_than_a_batch_can_interrupt_are_refused():
+    with pytest.raises(ProbvisError, match="spp x shadow_rays = 1048576 x 65536 is more than the 67,108,864"):
+        probvis.render("quad-shadow", spp=1 << 20, shadow_rays=1 << 16, resolution=(4, 4))

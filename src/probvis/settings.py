@@ -12,6 +12,8 @@ from .errors import ProbvisError
 
 MAX_SPP = 1 << 20
 MAX_SHADOW_RAYS = 1 << 16
+MAX_SEGMENTS_PER_PIXEL = 1 << 26  # spp x shadow_rays: a batch holds at least one pixel, and an interrupt waits for
+# its batch (2^26 segments take seconds; 2^36 took hours); more samples: average renders of several seeds
 MAX_SEED = (1 << 63) - 1  # the kernels take the seed as a signed 64-bit integer
 
 _INT = re.compile(r"\s*[+-]?[0-9]+\s*")
@@ -62,6 +64,10 @@ class RenderSettings:
                                   ("seed", self.seed, 0, MAX_SEED)):
             if not _whole(val) or not lo <= val <= hi:
                 raise ProbvisError(f"{what} must be a whole number from {lo} to {hi}, got {val!r}")
+        if self.spp * self.shadow_rays > MAX_SEGMENTS_PER_PIXEL:
+            raise ProbvisError(f"spp x shadow_rays = {self.spp} x {self.shadow_rays} is more than the "
+                               f"{MAX_SEGMENTS_PER_PIXEL:,} shadow rays per pixel one render takes: lower them, or "
+                               "average renders with different seeds")
         if self.threads is not None and not (_whole(self.threads) and self.threads >= 1):
             raise ProbvisError(f"threads must be a positive whole number, got {self.threads!r}")
         if not isinstance(self.filter_importance, bool):

@@ -204,3 +204,14 @@ def test_the_experiment_api_takes_numpy_workers_and_refuses_empty_folders(tmp_pa
             experiment(quick_experiment(), tmp_path / "rep", **kwargs)
     with pytest.raises(ProbvisError, match="out must name a folder"):
         experiment(quick_experiment(), "")
+
+
+def test_studies_beyond_what_a_render_or_a_report_takes_are_refused():
+    """A million cells were accepted (SIGTERM then took 327 s); so were 2^36 shadow rays per pixel, which made
+    one batch that no interrupt could stop."""
+    with pytest.raises(ProbvisError, match="experiment: 5,242,880 cells .* is more than a study runs"):
+        parse_experiment(doc(seeds=list(range(1 << 20))))
+    with pytest.raises(ProbvisError, match="spp x shadow_rays: 1048576 x 65536 is more than the 67,108,864"):
+        parse_experiment(doc(spp=1 << 20, shadow_rays=[65536]))
+    with pytest.raises(ProbvisError, match="reference.spp x reference.shadow_rays: 65536 x 65536"):
+        parse_experiment(doc(reference={"spp": 65536, "shadow_rays": 65536}))

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import ProbvisError
 from ..scene import BUILTINS
-from ..settings import MAX_SEED, MAX_SHADOW_RAYS, MAX_SPP
+from ..settings import MAX_SEED, MAX_SEGMENTS_PER_PIXEL, MAX_SHADOW_RAYS, MAX_SPP
 from ..visibility import estimator_class
 
 MAX_RESOLUTION = 1 << 15
@@ -266,6 +266,17 @@ def parse_experiment(data, base=Path("."), source=""):
         _fail("target_relmse", f"expected a positive number, got {target!r}")
     if not isinstance(data.get("description", ""), str):
         _fail("description", f"expected a string, got {data['description']!r}")
+    spp = _int("spp", data.get("spp", 4), 1, MAX_SPP)
+    seeds = _int_list("seeds", data.get("seeds", [0]), 0)
+    for keys, samples, rays in (("spp x shadow_rays", spp, max(shadow_rays)),
+                                ("reference.spp x reference.shadow_rays", reference.spp, reference.shadow_rays)):
+        if samples * rays > MAX_SEGMENTS_PER_PIXEL:
+            _fail(keys, f"{samples} x {rays} is more than the {MAX_SEGMENTS_PER_PIXEL:,} shadow rays per pixel one "
+                         "render takes: lower them")
+    cells = len(scene_specs) * len(method_specs) * len(shadow_rays) * len(seeds)
+    if cells > MAX_CELLS:
+        _fail(where, f"{cells:,} cells (scenes x methods x shadow_rays x seeds) is more than a study runs (at most "
+                     f"{MAX_CELLS:,}): split it into several experiments")
     table_rays = data.get("table_shadow_rays", 16 if 16 in shadow_rays else max(shadow_rays))
     if _int("table_shadow_rays", table_rays) not in shadow_rays:
         _fail("table_shadow_rays", f"{table_rays} is not one of shadow_rays {list(shadow_rays)}")
@@ -274,7 +285,7 @@ def parse_experiment(data, base=Path("."), source=""):
         re.sub(r"[^A-Za-z0-9._-]", "-", Path(source).stem).lstrip(".") or "experiment",
         description=data.get("description", ""),
         scenes=scene_specs, methods=method_specs, shadow_rays=tuple(sorted(shadow_rays)),
-        spp=_int("spp", data.get("spp", 4), 1, MAX_SPP), seeds=_int_list("seeds", data.get("seeds", [0]), 0),
+        spp=spp, seeds=seeds,
         reference=reference, baseline=baselines[0] if baselines else method_specs[0].name,
         resolution=resolution, target_relmse=None if target is None else float(target),
         table_shadow_rays=table_rays, timing_repeats=_int("timing_repeats", data.get("timing_repeats", 1), 1, 16),
@@ -282,6 +293,7 @@ def parse_experiment(data, base=Path("."), source=""):
         seconds=_choice("seconds", data.get("seconds", "total"), ("total", "render")))
 
 
+MAX_CELLS = 100_000  # renders of one study: its report lists every cell, its cache holds a file per render
 MAX_NAME = 100  # characters: report files add a suffix, and file systems allow 255 bytes
 
 
