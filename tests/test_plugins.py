@@ -117,6 +117,25 @@ options = { q = 0.5 }
         load_experiment(bad)
 
 
+def test_a_plugin_s_cache_key_changes_with_the_helpers_it_imports(tmp_path):
+    """Only the plug-in's own file was hashed: an edit to a module it imports reused stale cached renders."""
+    from probvis.experiments.runner import estimator_fingerprint
+
+    (tmp_path / "helper.py").write_text("Q = 0.5\n")
+    (tmp_path / "uses.py").write_text(example_source().replace("import numpy as np", "import numpy as np\nimport helper",
+                                                                1))
+    spec = f"{tmp_path / 'uses.py'}:RouletteVisibility"
+    sys.path.insert(0, str(tmp_path))
+    try:
+        before = estimator_fingerprint(spec)
+        assert estimator_fingerprint(spec) == before
+        (tmp_path / "helper.py").write_text("Q = 0.25\n")
+        assert estimator_fingerprint(spec) != before
+    finally:
+        sys.path.remove(str(tmp_path))
+    assert estimator_fingerprint("exact") == ""
+
+
 def test_installed_estimators_load_through_the_entry_point_group(roulette, tmp_path, monkeypatch):
     site = tmp_path / "site"
     (site / "roulette_pkg").mkdir(parents=True)

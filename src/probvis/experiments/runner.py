@@ -89,6 +89,9 @@ def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, tim
     return r.stats, r.image.astype(np.float32), r.aovs["triangle_tests"].astype(np.float32)
 
 
+MAX_FINGERPRINT_FILES = 2000  # Python files hashed for a plug-in's fingerprint
+
+
 @functools.cache
 def code_fingerprint():
     """SHA-256 over probvis's own Python sources: a render cached by another build of probvis is not reused."""
@@ -101,18 +104,38 @@ def code_fingerprint():
 
 
 def estimator_fingerprint(visibility):
-    """SHA-256 of the source file of an estimator from outside probvis ('' for probvis's own): editing it
-    invalidates its cached renders."""
+    """SHA-256 of the sources of an estimator from outside probvis ('' for probvis's own): its package's Python
+    files, or those beside a plug-in file (the helpers it imports); editing any of them invalidates its cached
+    renders."""
     from ..visibility import BUILTIN, estimator_class
 
     if visibility in BUILTIN:
         return ""
-    path = inspect.getsourcefile(estimator_class(visibility))
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest() if path else ""
+    cls = estimator_class(visibility)
+    path = inspect.getsourcefile(cls)
+    if not path:
+        return ""
+    path = Path(path).resolve()
+    top = sys.modules.get(cls.__module__.split(".")[0])
+    if "." in cls.__module__ and getattr(top, "__file__", None):  # a package's module: the whole package
+        files = sorted(Path(top.__file__).resolve().parent.rglob("*.py"))
+    elif path.parent.name in ("site-packages", "dist-packages"):  # an installed single module: itself
+        files = [path]
+    else:  # a plug-in file: it and the modules beside it
+        files = sorted(path.parent.glob("*.py"))
+    h = hashlib.sha256()
+    for file in files[:MAX_FINGERPRINT_FILES]:
+        h.update(file.name.encode())
+        h.update(file.read_bytes())
+    return h.hexdigest()
 
 
-def task_key(scene_hash, method, spp, shadow_rays, seed, timing=Timing()):
-    blob = json.dumps([code_fingerprint(), estimator_fingerprint(method.visibility), scene_hash, method.visibility,
+def task_key(scene_hash, method, spp, shadow_rays, seed, timing=Timing(), fingerprint=None):
+    """The cache key of one render; `fingerprint` is `estimator_fingerprint(method.visibility)` where the caller
+    computed it once for many keys."""
+    if fingerprint is None:
+        fingerprint = estimator_fingerprint(method.visibility)
+    blob = json.dumps([code_fingerprint(), fingerprint, scene_hash, method.visibility,
                        sorted(method.options.items()), spp, shadow_rays, seed, timing.repeats,
                        timing.enough_seconds], default=list)
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
@@ -215,17 +238,19 @@ def plan(exp, scenes):
     """The study's tasks: (references, cells), each keyed by content hash."""
     refs, cells = [], []
     ref_method = MethodSpec("reference", exp.reference.visibility, {})
+    prints = {m.visibility: estimator_fingerprint(m.visibility) for m in (ref_method, *exp.methods)}
     for spec in exp.scenes:
         h = scenes[spec.name].content_hash()
         if spec.reference is None:
             r = exp.reference
             refs.append(Task(spec.name, ref_method, r.spp, r.shadow_rays, r.seed,
-                             task_key(h, ref_method, r.spp, r.shadow_rays, r.seed), reference=True))
+                             task_key(h, ref_method, r.spp, r.shadow_rays, r.seed,
+                                      fingerprint=prints[ref_method.visibility]), reference=True))
         for m in exp.methods:
             for sr in exp.shadow_rays:
                 for seed in exp.seeds:
                     cells.append(Task(spec.name, m, exp.spp, sr, seed,
-                                      task_key(h, m, exp.spp, sr, seed, exp.timing)))
+                                      task_key(h, m, exp.spp, sr, seed, exp.timing, prints[m.visibility])))
     return refs, cells
 
 
