@@ -181,6 +181,24 @@ def test_bad_references_are_found_before_any_render(tmp_path, content):
     assert not list((tmp_path / "r").glob("**/*.json")), "no cell may be rendered first"
 
 
+@pytest.mark.parametrize("value", [0.0, -0.5, 1e35])
+def test_references_that_are_no_radiance_are_refused(tmp_path, value):
+    """An all-black, negative or overflowing reference was accepted, and every relMSE measured against it."""
+    from probvis.io import write_exr
+
+    img = np.full((12, 12, 3), 0.2)
+    img[3, 4] = value if value else 0.2
+    write_exr(tmp_path / "ref.exr", img if value else np.zeros((12, 12, 3)))
+    doc = dict(TINY, scenes=[{"name": "quad", "source": "quad-shadow", "reference": str(tmp_path / "ref.exr")}])
+    with pytest.raises(ProbvisError, match="a reference is converged radiance, non-negative, not all black"):
+        experiment(parse_experiment(doc), tmp_path / "r", progress=False, log=lambda m: None)
+
+
+def test_a_biased_reference_estimator_is_refused():
+    with pytest.raises(ProbvisError, match="reference.visibility: 'ratio' is biased"):
+        parse_experiment(dict(TINY, reference={"visibility": "ratio"}))
+
+
 def test_a_report_folder_that_is_a_file_is_named(tmp_path):
     (tmp_path / "taken").write_text("x")
     with pytest.raises(ProbvisError, match="report folder .*taken' is a file"):

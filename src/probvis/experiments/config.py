@@ -249,9 +249,12 @@ def parse_experiment(data, base=Path("."), source=""):
         seed=_int("reference.seed", ref.get("seed", ReferenceSettings.seed), 0),
         visibility=_str("reference.visibility", ref.get("visibility", "exact")))
     try:
-        estimator_class(reference.visibility)()
+        reference_estimator = estimator_class(reference.visibility)()
     except ProbvisError as exc:
         _fail("reference.visibility", str(exc))
+    if not reference_estimator.unbiased:
+        _fail("reference.visibility", f"'{reference.visibility}' is biased (it converges only as its samples grow "
+                                      "without bound): a reference must expect the true image; use exact")
     resolution = data.get("resolution")
     if resolution is not None:
         resolution = _int_list("resolution", resolution, distinct=False, highest=MAX_RESOLUTION)
