@@ -97,21 +97,21 @@ TETRA = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]), np.array([[0,
 
 @pytest.mark.parametrize("version", [3, 4])
 def test_serialized_meshes_by_shape_index(tmp_path, version):
-    from probvis.scene import shapes
+    from probvis.scene import serialized, shapes
 
     box_v, box_f = shapes.cube()
     path = write_serialized(tmp_path / "m.serialized", [(box_v, box_f, None), TETRA], version)
-    v, f, n, _ = shapes.load_serialized(path, 1)
+    v, f, n, _ = serialized.load_serialized(path, 1)
     np.testing.assert_array_equal(v, TETRA[0])
     np.testing.assert_array_equal(f, TETRA[1])
-    v, f, _, _ = shapes.load_serialized(path, 0)
+    v, f, _, _ = serialized.load_serialized(path, 0)
     assert len(f) == 12
     with pytest.raises(ProbvisError, match="shape_index 2 is out of range"):
-        shapes.load_serialized(path, 2)
+        serialized.load_serialized(path, 2)
     bad = tmp_path / "bad.serialized"
     bad.write_bytes(b"\x1c\x04\x09\x00" + b"\0" * 16)
     with pytest.raises(ProbvisError, match="serialized format version 9 is not supported"):
-        shapes.load_serialized(bad)
+        serialized.load_serialized(bad)
 
 
 def test_corrupt_serialized_tables_and_streams_are_named(tmp_path):
@@ -121,7 +121,7 @@ def test_corrupt_serialized_tables_and_streams_are_named(tmp_path):
     import tracemalloc
     import zlib
 
-    from probvis.scene import shapes
+    from probvis.scene import serialized
 
     good = write_serialized(tmp_path / "m.serialized", [TETRA, TETRA]).read_bytes()
     for name, data, message in (
@@ -134,7 +134,7 @@ def test_corrupt_serialized_tables_and_streams_are_named(tmp_path):
         path = tmp_path / f"{name}.serialized"
         path.write_bytes(data)
         with pytest.raises(ProbvisError, match=re.escape(message)):
-            shapes.load_serialized(path, 1 if name == "offset" else 0)
+            serialized.load_serialized(path, 1 if name == "offset" else 0)
     v, f, _ = TETRA
     body = struct.pack("<I", 0x2000) + b"m\0" + struct.pack("<QQ", len(v), len(f)) + np.asarray(v, "<f8").tobytes() \
         + np.asarray(f, "<u4").tobytes()
@@ -142,7 +142,7 @@ def test_corrupt_serialized_tables_and_streams_are_named(tmp_path):
     padded.write_bytes(struct.pack("<HH", 0x041C, 4) + zlib.compress(body + bytes(64 << 20)) + struct.pack("<QI", 0, 1))
     tracemalloc.start()
     try:
-        _, faces, _, _ = shapes.load_serialized(padded)
+        _, faces, _, _ = serialized.load_serialized(padded)
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()

@@ -190,7 +190,7 @@ def test_clamping_negative_pixels_is_reported_as_a_bias():
 @pytest.mark.parametrize("options, message", [
     (dict(estimator="magic"), "estimator must be one of standard, shifted, power, adaptive"),
     (dict(grouping="colour"), "grouping must be"),
-    (dict(probabilities=(0.5, 0.5, 0.5)), "summing to 1"),
+    (dict(probabilities=(0.5, 0.5, 0.5)), "must sum to 1"),
     (dict(probabilities=(1e-320, 0.5, 0.5)), "must each be at least 1e-06"),
     (dict(estimator="shifted", shifts=(1, 1, 1)), "summing to 1"),
     (dict(shifts=(0.2, 0.3, 0.5)), "shifted estimator only"),

@@ -104,7 +104,7 @@ def test_segments_verified_with_certainty_are_traced_alone(scene, visibility):
 
 @pytest.mark.parametrize("value", ["0", "1.5", "nan", "-0.2", "sometimes"])
 def test_bad_verify_values_are_named(value):
-    with pytest.raises(ProbvisError, match="verify must be auto, off or a probability in"):
+    with pytest.raises(ProbvisError, match="verify must be auto, off or a probability from 0.001 to 1"):
         make_estimator("occlusion-map", verify=value)
 
 

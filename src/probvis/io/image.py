@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ProbvisError
+from .library_output import library_output
 
 FORMATS = (".exr", ".pfm", ".png")
 MAX_IMAGE_BYTES = 4 << 30  # an image file larger than this is refused before reading
@@ -164,7 +165,7 @@ def read_exr(path, channel=None):
     path = Path(path)
     if not path.is_file():
         raise ProbvisError(f"image not found: {path}")
-    with _library_output() as said:  # the library reports a failed read (a truncated file) as a line of its own
+    with library_output() as said:  # the library reports a failed read (a truncated file) as a line of its own
         try:
             return _exr_pixels(path, channel, said)
         except (ProbvisError, MemoryError):
@@ -198,38 +199,6 @@ def _exr_pixels(path, channel, said):
         if all(c in ch for c in "RGB"):
             return np.stack([np.array(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
         raise ProbvisError(f"{path}: no RGB channels (found {', '.join(ch)})")
-
-
-@contextmanager
-def _library_output():
-    """Capture what a library prints while the block runs (through Python's sys.stdout, as pybind11's print does,
-    or on the process's standard output and error, as OpenEXR's C core does); yields a function that returns it so
-    far, as one line."""
-    import ctypes
-    import io
-    import sys
-    from contextlib import redirect_stdout
-
-    libc = ctypes.CDLL(None)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    with tempfile.TemporaryFile() as sink, redirect_stdout(io.StringIO()) as text:
-        os.dup2(sink.fileno(), 1)
-        os.dup2(sink.fileno(), 2)
-
-        def said():
-            libc.fflush(None)
-            sink.seek(0)
-            return " ".join((text.getvalue() + sink.read().decode(errors="replace")).split())
-
-        try:
-            yield said
-        finally:
-            libc.fflush(None)
-            for fd, copy in enumerate(saved, 1):
-                os.dup2(copy, fd)
-                os.close(copy)
 
 
 def srgb_to_linear(v):

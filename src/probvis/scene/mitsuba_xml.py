@@ -19,6 +19,7 @@ from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import MAX_COORDINATE, SceneBuilder
 from .sensor import MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV, Camera, camera_problem
+from .serialized import load_serialized
 from .spectrum import spectrum_to_rgb
 
 # Mitsuba's named indices of refraction (its `ior.h`) and conductor materials (its spectral data files)
@@ -720,7 +721,7 @@ class _Reader:
                 self.fail(node, f"mesh {mesh_path} is not a regular file (a mesh is an OBJ, PLY or serialized file)")
             try:
                 if kind == "serialized":
-                    v, f, vnormals, uv = shp.load_serialized(mesh_path, props.get("shape_index", 0))
+                    v, f, vnormals, uv = load_serialized(mesh_path, props.get("shape_index", 0))
                 else:
                     v, f, vnormals, uv = shp.load_mesh(mesh_path, props.get("flip_tex_coords"), kind)
             except ProbvisError as exc:
