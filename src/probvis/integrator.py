@@ -13,7 +13,7 @@ itself (`shade`). This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0
 """
 import sys
 import time
-from contextlib import contextmanager, nullcontext
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,8 +38,7 @@ from .scene import Scene, load_scene
 from .segments import SegmentBuffers, compact, sample_emitters, sample_radiance
 from .settings import RenderSettings
 from .shading import ShadedBatch, ShadingBatch
-from .visibility import (RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult,
-                         estimator_class)
+from .visibility import RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, estimator_class
 
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keeps progress and Ctrl-C prompt)
 TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
