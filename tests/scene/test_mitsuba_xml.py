@@ -334,6 +334,8 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
      "<rgb>: int_ior is one number or a material name: give it as <float> or <string>"),
     ("<shape type='rectangle'><bsdf type='plastic'><string name='diffuse_reflectance' value='red'/></bsdf></shape>",
      "<string>: 'diffuse_reflectance' of a plastic bsdf is a colour: give it as <rgb>"),
+    ("<shape type='rectangle'><bsdf type='conductor'><rgb name='material' value='0.5'/></bsdf></shape>",
+     "<rgb>: a conductor's material is a name: give it as <string>"),
     ("<shape type='rectangle'><bsdf type='principled'><boolean name='base_color' value='true'/></bsdf></shape>",
      "<boolean>: 'base_color' of a principled bsdf is a colour"),
     ("<shape type='rectangle'><bsdf type='blendbsdf'><string name='weight' value='half'/><bsdf type='diffuse'/>"

@@ -493,8 +493,11 @@ class _Reader:
         if kind == "principled":
             return colour("base_color", 0.5)
         if kind in ("conductor", "roughconductor"):
-            if isinstance(props.get("material", "none"), str) and props.get("material", "none") not in _CONDUCTORS:
-                self.fail(node, f"unknown conductor material '{props['material']}' (Mitsuba's: "
+            material = props.get("material", "none")
+            if not isinstance(material, str):
+                self.fail(lines["material"], "a conductor's material is a name: give it as <string>")
+            if material not in _CONDUCTORS:
+                self.fail(node, f"unknown conductor material '{material}' (Mitsuba's: "
                                 f"{', '.join(sorted(_CONDUCTORS))})")
             return colour("specular_reflectance", 1.0)
         if kind in ("dielectric", "thindielectric", "roughdielectric"):
