@@ -25,15 +25,30 @@ def content_key(label, *arrays):
     return h.hexdigest()
 
 
-def load_or_build(kind, key, build, use_cache=True):
+def _fits(arrays, expect):
+    """Whether loaded `arrays` hold what `expect` describes: per name (shape, dtype kinds), None in a shape for
+    any length; floats finite."""
+    for name, (shape, kinds) in expect.items():
+        a = arrays.get(name)
+        if (a is None or a.dtype.kind not in kinds or a.ndim != len(shape)
+                or any(want is not None and got != want for got, want in zip(a.shape, shape))
+                or (a.dtype.kind == "f" and not np.all(np.isfinite(a)))):
+            return False
+    return True
+
+
+def load_or_build(kind, key, build, use_cache=True, expect=None):
     """(arrays, cached): the dict of arrays stored under `key`, or `build()`'s (a dict of arrays, or None when
-    there is nothing to store), stored for next time."""
+    there is nothing to store), stored for next time. An entry that cannot be read or does not hold what
+    `expect` describes (`_fits`: a damaged or foreign file) is rebuilt."""
     path = cache_dir(kind) / f"{key}.npz" if use_cache else None
     if path is not None and path.is_file():
         try:
-            with np.load(path) as f:
-                return {k: f[k] for k in f.files}, True
-        except (OSError, ValueError, KeyError):
+            with np.load(path, allow_pickle=False) as f:
+                arrays = {k: f[k] for k in f.files}
+            if expect is None or _fits(arrays, expect):
+                return arrays, True
+        except (OSError, ValueError, KeyError, EOFError):
             pass  # a damaged entry is rebuilt
     out = build()
     if out is not None and path is not None:

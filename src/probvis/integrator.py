@@ -329,7 +329,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     elif defines:
         raise ProbvisError(f"scene parameters {sorted(defines)} apply only when loading a scene from a file")
     else:
-        scene.validate_camera()  # a Scene's camera may have been changed since it was loaded
+        scene.validate()  # a Scene may have been changed since it was loaded
     load_seconds = time.perf_counter() - t_start
     if resolution is not None:
         scene = scene.with_resolution(*(int(v) for v in resolution))

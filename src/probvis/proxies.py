@@ -93,7 +93,7 @@ def _cached_decimate(tris, digest, target, use_cache):
         return None if out is None else {"triangles": out}
 
     key = content_key(f"proxy v{CACHE_VERSION} target {target} of {digest}")
-    out, cached = load_or_build("proxies", key, build, use_cache)
+    out, cached = load_or_build("proxies", key, build, use_cache, {"triangles": ((None, 3, 3), "f")})
     return (None if out is None else out["triangles"]), (why[0] if why else None), cached
 
 
@@ -103,7 +103,8 @@ def _cached_small_parts(tris, digest, use_cache):
     def build():
         return {"vertices": np.array(len(weld(tris)[0]))}
 
-    out, _ = load_or_build("parts", content_key(f"welded vertices v{CACHE_VERSION} of {digest}"), build, use_cache)
+    out, _ = load_or_build("parts", content_key(f"welded vertices v{CACHE_VERSION} of {digest}"), build, use_cache,
+                           {"vertices": ((), "iu")})
     return mostly_small_parts(int(out["vertices"]), len(tris))
 
 

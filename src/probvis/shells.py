@@ -221,7 +221,8 @@ def mesh_closed(tris, use_cache=True):
     def build():
         return {"closed": np.array(is_closed(tris))}
 
-    out, _ = load_or_build("closed", content_key(f"mesh closed v{CACHE_VERSION}", tris), build, use_cache)
+    out, _ = load_or_build("closed", content_key(f"mesh closed v{CACHE_VERSION}", tris), build, use_cache,
+                           {"closed": ((), "b")})
     return bool(out["closed"])
 
 
@@ -270,7 +271,9 @@ def build_shells(scene, bvh, heavy, resolution=RESOLUTION, use_cache=True):
             closed.append(ok)
         return {"grid": grid, "lo": lo, "pitch": np.array(pitch), "closed": np.array(closed)}
 
-    out, cached = load_or_build("shells", key, build, use_cache)
+    out, cached = load_or_build("shells", key, build, use_cache, {"grid": ((None, None, None), "u"),
+                                                                 "lo": ((3,), "f"), "pitch": ((), "f"),
+                                                                 "closed": ((len(heavy),), "b")})
     report = [{"name": s.name, "triangles": s.n_triangles, "closed": bool(c)} for s, c in zip(heavy, out["closed"])]
     return Shells(out["grid"], out["lo"], float(out["pitch"]), report, time.perf_counter() - t0, cached)
 

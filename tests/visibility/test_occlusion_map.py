@@ -202,3 +202,21 @@ def test_the_scene_structure_is_cached_by_content(tmp_path, monkeypatch):
     structure(probvis.load_scene("box-city", res=8))
     assert len(list((tmp_path / "structure").glob("*.npz"))) == 2
     assert structure(scene, use_cache=False).n_components == n
+
+
+@pytest.mark.parametrize("entry", [{"x": np.arange(3)}, {"label": np.zeros(5, np.int64), "n_components": 1,
+                                                         "orientation": np.zeros(5, np.int8)}])
+def test_a_foreign_cache_entry_is_rebuilt(tmp_path, monkeypatch, entry):
+    """An entry with other arrays, or arrays of other shapes, was a KeyError or a wrong-shape traceback (the
+    proxies' and shells' entries likewise); it is rebuilt as a damaged one is."""
+    from probvis.visibility.occlusion_map.components import components, structure
+
+    monkeypatch.setenv("PROBVIS_CACHE_DIR", str(tmp_path))
+    scene = probvis.load_scene("cornell-box", res=8)
+    structure(scene)
+    (path,) = (tmp_path / "structure").glob("*.npz")
+    np.savez(path.with_suffix(""), **entry)
+    label, _, n = components(scene)
+    st = structure(scene)
+    np.testing.assert_array_equal(st.label, label)
+    assert st.n_components == n

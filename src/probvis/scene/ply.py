@@ -62,6 +62,9 @@ def read_ply(path):
         with (io.BytesIO(Path(path).read_bytes()) if header[0] == "ascii" else open(path, "rb")) as fh:
             try:  # the faces' other lists (per-face texture coordinates, say) have no known length
                 ply = PlyData.read(fh, known_list_len={"face": {index: 3}} if len(lists) == 1 else {})
+            except OverflowError as exc:  # an ASCII value beyond its property's type (300 for a uchar)
+                raise ProbvisError(f"mesh {path}: malformed ASCII PLY: a value does not fit its property's declared "
+                                   f"type ({exc})") from None
             except PlyElementParseError as exc:
                 if "unexpected list length" not in str(exc):  # a binary file's polygon breaks the fixed length
                     if header[0] == "ascii" and "end-of-file" not in str(exc):

@@ -123,6 +123,31 @@ class Scene:
                        c.focus_distance, c.rfilter, c.filter_radius, c.filter_stddev)).encode())
         return h.hexdigest()
 
+    def validate(self):
+        """A `Scene` given to a render, possibly changed since it was built: its records and arrays of the types
+        and shapes the render reads (ProbvisError naming the first that is not), then its camera."""
+        if not isinstance(self.camera, Camera):
+            raise ProbvisError(f"scene.camera must be a Camera, got {type(self.camera).__name__}")
+        if not isinstance(self.defaults, RenderSettings):
+            raise ProbvisError(f"scene.defaults must be a RenderSettings, got {type(self.defaults).__name__}")
+        n, m, e = (len(np.asarray(a)) for a in (self.triangles, self.reflectance, self.emitter_radiance))
+        for name, shape, kinds in (("triangles", (n, 3, 3), "f"), ("vertex_normals", (n, 3, 3), "f"),
+                                   ("tri_material", (n,), "iu"), ("tri_emitter", (n,), "iu"),
+                                   ("reflectance", (m, 3), "f"), ("twosided", (m,), "b"),
+                                   ("emitter_radiance", (e, 3), "f")):
+            a = getattr(self, name)
+            if not isinstance(a, np.ndarray) or a.shape != shape or a.dtype.kind not in kinds:
+                raise ProbvisError(f"scene.{name} must be a {' x '.join(map(str, shape))} array of "
+                                   f"{dict(f='floats', iu='integers', b='booleans')[kinds]}, got "
+                                   f"{getattr(a, 'shape', type(a).__name__)} {getattr(a, 'dtype', '')}".rstrip())
+        if not (np.all(np.isfinite(self.triangles)) and np.all(np.isfinite(self.emitter_radiance))):
+            raise ProbvisError("scene.triangles and scene.emitter_radiance must be finite")
+        if n and not (0 <= self.tri_material.min() and self.tri_material.max() < m
+                      and -1 <= self.tri_emitter.min() and self.tri_emitter.max() < e):
+            raise ProbvisError("scene.tri_material and scene.tri_emitter must index scene.reflectance and "
+                               "scene.emitter_radiance (-1: no emitter)")
+        self.validate_camera()
+
     def validate_camera(self):
         if problem := camera_problem(self.camera):
             raise ProbvisError(problem)

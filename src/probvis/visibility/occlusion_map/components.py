@@ -109,5 +109,7 @@ def structure(scene, use_cache=True):
                 "orientation": closed_orientation(scene, comps)}
 
     key = content_key(f"occlusion map structure v{CACHE_VERSION}", scene.triangles, spans)
-    out, _ = load_or_build("structure", key, build, use_cache)
+    n = scene.n_triangles
+    out, _ = load_or_build("structure", key, build, use_cache, {"label": ((n,), "iu"), "n_components": ((), "iu"),
+                                                                "orientation": ((n,), "i")})
     return Structure(out["label"], int(out["n_components"]), out["orientation"])
