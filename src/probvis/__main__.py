@@ -58,9 +58,6 @@ def _start_failure(exc):
 
 MAX_NUMBA_THREADS = 1024  # beyond, thread creation fails or the process crashes (65536 on a 2-core machine)
 _THREADING_LAYERS = ("default", "safe", "forksafe", "threadsafe", "omp", "workqueue", "tbb")
-# libgomp's own settings: an invalid one is reported by the library on a line of its own, then ignored
-_COUNT_LIST = re.compile(r"\s*[1-9][0-9]*(\s*,\s*[1-9][0-9]*)*\s*")
-_SPIN_COUNT = re.compile(r"\s*(?:[0-9]+\s*[kKmMgGtT]?|infinite|infinity)\s*")
 
 
 def _bad_setting(name, value, want):
@@ -85,11 +82,33 @@ def _bad_environment():
     opt = env.get("NUMBA_OPT")
     if opt is not None and opt.strip().lower() not in ("0", "1", "2", "3", "max"):
         return _bad_setting("NUMBA_OPT", opt, "an optimisation level (0, 1, 2, 3 or max)")
-    for name, form, want in (("OMP_NUM_THREADS", _COUNT_LIST, "a thread count (or a comma-separated list of them)"),
-                             ("GOMP_SPINCOUNT", _SPIN_COUNT, "a spin count (a whole number or infinite)")):
-        if env.get(name) is not None and not form.fullmatch(env[name]):
-            return _bad_setting(name, env[name], want)
-    return _stack_too_small() or _address_space_too_small()
+    return _openmp_complaint() or _stack_too_small() or _address_space_too_small()
+
+
+def _openmp_complaint():
+    """The one line for an OMP_* or GOMP_* variable that OpenMP's runtime (libgomp, which Numba's threading layer
+    loads) cannot use. libgomp reads them once, as it loads, and reports a bad one on a line of its own, then
+    ignores it: loaded here with the standard error captured, its complaint becomes probvis's line."""
+    import ctypes
+    import tempfile
+
+    with tempfile.TemporaryFile() as said:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(said.fileno(), 2)
+        try:
+            ctypes.CDLL("libgomp.so.1")
+        except OSError:  # another OpenMP runtime, or none: Numba uses its own threading layer then
+            pass
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        said.seek(0)
+        text = said.read().decode(errors="replace")
+    bad = re.search(r"Invalid value for envi\w* variable (\w+)", text)
+    if bad:
+        return _bad_setting(bad.group(1), os.environ.get(bad.group(1), ""), "a value OpenMP (libgomp) accepts")
+    return None
 
 
 def main():
