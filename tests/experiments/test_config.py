@@ -215,3 +215,22 @@ def test_studies_beyond_what_a_render_or_a_report_takes_are_refused():
         parse_experiment(doc(spp=1 << 20, shadow_rays=[65536]))
     with pytest.raises(ProbvisError, match="reference.spp x reference.shadow_rays: 65536 x 65536"):
         parse_experiment(doc(reference={"spp": 65536, "shadow_rays": 65536}))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("spp = " + "9" * 5000 + "\n", "unreadable TOML: Exceeds the limit (4300 digits)"),
+    ("x = " + "[" * 5000 + "]" * 5000 + "\n", "unreadable TOML: arrays or tables nested too deep"),
+])
+def test_toml_beyond_python_s_limits_is_one_error(tmp_path, text, message):
+    """tomllib raises ValueError or RecursionError there, not TOMLDecodeError: they were tracebacks."""
+    (tmp_path / "e.toml").write_text(text)
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        load_experiment(tmp_path / "e.toml")
+
+
+def test_an_experiment_that_contains_itself_is_named():
+    cyclic = doc()
+    cyclic["seeds"] = [0]
+    cyclic["seeds"].append(cyclic["seeds"])
+    with pytest.raises(ProbvisError, match="nests lists or dicts more than 16 deep"):
+        parse_experiment(cyclic)

@@ -201,13 +201,16 @@ def _method(where, table, base):
     return MethodSpec(name, vis, options)
 
 
-def _as_toml(value):
+def _as_toml(value, depth=0):
     """A document built in Python as TOML would give it: tuples and NumPy arrays as lists, NumPy scalars as
     Python's."""
+    if depth > MAX_DEPTH:
+        raise ProbvisError(f"the experiment nests lists or dicts more than {MAX_DEPTH} deep (does one contain "
+                           "itself?)")
     if isinstance(value, dict):
-        return {k: _as_toml(v) for k, v in value.items()}
+        return {k: _as_toml(v, depth + 1) for k, v in value.items()}
     if isinstance(value, (list, tuple, np.ndarray)):
-        return [_as_toml(v) for v in value]
+        return [_as_toml(v, depth + 1) for v in value]
     if isinstance(value, np.generic):
         return value.item()
     return value
@@ -296,6 +299,7 @@ def parse_experiment(data, base=Path("."), source=""):
         seconds=_choice("seconds", data.get("seconds", "total"), ("total", "render")))
 
 
+MAX_DEPTH = 16  # lists and tables: an experiment nests three levels
 MAX_CELLS = 100_000  # renders of one study: its report lists every cell, its cache holds a file per render
 MAX_NAME = 100  # characters: report files add a suffix, and file systems allow 255 bytes
 
@@ -331,6 +335,11 @@ def load_experiment(path):
         raise ProbvisError(f"{path}: not UTF-8 text (a TOML file is UTF-8): save it as UTF-8") from None
     except tomllib.TOMLDecodeError as exc:
         raise ProbvisError(f"{path}: malformed TOML: {exc}") from None
+    except ValueError as exc:  # Python's own limits: an integer of more than 4300 digits
+        raise ProbvisError(f"{path}: unreadable TOML: {str(exc).split(';')[0]}") from None
+    except RecursionError:
+        raise ProbvisError(f"{path}: unreadable TOML: arrays or tables nested too deep (an experiment nests "
+                           "three levels)") from None
     return parse_experiment(data, path.resolve().parent, str(path))
 
 
