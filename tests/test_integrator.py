@@ -228,3 +228,20 @@ def test_numpy_whole_numbers_are_taken_as_python_ints():
 def test_more_shadow_rays_per_pixel_than_a_batch_can_interrupt_are_refused():
     with pytest.raises(ProbvisError, match="spp x shadow_rays = 1048576 x 65536 is more than the 67,108,864"):
         probvis.render("quad-shadow", spp=1 << 20, shadow_rays=1 << 16, resolution=(4, 4))
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda s: setattr(s, "defaults", "garbage"), "scene.defaults must be a RenderSettings, got str"),
+    (lambda s: setattr(s, "camera", None), "scene.camera must be a Camera, got NoneType"),
+    (lambda s: s.triangles.__setitem__((0, 0, 0), np.nan), "scene.triangles and scene.emitter_radiance must be"),
+    (lambda s: setattr(s, "triangles", s.triangles[:, :2]), "scene.triangles must be a 6 x 3 x 3 array of floats"),
+    (lambda s: setattr(s, "reflectance", s.reflectance * -5), "scene.reflectance must be within [0, 1]"),
+    (lambda s: setattr(s, "tri_material", s.tri_material + 100), "scene.tri_material and scene.tri_emitter must"),
+])
+def test_a_scene_changed_after_loading_is_checked(change, message):
+    """The API's Scene is a mutable record: a changed one was a TypeError, an AttributeError or a garbage image."""
+    scene = probvis.load_scene("quad-shadow", res=8)
+    scene.triangles = scene.triangles.copy()
+    change(scene)
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.render(scene, spp=1, shadow_rays=1)

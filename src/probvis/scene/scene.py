@@ -142,6 +142,9 @@ class Scene:
                                    f"{getattr(a, 'shape', type(a).__name__)} {getattr(a, 'dtype', '')}".rstrip())
         if not (np.all(np.isfinite(self.triangles)) and np.all(np.isfinite(self.emitter_radiance))):
             raise ProbvisError("scene.triangles and scene.emitter_radiance must be finite")
+        plain = self.reflectance[np.asarray(self.material_texture) < 0]  # a textured one holds its texture's mean
+        if not (np.all((plain >= 0.0) & (plain <= 1.0)) and np.all(self.emitter_radiance >= 0.0)):
+            raise ProbvisError("scene.reflectance must be within [0, 1] and scene.emitter_radiance non-negative")
         if n and not (0 <= self.tri_material.min() and self.tri_material.max() < m
                       and -1 <= self.tri_emitter.min() and self.tri_emitter.max() < e):
             raise ProbvisError("scene.tri_material and scene.tri_emitter must index scene.reflectance and "
