@@ -7,7 +7,7 @@ import pytest
 
 import probvis
 from probvis import ProbvisError
-from probvis.scene import transform as tf
+from probvis.scene import shapes, transform as tf
 from tests.conftest import sensor, write_scene
 
 LIGHT = """<shape type="rectangle"><transform name="to_world"><translate z="2"/></transform>
@@ -515,3 +515,26 @@ def test_an_up_vector_of_any_length_is_a_direction():
         warnings.simplefilter("error")
         np.testing.assert_allclose(tf.look_at([0, 0, 4], [0, 0, 0], [0, 1e300, 0]),
                                    tf.look_at([0, 0, 4], [0, 0, 0], [0, 1, 0]))
+
+
+def test_huge_normals_and_light_directions_are_directions(tmp_path):
+    """A file's normal of 1e200 and a directional light's direction of 1e300 overflowed (NumPy warnings, then a
+    zero or NaN direction and exit 0); an ASCII PLY float beyond float32 warned before its error."""
+    (tmp_path / "m.obj").write_text("v -1 -1 0\nv 1 -1 0\nv 0 1 0\nvn 0 0 1e200\nf 1//1 2//1 3//1\n")
+    body = sensor() + LIGHT + ("<shape type='obj'><string name='filename' value='m.obj'/>"
+                               "<boolean name='face_normals' value='false'/></shape>"
+                               "<emitter type='directional'><vector name='direction' x='0' y='0' z='-1e300'/>"
+                               "</emitter>")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scene = probvis.load_scene(write_scene(tmp_path / "huge.xml", body))
+    obj = scene.shapes[1]
+    np.testing.assert_allclose(scene.vertex_normals[obj.first_triangle].reshape(-1, 3), np.tile([0, 0, 1.0], (3, 1)))
+    np.testing.assert_allclose(scene.emitter_axis[scene.n_emitters - 1], [0, 0, -1.0])
+    (tmp_path / "f.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                                    "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+                                    "end_header\n0 0 0\n1e39 0 0\n0 1 0\n3 0 1 2\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ProbvisError, match=r"f.ply:11: mesh f.ply has NaN or infinite vertex coordinates"):
+            shapes.load_mesh(tmp_path / "f.ply")

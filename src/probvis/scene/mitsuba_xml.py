@@ -589,7 +589,7 @@ class _Reader:
                                           "to_world": ("transform",)})
             if "direction" in props and "to_world" in props:
                 self.fail(node, "give either 'direction' or 'to_world', not both")
-            d = props.get("direction", props.get("to_world", np.eye(4))[:3, :3] @ np.array([0.0, 0.0, 1.0]))
+            d = tf.tamed(props.get("direction", props.get("to_world", np.eye(4))[:3, :3] @ np.array([0.0, 0.0, 1.0])))
             e = self.emission(node, "irradiance", props.get("irradiance", np.ones(3)))
             if not np.linalg.norm(d) > 0:
                 self.fail(node, "a directional emitter needs a non-zero direction")
@@ -621,7 +621,7 @@ class _Reader:
             self.fail(node, f"cutoff_angle must be in [{MIN_CUTOFF:g}, 90] degrees, got {cutoff:g}{why}")
         if not 0.0 <= beam <= cutoff:
             self.fail(node, f"beam_width must be in [0, cutoff_angle], got {beam:g}")
-        axis = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        axis = tf.tamed(m[:3, :3] @ np.array([0.0, 0.0, 1.0]))
         if not np.linalg.norm(axis) > 0 or not np.all(np.isfinite(axis)):
             self.fail(node, "the spot light's to_world is singular: it maps its +z axis to no direction")
         builder.add_point_emitter(intensity, m[:3, 3], axis, cutoff, beam)

@@ -59,7 +59,9 @@ def read_ply(path):
         return None
     try:
         # plyfile reads ASCII through a text wrapper it leaves open: over bytes in memory nothing is left open
-        with (io.BytesIO(Path(path).read_bytes()) if header[0] == "ascii" else open(path, "rb")) as fh:
+        # an ASCII float beyond float32 becomes inf with NumPy's warning; the non-finite vertex is named later
+        with (io.BytesIO(Path(path).read_bytes()) if header[0] == "ascii" else open(path, "rb")) as fh, \
+                np.errstate(over="ignore", invalid="ignore"):
             try:  # the faces' other lists (per-face texture coordinates, say) have no known length
                 ply = PlyData.read(fh, known_list_len={"face": {index: 3}} if len(lists) == 1 else {})
             except OverflowError as exc:  # an ASCII value beyond its property's type (300 for a uchar)

@@ -60,7 +60,17 @@ def apply_points(m, p):
     return _times_columns(p, m[:3, :3].T) + m[:3, 3]
 
 
+def tamed(v):
+    """Directions (..., 3) whose largest component lies beyond [1e-30, 1e30] rescaled to a largest component of 1,
+    so that their products and norms neither overflow nor underflow (a file's normal of 1e200); the others as
+    given, bit for bit."""
+    v = np.asarray(v, dtype=np.float64)
+    size = np.abs(v).max(axis=-1, keepdims=True)
+    wild = (size > 1e30) | ((size < 1e-30) & (size > 0.0))
+    return np.where(wild, v / np.where(wild, size, 1.0), v) if np.any(wild) else v
+
+
 def apply_normals(m, n):
     """Normals transform with the inverse transpose; the result is normalised."""
-    out = _times_columns(n, np.linalg.inv(m[:3, :3]))
+    out = _times_columns(tamed(n), np.linalg.inv(m[:3, :3]))
     return out / np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-300)
