@@ -105,3 +105,14 @@ def test_an_empty_write_is_refused(tmp_path):
         with atomic_path(str(tmp_path / "e.exr")) as tmp:
             open(tmp, "wb").close()
     assert not list(tmp_path.iterdir())
+
+
+def test_a_damaged_hdr_is_one_error_with_opencv_s_reason(tmp_path, capfd):
+    """OpenCV logged '[ERROR:0@...] global loadsave.cpp ...' and a blank line before probvis's error."""
+    from probvis.io.image import read_linear_rgb
+
+    (tmp_path / "t.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8 +X 8\n" + bytes([2, 2, 0, 8, 9]))
+    with pytest.raises(ProbvisError, match=r"cannot read Radiance HDR image .*t.hdr \(RGBE read error\)"):
+        read_linear_rgb(tmp_path / "t.hdr")
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""

@@ -247,12 +247,15 @@ def read_linear_rgb(path, raw=False):
         if w * h > MAX_IMAGE_PIXELS:
             raise ProbvisError(f"{path}: image is {w}x{h} ({w * h / 1e6:.0f} Mpixel), above the "
                                f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads (scale it down)")
-        try:
-            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        except cv2.error:
-            img = None
+        with library_output() as said:  # OpenCV logs a failed read on lines of its own
+            try:
+                img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            except cv2.error:
+                img = None
+            found = re.search(r"error: \([^)]*\) (.*?)(?: in function|$)", said())  # "...: error: (-2:...) why"
+            reason = found.group(1) if found else said()
         if img is None:
-            raise ProbvisError(f"cannot read Radiance HDR image {path}")
+            raise ProbvisError(f"cannot read Radiance HDR image {path}" + (f" ({reason[:300]})" if reason else ""))
         img = img[..., ::-1] if img.ndim == 3 else img
     elif ext in (".png", ".jpg", ".jpeg"):
         import imageio.v3 as iio
