@@ -106,6 +106,11 @@ CASES = [
     (["tables", "--shifts", "1e300,-1e300,1"], "--shifts: shifts must be three numbers summing to 1, each within"),
     (["tables", "--probabilities", "0.5,0.5,0.5"], "--probabilities: probabilities must sum to 1"),
     (["experiment", "--quick", "--scheduler", "inproc://nothing"], "an inproc:// address names a scheduler"),
+    (["render", "quad-shadow", "--vis", "occlusion-map"], "unrecognized arguments: --vis occlusion-map (flags are "
+                                                             "spelt out in full: did you mean --visibility?)"),
+    (["render", "quad-shadow", "--visibility", "occlusion-map", "--photons", "1000", "--phot", "2000"],
+     "did you mean --photons?"),
+    (["render", "quad-shadow", "-o", "out.exr", ""], "unrecognized argument '' (an empty string"),
     (["experiment", "--quick", "-o", ""], "-o needs a folder name (got an empty one)"),
     (["experiment", "--quick", "--cache", " "], "--cache needs a folder name (got an empty one)"),
 ]

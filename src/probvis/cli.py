@@ -109,9 +109,23 @@ class _Once(argparse.Action):
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with the project's one-line error format."""
+    """argparse with the project's one-line error format, and flags spelt out: the checks before parsing (which
+    estimator `--visibility` names, a flag given twice) read the whole names, so `--vis` would slip past them."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, allow_abbrev=False, **kwargs)
 
     def error(self, message):
+        if message.startswith("unrecognized arguments:") and not message.split(":", 1)[1].strip():
+            message = "unrecognized argument '' (an empty string: check the command's quoting)"
+        if message.startswith("unrecognized arguments: ") and "--" in message:
+            given = [a for a in message.split(": ", 1)[1].split() if a.startswith("--")]
+            flags = [f for a in self._actions for f in a.option_strings]
+            for sub in self._subparsers._group_actions if self._subparsers else ():
+                flags += [f for p in sub.choices.values() for a in p._actions for f in a.option_strings]
+            near = [f for f in dict.fromkeys(flags) if given and f.startswith(given[0].split("=")[0])]
+            if near:
+                message += f" (flags are spelt out in full: did you mean {' or '.join(near[:3])}?)"
         raise ProbvisError(message)
 
 
