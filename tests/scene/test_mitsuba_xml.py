@@ -538,3 +538,11 @@ def test_huge_normals_and_light_directions_are_directions(tmp_path):
         warnings.simplefilter("error")
         with pytest.raises(ProbvisError, match=r"f.ply:11: mesh f.ply has NaN or infinite vertex coordinates"):
             shapes.load_mesh(tmp_path / "f.ply")
+
+
+def test_a_mask_says_its_opacity_is_ignored(tmp_path):
+    """The warning said 'visibility is exact', but Mitsuba's mask lets shadow rays through and probvis's does not."""
+    body = sensor() + LIGHT + ("<shape type='rectangle'><bsdf type='mask'><float name='opacity' value='0'/>"
+                               "<bsdf type='diffuse'/></bsdf></shape>")
+    with pytest.warns(UserWarning, match=r"bsdf 'mask' .* opaque: its opacity is ignored.*\(visibility approximated\)"):
+        probvis.load_scene(write_scene(tmp_path / "mask.xml", body))

@@ -374,8 +374,12 @@ class _Reader:
             out = (inner, True, texture)
         elif kind in _APPROXIMATED_BSDFS:
             colour = self.nearest_diffuse(node, kind)
-            self.approximate(node, f"bsdf '{kind}'", f"rendered as diffuse with reflectance "
-                                                     f"{', '.join(f'{c:.3g}' for c in colour)}")
+            how = f"rendered as diffuse with reflectance {', '.join(f'{c:.3g}' for c in colour)}"
+            if kind == "mask":  # its opacity lets shadow rays through in Mitsuba: here the shape is opaque
+                self.approximate(node, "bsdf 'mask'", f"{how} and opaque: its opacity is ignored, so the shape "
+                                                      "casts shadows where Mitsuba's lets light through", False)
+            else:
+                self.approximate(node, f"bsdf '{kind}'", how)
             out = (colour, kind in ("dielectric", "thindielectric", "roughdielectric"), None)
         else:
             self.fail(node, f"unsupported bsdf type '{kind}' (supported: diffuse, twosided; approximated as diffuse: "
@@ -384,14 +388,15 @@ class _Reader:
             self.define(node, "bsdf", out)
         return out
 
-    def approximate(self, node, what, how):
-        """Appearance probvis does not model: an error with --strict, else one warning per plugin type."""
+    def approximate(self, node, what, how, exact_visibility=True):
+        """Appearance (or, `exact_visibility` False, also visibility) probvis does not model: an error with
+        --strict, else one warning per plugin type."""
         if self.strict:
             self.fail(node, f"{what} is approximated ({how}); drop --strict to render it anyway")
         if what not in self.approximated:
             self.approximated.add(what)
-            warnings.warn(f"{self.path}:{node.line}: {what} {how} (appearance approximated; visibility is exact)",
-                          stacklevel=2)
+            note = "appearance approximated; visibility is exact" if exact_visibility else "visibility approximated"
+            warnings.warn(f"{self.path}:{node.line}: {what} {how} ({note})", stacklevel=2)
 
     def loose_params(self, node):
         """The simple properties of a plugin probvis approximates (any names), and its nested objects."""
