@@ -334,7 +334,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     if resolution is not None:
         scene = scene.with_resolution(*(int(v) for v in resolution))
     settings = (settings or scene.defaults).replace(spp=spp, shadow_rays=shadow_rays, seed=seed, threads=threads,
-                                                    filter_importance=filter_importance)
+                                                    filter_importance=filter_importance).check_budget()
     if settings.threads is not None and settings.threads > numba.config.NUMBA_NUM_THREADS:
         raise ProbvisError(f"threads must be between 1 and {numba.config.NUMBA_NUM_THREADS}, got {settings.threads}")
     threads = settings.threads or numba.config.NUMBA_NUM_THREADS

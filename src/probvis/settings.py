@@ -59,15 +59,19 @@ class RenderSettings:
         out.validate()
         return out
 
+    def check_budget(self):
+        """A render's settings (after any overrides): at most MAX_SEGMENTS_PER_PIXEL shadow rays per pixel."""
+        if self.spp * self.shadow_rays > MAX_SEGMENTS_PER_PIXEL:
+            raise ProbvisError(f"spp x shadow_rays = {self.spp} x {self.shadow_rays} is more than the "
+                               f"{MAX_SEGMENTS_PER_PIXEL:,} shadow rays per pixel one render takes: lower them, or "
+                               "average renders with different seeds")
+        return self
+
     def validate(self):
         for what, val, lo, hi in (("spp", self.spp, 1, MAX_SPP), ("shadow_rays", self.shadow_rays, 1, MAX_SHADOW_RAYS),
                                   ("seed", self.seed, 0, MAX_SEED)):
             if not _whole(val) or not lo <= val <= hi:
                 raise ProbvisError(f"{what} must be a whole number from {lo} to {hi}, got {val!r}")
-        if self.spp * self.shadow_rays > MAX_SEGMENTS_PER_PIXEL:
-            raise ProbvisError(f"spp x shadow_rays = {self.spp} x {self.shadow_rays} is more than the "
-                               f"{MAX_SEGMENTS_PER_PIXEL:,} shadow rays per pixel one render takes: lower them, or "
-                               "average renders with different seeds")
         if self.threads is not None and not (_whole(self.threads) and self.threads >= 1):
             raise ProbvisError(f"threads must be a positive whole number, got {self.threads!r}")
         if not isinstance(self.filter_importance, bool):

@@ -375,6 +375,12 @@ def test_a_second_film_is_refused(tmp_path):
     (("value=\"16\"/>", "value=\"1_6\"/>"), "<integer>: '1_6' is not a valid integer"),
     (("value=\"16\"/>", "value=\"\u0661\u0666\"/>"), "<integer>: '\u0661\u0666' is not a valid integer"),
     (("value=\"40\"/>", "value=\"4_0\"/>"), "<float>: '4_0' is not a valid float"),
+    (('name="sample_count" value="4"', 'name="sample_count" value="0"'),
+     "<integer>: sample_count must be from 1 to 1048576, got 0"),
+    (('name="sample_count" value="4"/>', 'name="sample_count" value="4"/><integer name="seed" value="-3"/>'),
+     "<integer>: seed must be from 0 to"),
+    (('name="emitter_samples" value="4"', 'name="emitter_samples" value="2000000000"'),
+     "<integer>: emitter_samples must be from 1 to 65536, got 2000000000"),
 ])
 def test_what_mitsuba_refuses_in_a_sensor_is_named(tmp_path, edit, message):
     """A second sampler or filter (the last one won), and Python-only number syntax (underscores, other scripts'

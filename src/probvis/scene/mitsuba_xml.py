@@ -13,7 +13,8 @@ import numpy as np
 
 from ..errors import ProbvisError
 from ..io.image import read_linear_rgb
-from ..settings import RenderSettings, parse_float as _float, parse_int as _int
+from ..settings import (MAX_SEED, MAX_SHADOW_RAYS, MAX_SPP, RenderSettings, parse_float as _float,
+                        parse_int as _int)
 from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
@@ -826,10 +827,14 @@ class _Reader:
                 if st != "independent":
                     warnings.warn(f"{self.path}:{ch.line}: sampler '{st}' rendered with probvis's independent "
                                   "sampler (same expected image, different noise)", stacklevel=2)
+                lines = {c.attrs.get("name"): c for c in ch.children}
                 sp, _ = self.params(ch, {"sample_count": ("integer",), "seed": ("integer",),
                                          "jitter": ("boolean",), "dimension": ("integer",),
                                          "scramble_seed": ("integer",)})
                 spp, seed = sp.get("sample_count", spp), sp.get("seed", seed)
+                for name, value, lo, hi in (("sample_count", spp, 1, MAX_SPP), ("seed", seed, 0, MAX_SEED)):
+                    if not lo <= value <= hi:
+                        self.fail(lines.get(name, ch), f"{name} must be from {lo} to {hi}, got {value}")
             else:
                 if film is not None:
                     self.fail(ch, "only one film per sensor")
@@ -982,15 +987,18 @@ class _Reader:
                                       "shading_samples": ("integer",), "hide_emitters": ("boolean",)})
         if props.get("hide_emitters", False):
             self.fail(node, "hide_emitters=true is not supported")
+        lines = {c.attrs.get("name"): c for c in node.children}
         base = props.get("shading_samples", 1)
-        if base < 1:
-            self.fail(node, f"shading_samples must be at least 1, got {base}")
+        if not 1 <= base <= MAX_SHADOW_RAYS:
+            self.fail(lines.get("shading_samples", node), f"shading_samples must be from 1 to {MAX_SHADOW_RAYS}, "
+                                                          f"got {base}")
         if props.get("bsdf_samples", 0) != 0:  # only when the file asks for them: a default is no request
             warnings.warn(f"{self.path}:{node.line}: bsdf_samples ignored: probvis samples emitters only "
                           "(same expected image)", stacklevel=2)
         sr = props.get("emitter_samples", base)
-        if sr < 1:
-            self.fail(node, f"emitter_samples must be at least 1, got {sr}")
+        if not 1 <= sr <= MAX_SHADOW_RAYS:
+            self.fail(lines.get("emitter_samples", node), f"emitter_samples must be from 1 to {MAX_SHADOW_RAYS}, "
+                                                          f"got {sr}")
         return sr
 
     def input_file(self, node, name):
