@@ -234,3 +234,14 @@ def test_an_experiment_that_contains_itself_is_named():
     cyclic["seeds"].append(cyclic["seeds"])
     with pytest.raises(ProbvisError, match="nests lists or dicts more than 16 deep"):
         parse_experiment(cyclic)
+
+
+def test_a_plugin_reference_estimator_is_found_beside_the_experiment_file(tmp_path, monkeypatch):
+    """The methods' `file.py:Class` were resolved against the experiment's folder, the reference's against the
+    current folder."""
+    (tmp_path / "plug.py").write_text("from probvis.visibility.exact import ExactVisibility\n\n\n"
+                                      "class Mine(ExactVisibility):\n    name = 'mine'\n")
+    (tmp_path / "e.toml").write_text('[reference]\nvisibility = "plug.py:Mine"\n[[scenes]]\nname = "q"\n'
+                                     'source = "quad-shadow"\n[[methods]]\nname = "e"\nvisibility = "exact"\n')
+    monkeypatch.chdir("/")
+    assert load_experiment(tmp_path / "e.toml").reference.visibility == f"{tmp_path / 'plug.py'}:Mine"

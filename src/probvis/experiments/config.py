@@ -250,7 +250,7 @@ def parse_experiment(data, base=Path("."), source=""):
         shadow_rays=_int("reference.shadow_rays", ref.get("shadow_rays", ReferenceSettings.shadow_rays), 1,
                          MAX_SHADOW_RAYS),
         seed=_int("reference.seed", ref.get("seed", ReferenceSettings.seed), 0),
-        visibility=_str("reference.visibility", ref.get("visibility", "exact")))
+        visibility=_visibility(_str("reference.visibility", ref.get("visibility", "exact")), base))
     try:
         reference_estimator = estimator_class(reference.visibility)()
     except ProbvisError as exc:
