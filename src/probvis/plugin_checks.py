@@ -91,7 +91,7 @@ def checked_stats(cls, stats):
     memory = stats.get("memory_bytes", {})
     if not is_byte_counts(memory):
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_bytes() must "
-                           f"return a dict of byte counts (whole numbers >= 0), got {memory!r}")
+                           f"return a dict of byte counts (whole numbers from 0 to 2**63: no machine holds more), got {memory!r}")
     try:
         json.dumps(stats, allow_nan=False)
     except (TypeError, ValueError) as exc:

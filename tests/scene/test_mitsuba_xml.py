@@ -552,3 +552,11 @@ def test_a_mask_says_its_opacity_is_ignored(tmp_path):
                                "<bsdf type='diffuse'/></bsdf></shape>")
     with pytest.warns(UserWarning, match=r"bsdf 'mask' .* opaque: its opacity is ignored.*\(visibility approximated\)"):
         probvis.load_scene(write_scene(tmp_path / "mask.xml", body))
+
+
+def test_a_scene_path_that_loops_is_named_as_such(tmp_path):
+    """A symbolic link loop was 'scene file not found'."""
+    (tmp_path / "a.xml").symlink_to(tmp_path / "b.xml")
+    (tmp_path / "b.xml").symlink_to(tmp_path / "a.xml")
+    with pytest.raises(ProbvisError, match="a.xml: a symbolic link that loops or points to nothing"):
+        probvis.load_scene(tmp_path / "a.xml")

@@ -11,6 +11,7 @@ import inspect
 import json
 import logging
 import os
+import resource
 import signal
 import socket
 import sys
@@ -90,7 +91,8 @@ def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, tim
 
 
 MAX_REFERENCE = 1e30  # radiance of a reference pixel, as of an emitter (scene.mitsuba_xml.MAX_EMISSION)
-MAX_FINGERPRINT_FILES = 2000  # Python files hashed for a plug-in's fingerprint
+MAX_FINGERPRINT_FILES = 2000
+MIN_OPEN_FILES = 256  # below, a LocalCluster's sockets and pipes may not fit (it failed to start under 20)  # Python files hashed for a plug-in's fingerprint
 
 
 @functools.cache
@@ -215,7 +217,10 @@ def _open_client(workers, scheduler):
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                    silence_logs=logging.CRITICAL)
     except (RuntimeError, OSError) as exc:  # Dask wraps the cause ("Cluster failed to start: ...")
-        raise ProbvisError(f"cannot start a local Dask cluster: {exc.__cause__ or exc}") from None
+        files, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+        hint = (f" (this process may open only {files} files, ulimit -n: raise it to a few thousand)"
+                if files != resource.RLIM_INFINITY and files < MIN_OPEN_FILES else "")
+        raise ProbvisError(f"cannot start a local Dask cluster: {exc.__cause__ or exc}{hint}") from None
     finally:
         if main:
             signal.signal(signal.SIGINT, previous)

@@ -80,6 +80,8 @@ _DEFUSED = {"EntitiesForbidden": "an entity declaration (<!ENTITY>)",
 def parse_tree(path):
     path = Path(path)
     if not path.exists():
+        if path.is_symlink():
+            raise ProbvisError(f"{path}: a symbolic link that loops or points to nothing")
         raise ProbvisError(f"scene file not found: {path}")
     if not path.is_file():
         raise ProbvisError(f"{path}: not a regular file (a scene is an XML file)")
