@@ -165,7 +165,7 @@ def _scene(where, table, base):
         _fail(f"{where}.reference_noise", f"expected a number >= 0, got {noise!r}")
     if "reference_noise" in table and reference is None:
         _fail(f"{where}.reference_noise", "applies to a reference file only (a rendered one measures its own)")
-    return SceneSpec(name, source, {k: str(v) for k, v in defines.items()}, reference, float(noise))
+    return SceneSpec(name, source, {k: (str(v).lower() if isinstance(v, bool) else str(v)) for k, v in defines.items()}, reference, float(noise))
 
 
 def _visibility(vis, base):
