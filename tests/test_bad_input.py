@@ -327,6 +327,7 @@ def test_a_non_ascii_name_under_an_ascii_locale_is_escaped(tmp_path):
     ("NUMBA_THREADING_LAYER", "bogus", "is not one of Numba's threading layers"),
     ("NUMBA_OPT", "abc", "is not an optimisation level"),
     ("OMP_NUM_THREADS", "abc", "is not a value OpenMP (libgomp) accepts"),
+    ("NUMBA_DEBUG", "abc", "is not a value Numba can read"), ("NUMBA_DISABLE_JIT", "abc", "is not a value Numba"),
     ("GOMP_SPINCOUNT", "abc", "is not a value OpenMP (libgomp) accepts"),
     ("GOMP_STACKSIZE", "abc", "is not a value OpenMP (libgomp) accepts"),
     ("OMP_PLACES", "{garbage}", "is not a value OpenMP (libgomp) accepts"),

@@ -237,6 +237,9 @@ def test_more_shadow_rays_per_pixel_than_a_batch_can_interrupt_are_refused():
     (lambda s: setattr(s, "triangles", s.triangles[:, :2]), "scene.triangles must be a 6 x 3 x 3 array of floats"),
     (lambda s: setattr(s, "reflectance", s.reflectance * -5), "scene.reflectance must be within [0, 1]"),
     (lambda s: setattr(s, "tri_material", s.tri_material + 100), "scene.tri_material and scene.tri_emitter must"),
+    (lambda s: setattr(s, "shapes", ["garbage"]), "scene.shapes must be a list of ShapeInfo"),
+    (lambda s: setattr(s, "textures", ["garbage"]), "scene.textures must be a list of Texture"),
+    (lambda s: setattr(s, "environment", "garbage"), "scene.environment must be an Environment or None, got str"),
 ])
 def test_a_scene_changed_after_loading_is_checked(change, message):
     """The API's Scene is a mutable record: a changed one was a TypeError, an AttributeError or a garbage image."""

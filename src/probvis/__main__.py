@@ -6,6 +6,7 @@ import os
 import re
 import signal
 import sys
+import warnings
 
 
 def _terminate(signum, frame):
@@ -118,7 +119,16 @@ def main():
         return 1
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
-        from .cli import main as cli_main
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            from .cli import main as cli_main
+        for w in said:  # Numba parses its NUMBA_* variables as it loads, and only warns of one it cannot read
+            found = re.search(r"Environment variable '(\w+)' is defined but its associated value '(.*)' could not "
+                              r"be parsed", str(w.message))
+            if found:
+                print(_bad_setting(found.group(1), found.group(2), "a value Numba can read"), file=sys.stderr)
+                return 1
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     except KeyboardInterrupt:
         print("probvis: interrupted, nothing written", file=sys.stderr, flush=True)
         # at once: a normal exit after an interrupted import sometimes died by SIGINT (-2) instead, most likely

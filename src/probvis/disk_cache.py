@@ -3,6 +3,8 @@ were derived from, under `$PROBVIS_CACHE_DIR` (default `~/.cache/probvis`). Entr
 damaged entry is rebuilt and a cache that cannot be written is a warning, never an error."""
 import os
 import warnings
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +50,7 @@ def load_or_build(kind, key, build, use_cache=True, expect=None):
                 arrays = {k: f[k] for k in f.files}
             if expect is None or _fits(arrays, expect):
                 return arrays, True
-        except (OSError, ValueError, KeyError, EOFError):
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error):
             pass  # a damaged entry is rebuilt
     out = build()
     if out is not None and path is not None:

@@ -220,3 +220,22 @@ def test_a_foreign_cache_entry_is_rebuilt(tmp_path, monkeypatch, entry):
     st = structure(scene)
     np.testing.assert_array_equal(st.label, label)
     assert st.n_components == n
+
+
+@pytest.mark.parametrize("damage", ["truncated", "crc"])
+def test_a_damaged_cache_archive_is_rebuilt(tmp_path, monkeypatch, damage):
+    """A truncated .npz (BadZipFile) or one with a bad member checksum was a traceback, not a rebuild."""
+    from probvis.visibility.occlusion_map.components import components, structure
+
+    monkeypatch.setenv("PROBVIS_CACHE_DIR", str(tmp_path))
+    scene = probvis.load_scene("cornell-box", res=8)
+    structure(scene)
+    (path,) = (tmp_path / "structure").glob("*.npz")
+    data = bytearray(path.read_bytes())
+    if damage == "truncated":
+        del data[len(data) // 2:]
+    else:
+        at = data.index(b"\x93NUMPY") + 200  # a byte of the first member's array data
+        data[at] ^= 0xFF
+    path.write_bytes(bytes(data))
+    assert structure(scene).n_components == components(scene)[2]

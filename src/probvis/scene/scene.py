@@ -8,6 +8,7 @@ from numba import njit, prange
 
 from ..errors import ProbvisError
 from ..settings import RenderSettings
+from ..texture import Texture
 from ..voxels import bounds
 
 from . import transform as tf
@@ -130,6 +131,13 @@ class Scene:
             raise ProbvisError(f"scene.camera must be a Camera, got {type(self.camera).__name__}")
         if not isinstance(self.defaults, RenderSettings):
             raise ProbvisError(f"scene.defaults must be a RenderSettings, got {type(self.defaults).__name__}")
+        for name, kind in (("shapes", ShapeInfo), ("textures", Texture)):
+            items = getattr(self, name)
+            if not isinstance(items, list) or not all(isinstance(x, kind) for x in items):
+                raise ProbvisError(f"scene.{name} must be a list of {kind.__name__}")
+        if self.environment is not None and not isinstance(self.environment, Environment):
+            raise ProbvisError(f"scene.environment must be an Environment or None, got "
+                               f"{type(self.environment).__name__}")
         n, m, e = (len(np.asarray(a)) for a in (self.triangles, self.reflectance, self.emitter_radiance))
         for name, shape, kinds in (("triangles", (n, 3, 3), "f"), ("vertex_normals", (n, 3, 3), "f"),
                                    ("tri_material", (n,), "iu"), ("tri_emitter", (n,), "iu"),
