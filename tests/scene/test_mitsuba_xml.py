@@ -315,7 +315,7 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
     ("<shape type='rectangle'><bsdf type='diffuse'><spectrum name='reflectance' value='400:5, 700:5'/></bsdf>"
      "</shape>", "<spectrum>: reflectance must be within [0, 1] at every wavelength"),
     ("<shape type='rectangle'><bsdf type='diffuse'><texture type='checkerboard' name='reflectance'>"
-     "<transform name='to_uv'><scale value='1e300'/></transform></texture></bsdf></shape>",
+     "<transform name='to_uv'><scale value='1e20'/></transform></texture></bsdf></shape>",
      "<texture>: to_uv has entries beyond ±1e+09"),
     ("<shape type='rectangle'><transform name='to_world'><translate z='1e39'/></transform></shape>",
      "has vertices beyond ±1e+30 once transformed"),
@@ -352,6 +352,10 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
      "<shape>: a cylinder of radius 1 from p0 to p1 1e-15 apart is too flat"),
     ("<emitter type='spot'><float name='cutoff_angle' value='1e-9'/></emitter>",
      "<emitter>: cutoff_angle must be in [0.001, 90] degrees, got 1e-09"),
+    ("<shape type='rectangle'><transform name='to_world'><rotate x='1e300' y='1e300' angle='90'/></transform>"
+     "</shape>", "<rotate>: the transform's entries go beyond ±1e+100 here"),
+    ("<shape type='rectangle'><transform name='to_world'><scale value='1e200'/><scale value='1e200'/>"
+     "</transform></shape>", "<scale>: the transform's entries go beyond ±1e+100 here"),
     ("<emitter type='point'><transform name='to_world'><matrix value='1 0 0 0 0 1 0 0 0 0 1 0 0 0 1 1'/>"
      "</transform></emitter>", "<emitter>: the light's to_world is projective (its last row must be 0 0 0 1)"),
 ])

@@ -39,6 +39,7 @@ _CONDUCTORS = {"a-C", "Ag", "Al", "AlAs", "AlAs_palik", "AlSb", "AlSb_palik", "A
 MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarters of the samples out
 MAX_NESTING = 64  # elements deep: real scenes nest a handful
 MAX_EMISSION = 1e30  # radiance, intensity or scale: beyond, power sums overflow
+MAX_TRANSFORM = 1e100  # a composed transform's entries: beyond, its products and inverse overflow
 MIN_CUTOFF = 1e-3  # degrees: a spot's narrowest cone
 MAX_UV_SCALE = 1e9  # a texture's to_uv entries
 _APPROXIMATED_TEXTURES = ("mesh_attribute", "volume")  # Mitsuba 3's other textures
@@ -283,9 +284,13 @@ class _Reader:
         m = np.eye(4)
         for op in node.children:
             try:
-                m = self.transform_op(op) @ m
+                with np.errstate(all="ignore"):  # an overflow is named below, at the operation that made it
+                    m = self.transform_op(op) @ m
             except ValueError as exc:
                 self.fail(op, str(exc))
+            if not np.all(np.abs(m) <= MAX_TRANSFORM):
+                self.fail(op, f"the transform's entries go beyond ±{MAX_TRANSFORM:g} here (or are not numbers): a "
+                              "scale, axis or matrix this large overflows; rescale the scene")
         return m
 
     def transform_op(self, op):
