@@ -1,6 +1,7 @@
 """The on-disk cache of derived geometry (proxies, shells): arrays keyed by a 128-bit hash (XXH3) of what they
 were derived from, under `$PROBVIS_CACHE_DIR` (default `~/.cache/probvis`). Entries are written atomically; a
 damaged entry is rebuilt and a cache that cannot be written is a warning, never an error."""
+import math
 import os
 import warnings
 import zipfile
@@ -39,6 +40,20 @@ def _fits(arrays, expect):
     return True
 
 
+def _check_sizes(path):
+    """ValueError if an array of the .npz at `path` declares more bytes than its member holds (NumPy would allocate
+    the declared size before reading: a damaged header asked for terabytes)."""
+    fmt = np.lib.format
+    with zipfile.ZipFile(path) as archive:
+        for info in archive.infolist():
+            with archive.open(info) as member:
+                version = fmt.read_magic(member)
+                read = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+                shape, _, dtype = read(member)
+                if math.prod(shape) * dtype.itemsize > info.file_size:
+                    raise ValueError(f"{info.filename} declares {shape} beyond its {info.file_size} bytes")
+
+
 def load_or_build(kind, key, build, use_cache=True, expect=None):
     """(arrays, cached): the dict of arrays stored under `key`, or `build()`'s (a dict of arrays, or None when
     there is nothing to store), stored for next time. An entry that cannot be read or does not hold what
@@ -46,6 +61,7 @@ def load_or_build(kind, key, build, use_cache=True, expect=None):
     path = cache_dir(kind) / f"{key}.npz" if use_cache else None
     if path is not None and path.is_file():
         try:
+            _check_sizes(path)
             with np.load(path, allow_pickle=False) as f:
                 arrays = {k: f[k] for k in f.files}
             if expect is None or _fits(arrays, expect):

@@ -222,9 +222,12 @@ def test_a_foreign_cache_entry_is_rebuilt(tmp_path, monkeypatch, entry):
     assert st.n_components == n
 
 
-@pytest.mark.parametrize("damage", ["truncated", "crc"])
+@pytest.mark.parametrize("damage", ["truncated", "crc", "huge"])
 def test_a_damaged_cache_archive_is_rebuilt(tmp_path, monkeypatch, damage):
-    """A truncated .npz (BadZipFile) or one with a bad member checksum was a traceback, not a rebuild."""
+    """A truncated .npz (BadZipFile) or one with a bad member checksum was a traceback, not a rebuild; a member
+    whose header declares (10^11, 3) over 64 bytes was 'out of memory: lower the resolution'."""
+    import io
+    import zipfile
     from probvis.visibility.occlusion_map.components import components, structure
 
     monkeypatch.setenv("PROBVIS_CACHE_DIR", str(tmp_path))
@@ -234,6 +237,14 @@ def test_a_damaged_cache_archive_is_rebuilt(tmp_path, monkeypatch, damage):
     data = bytearray(path.read_bytes())
     if damage == "truncated":
         del data[len(data) // 2:]
+    elif damage == "huge":
+        member = io.BytesIO()
+        np.lib.format.write_array_header_1_0(member, {"descr": "<i8", "fortran_order": False, "shape": (10**11, 3)})
+        buffer = io.BytesIO()
+        with zipfile.ZipFile(buffer, "w") as archive:
+            for name in ("label", "n_components", "orientation"):
+                archive.writestr(f"{name}.npy", member.getvalue() + bytes(64))
+        data = bytearray(buffer.getvalue())
     else:
         at = data.index(b"\x93NUMPY") + 200  # a byte of the first member's array data
         data[at] ^= 0xFF
