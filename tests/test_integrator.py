@@ -233,18 +233,22 @@ def test_more_shadow_rays_per_pixel_than_a_batch_can_interrupt_are_refused():
 @pytest.mark.parametrize("change, message", [
     (lambda s: setattr(s, "defaults", "garbage"), "scene.defaults must be a RenderSettings, got str"),
     (lambda s: setattr(s, "camera", None), "scene.camera must be a Camera, got NoneType"),
-    (lambda s: s.triangles.__setitem__((0, 0, 0), np.nan), "scene.triangles and scene.emitter_radiance must be"),
+    (lambda s: s.triangles.__setitem__((0, 0, 0), np.nan), "scene.triangles must be finite"),
     (lambda s: setattr(s, "triangles", s.triangles[:, :2]), "scene.triangles must be a 6 x 3 x 3 array of floats"),
     (lambda s: setattr(s, "reflectance", s.reflectance * -5), "scene.reflectance must be within [0, 1]"),
     (lambda s: setattr(s, "tri_material", s.tri_material + 100), "scene.tri_material and scene.tri_emitter must"),
     (lambda s: setattr(s, "shapes", ["garbage"]), "scene.shapes must be a list of ShapeInfo"),
     (lambda s: setattr(s, "textures", ["garbage"]), "scene.textures must be a list of Texture"),
     (lambda s: setattr(s, "environment", "garbage"), "scene.environment must be an Environment or None, got str"),
+    (lambda s: setattr(s, "material_texture", s.material_texture + 5), "scene.material_texture index scene.textures"),
+    (lambda s: setattr(s, "vertex_normals", s.vertex_normals * np.nan), "scene.vertex_normals must be finite"),
+    (lambda s: s.camera.to_world.__setitem__((0, 3), np.nan), "the camera's to_world must be a finite affine"),
 ])
 def test_a_scene_changed_after_loading_is_checked(change, message):
     """The API's Scene is a mutable record: a changed one was a TypeError, an AttributeError or a garbage image."""
     scene = probvis.load_scene("quad-shadow", res=8)
     scene.triangles = scene.triangles.copy()
+    scene.camera.to_world = scene.camera.to_world.copy()
     change(scene)
     with pytest.raises(ProbvisError, match=re.escape(message)):
         probvis.render(scene, spp=1, shadow_rays=1)

@@ -8,7 +8,6 @@ from numba import njit, prange
 
 from ..errors import ProbvisError
 from ..settings import RenderSettings
-from ..texture import Texture
 from ..voxels import bounds
 
 from . import transform as tf
@@ -125,39 +124,10 @@ class Scene:
         return h.hexdigest()
 
     def validate(self):
-        """A `Scene` given to a render, possibly changed since it was built: its records and arrays of the types
-        and shapes the render reads (ProbvisError naming the first that is not), then its camera."""
-        if not isinstance(self.camera, Camera):
-            raise ProbvisError(f"scene.camera must be a Camera, got {type(self.camera).__name__}")
-        if not isinstance(self.defaults, RenderSettings):
-            raise ProbvisError(f"scene.defaults must be a RenderSettings, got {type(self.defaults).__name__}")
-        for name, kind in (("shapes", ShapeInfo), ("textures", Texture)):
-            items = getattr(self, name)
-            if not isinstance(items, list) or not all(isinstance(x, kind) for x in items):
-                raise ProbvisError(f"scene.{name} must be a list of {kind.__name__}")
-        if self.environment is not None and not isinstance(self.environment, Environment):
-            raise ProbvisError(f"scene.environment must be an Environment or None, got "
-                               f"{type(self.environment).__name__}")
-        n, m, e = (len(np.asarray(a)) for a in (self.triangles, self.reflectance, self.emitter_radiance))
-        for name, shape, kinds in (("triangles", (n, 3, 3), "f"), ("vertex_normals", (n, 3, 3), "f"),
-                                   ("tri_material", (n,), "iu"), ("tri_emitter", (n,), "iu"),
-                                   ("reflectance", (m, 3), "f"), ("twosided", (m,), "b"),
-                                   ("emitter_radiance", (e, 3), "f")):
-            a = getattr(self, name)
-            if not isinstance(a, np.ndarray) or a.shape != shape or a.dtype.kind not in kinds:
-                raise ProbvisError(f"scene.{name} must be a {' x '.join(map(str, shape))} array of "
-                                   f"{dict(f='floats', iu='integers', b='booleans')[kinds]}, got "
-                                   f"{getattr(a, 'shape', type(a).__name__)} {getattr(a, 'dtype', '')}".rstrip())
-        if not (np.all(np.isfinite(self.triangles)) and np.all(np.isfinite(self.emitter_radiance))):
-            raise ProbvisError("scene.triangles and scene.emitter_radiance must be finite")
-        plain = self.reflectance[np.asarray(self.material_texture) < 0]  # a textured one holds its texture's mean
-        if not (np.all((plain >= 0.0) & (plain <= 1.0)) and np.all(self.emitter_radiance >= 0.0)):
-            raise ProbvisError("scene.reflectance must be within [0, 1] and scene.emitter_radiance non-negative")
-        if n and not (0 <= self.tri_material.min() and self.tri_material.max() < m
-                      and -1 <= self.tri_emitter.min() and self.tri_emitter.max() < e):
-            raise ProbvisError("scene.tri_material and scene.tri_emitter must index scene.reflectance and "
-                               "scene.emitter_radiance (-1: no emitter)")
-        self.validate_camera()
+        """A `Scene` given to a render, possibly changed since it was built: `scene_checks.check_scene`."""
+        from .scene_checks import check_scene
+
+        check_scene(self)
 
     def validate_camera(self):
         if problem := camera_problem(self.camera):

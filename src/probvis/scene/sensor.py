@@ -53,6 +53,9 @@ def camera_problem(c):
     """What makes the `Camera` `c` unusable, or None: a size, field of view, clip range, crop window or lens that
     no render can use, or a principal point or aperture so far beyond the film that its rays miss the view (Mitsuba
     renders those black)."""
+    m = np.asarray(c.to_world)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)) or not np.all(m[3] == (0, 0, 0, 1)):
+        return "the camera's to_world must be a finite affine 4x4 matrix (last row 0 0 0 1)"
     for what, val in (("width", c.width), ("height", c.height)):
         if int(val) != val or not 1 <= val <= MAX_FILM_SIDE:
             return f"{what} must be a whole number from 1 to {MAX_FILM_SIDE}, got {val}"

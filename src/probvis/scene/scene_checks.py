@@ -1,0 +1,59 @@
+"""The checks of a `Scene` handed to a render: the API's Scene is a mutable record, and a field changed since the
+scene was built (a camera of None, NaN normals, a texture index past the textures) would otherwise surface as a
+TypeError, a black image or an out-of-bounds read in a kernel."""
+import numpy as np
+
+from ..errors import ProbvisError
+from ..settings import RenderSettings
+from ..texture import Texture
+from .scene import (EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, EMITTER_SPOT, Environment,
+                    ShapeInfo)
+from .sensor import Camera
+
+
+def check_scene(scene):
+    """ProbvisError naming the first of the scene's records and arrays that is not of the type and shape the render
+    reads, not finite, or an index out of range; then the camera's own checks."""
+    if not isinstance(scene.camera, Camera):
+        raise ProbvisError(f"scene.camera must be a Camera, got {type(scene.camera).__name__}")
+    if not isinstance(scene.defaults, RenderSettings):
+        raise ProbvisError(f"scene.defaults must be a RenderSettings, got {type(scene.defaults).__name__}")
+    for name, kind in (("shapes", ShapeInfo), ("textures", Texture)):
+        items = getattr(scene, name)
+        if not isinstance(items, list) or not all(isinstance(x, kind) for x in items):
+            raise ProbvisError(f"scene.{name} must be a list of {kind.__name__}")
+    if scene.environment is not None and not isinstance(scene.environment, Environment):
+        raise ProbvisError(f"scene.environment must be an Environment or None, got "
+                           f"{type(scene.environment).__name__}")
+    n, m, e = (len(np.asarray(a)) for a in (scene.triangles, scene.reflectance, scene.emitter_radiance))
+    for name, shape, kinds in (("triangles", (n, 3, 3), "f"), ("vertex_normals", (n, 3, 3), "f"),
+                               ("tri_material", (n,), "iu"), ("tri_emitter", (n,), "iu"),
+                               ("reflectance", (m, 3), "f"), ("twosided", (m,), "b"),
+                               ("material_texture", (m,), "iu"), ("emitter_radiance", (e, 3), "f"),
+                               ("emitter_kind", (e,), "iu"), ("emitter_position", (e, 3), "f"),
+                               ("emitter_axis", (e, 3), "f"), ("emitter_cone", (e, 4), "f"),
+                               *((("tri_uv", (n, 3, 2), "f"),) if scene.tri_uv is not None else ())):
+        a = getattr(scene, name)
+        if not isinstance(a, np.ndarray) or a.shape != shape or a.dtype.kind not in kinds:
+            raise ProbvisError(f"scene.{name} must be a {' x '.join(map(str, shape))} array of "
+                               f"{dict(f='floats', iu='integers', b='booleans')[kinds]}, got "
+                               f"{getattr(a, 'shape', type(a).__name__)} {getattr(a, 'dtype', '')}".rstrip())
+    for name in ("triangles", "vertex_normals", "emitter_radiance", "emitter_position", "emitter_axis",
+                 "emitter_cone"):
+        if not np.all(np.isfinite(getattr(scene, name))):
+            raise ProbvisError(f"scene.{name} must be finite (it holds NaN or infinite values)")
+    kinds = (EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT)
+    if not (np.all(np.isin(scene.emitter_kind, kinds)) and scene.material_texture.min(initial=-1) >= -1
+            and scene.material_texture.max(initial=-1) < len(scene.textures)):
+        raise ProbvisError("scene.emitter_kind must hold EMITTER_* kinds and scene.material_texture index "
+                           "scene.textures (-1: none)")
+    if scene.textures and scene.tri_uv is None:
+        raise ProbvisError("scene.tri_uv must hold the corners' uv of a scene with textures")
+    plain = scene.reflectance[np.asarray(scene.material_texture) < 0]  # a textured one holds its texture's mean
+    if not (np.all((plain >= 0.0) & (plain <= 1.0)) and np.all(scene.emitter_radiance >= 0.0)):
+        raise ProbvisError("scene.reflectance must be within [0, 1] and scene.emitter_radiance non-negative")
+    if n and not (0 <= scene.tri_material.min() and scene.tri_material.max() < m
+                  and -1 <= scene.tri_emitter.min() and scene.tri_emitter.max() < e):
+        raise ProbvisError("scene.tri_material and scene.tri_emitter must index scene.reflectance and "
+                           "scene.emitter_radiance (-1: no emitter)")
+    scene.validate_camera()
