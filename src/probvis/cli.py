@@ -246,7 +246,7 @@ def _plan_outputs(outputs, args):
     planned = [(p, "-o", FORMATS) for p in outputs]
     planned += [(p, flag, fmts) for p, flag, fmts in ((args.stats, "--stats", (".json",)),
                                                       (args.tests_image, "--tests-image", (".exr",)),
-                                                      (args.case_image, "--case-image", FORMATS)) if p]
+                                                      (args.case_image, "--case-image", FORMATS)) if p is not None]
     seen = {}
     for path, flag, formats in planned:
         check_writable(path, formats, f"{flag}'s output")

@@ -24,7 +24,7 @@ def check_writable(path, formats=FORMATS, role="an image"):
     """Fail early, before a long render, when `path` cannot be written or its extension is not one of `formats`
     (`role` names what it is for in the message)."""
     if not str(path):
-        raise ProbvisError("an output needs a file name (got an empty one)")
+        raise ProbvisError(f"{role} needs a file name (got an empty one)")
     if str(path).endswith(os.sep):
         raise ProbvisError(f"cannot write '{path}': the name ends in '{os.sep}' (a folder's name); give a file name")
     path = Path(path)
