@@ -465,3 +465,16 @@ def test_kernels_run_as_python_do_not_warn_of_their_hashes_wrapping(tmp_path):
                         "-o", "o.exr"], capture_output=True, text=True, cwd=tmp_path, timeout=TIME_LIMIT,
                        env={**os.environ, "NUMBA_DISABLE_JIT": "1"})
     assert r.returncode == 0 and r.stderr == "", r.stderr
+
+
+def test_a_closed_terminal_stops_a_render_as_ctrl_c_does(tmp_path):
+    """SIGHUP during a render or its write killed the process (status 129) with no line and, during the write, a
+    hidden temporary file left behind."""
+    proc = subprocess.Popen([sys.executable, "-m", "probvis", "render", "quad-shadow", "-D", "res=1024", "--spp",
+                             "256", "-o", "o.exr", "-o", "o.png"], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    time.sleep(3)
+    proc.send_signal(signal.SIGHUP)
+    _, err = proc.communicate(timeout=TIME_LIMIT)
+    assert proc.returncode == 130 and err.strip().splitlines()[-1] == "probvis: interrupted, nothing written", err
+    assert not list(tmp_path.iterdir())

@@ -6,10 +6,12 @@ import pytest
 from probvis.interrupts import deferred_interrupts
 
 
-def test_a_signal_waits_for_the_next_safe_point():
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_a_signal_waits_for_the_next_safe_point(signum):
+    """SIGHUP (a closed terminal) too: it killed a render mid-write, leaving a hidden temporary file."""
     with pytest.raises(KeyboardInterrupt):
         with deferred_interrupts() as check:
-            os.kill(os.getpid(), signal.SIGTERM)
+            os.kill(os.getpid(), signum)
             reached = True  # the handler only recorded it
             check()
     assert reached

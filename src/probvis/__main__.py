@@ -10,7 +10,7 @@ import warnings
 
 
 def _terminate(signum, frame):
-    """SIGTERM while the libraries load stops the start as Ctrl-C does."""
+    """SIGTERM or SIGHUP while the libraries load stops the start as Ctrl-C does."""
     raise KeyboardInterrupt
 
 
@@ -117,7 +117,8 @@ def main():
     if problem:
         print(problem, file=sys.stderr)
         return 1
-    previous = signal.signal(signal.SIGTERM, _terminate)
+    stops = [signal.SIGTERM] + ([signal.SIGHUP] if signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN else [])
+    previous = {s: signal.signal(s, _terminate) for s in stops}
     try:
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always")
@@ -138,7 +139,8 @@ def main():
         print(_start_failure(exc), file=sys.stderr)
         return 1
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
     try:
         return cli_main()
     except (ImportError, OSError, SystemError) as exc:  # a library loaded later, or the interpreter's own allocation

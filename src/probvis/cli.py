@@ -13,6 +13,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import ProbvisError
+from .interrupts import stop_signals
 from .settings import MAX_SEED, parse_float, parse_int
 from .visibility.base import Switch
 from .visibility.probabilistic.estimator import MAX_POWER
@@ -472,7 +473,7 @@ def _cmd_experiment(args):
         exp = dataclasses.replace(exp, seeds=args.seeds)
     out = Path(args.output or f"experiment-{exp.name}")
     command = "probvis " + shlex.join(args.argv)
-    previous = signal.signal(signal.SIGTERM, _interrupt)  # a batch system's "stop": same as Ctrl-C
+    previous = {s: signal.signal(s, _interrupt) for s in stop_signals() if s != signal.SIGINT}  # same as Ctrl-C
     try:
         _, index, run = experiment(exp, out, args.cache, args.workers, args.scheduler, not args.quiet, command)
     except KeyboardInterrupt:
@@ -480,7 +481,8 @@ def _cmd_experiment(args):
               f"run the same command to resume", file=sys.stderr)
         return 130
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
     _say(f"{run.computed} renders computed, {run.cells_cached} of {len(run.tasks)} cells from the cache; "
          f"report: {index}")
     return 0
@@ -564,7 +566,7 @@ def _drop_stdout():
 
 
 def _terminate(signum, frame):
-    """SIGTERM stops a command as Ctrl-C does: between batches, nothing half-written."""
+    """SIGTERM or SIGHUP stops a command as Ctrl-C does: between batches, nothing half-written."""
     raise KeyboardInterrupt
 
 
@@ -639,7 +641,7 @@ def main(argv=None):
     if os.environ.get("NUMBA_DISABLE_JIT", "0").strip() not in ("", "0"):  # kernels run as Python, on NumPy
         warnings.filterwarnings("ignore", message="overflow encountered in scalar")  # scalars: the hashes wrap
     main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _terminate) if main_thread else None
+    previous = {s: signal.signal(s, _terminate) for s in stop_signals() if s != signal.SIGINT} if main_thread else {}
     if hasattr(sys.stdout, "reconfigure"):  # a scene's non-ASCII name under an ASCII locale: escaped, not a crash
         sys.stdout.reconfigure(errors="backslashreplace")
     try:
@@ -680,8 +682,8 @@ def main(argv=None):
         print("probvis: interrupted, nothing written", file=sys.stderr)
         return 130
     finally:
-        if main_thread:
-            signal.signal(signal.SIGTERM, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
 if __name__ == "__main__":

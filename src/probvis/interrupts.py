@@ -12,14 +12,22 @@ import threading
 from contextlib import contextmanager
 
 
+def stop_signals():
+    """The signals that stop a command as Ctrl-C does: SIGINT, SIGTERM (a batch system's stop) and SIGHUP (the
+    terminal or ssh session closed), unless SIGHUP is ignored (`nohup`)."""
+    return tuple(s for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+                 if s != signal.SIGHUP or signal.getsignal(s) is not signal.SIG_IGN)
+
+
 @contextmanager
-def deferred_interrupts(signals=(signal.SIGINT, signal.SIGTERM)):
-    """Record `signals` instead of acting on them inside the block; the yielded `check()` raises
-    KeyboardInterrupt if one arrived, and so does leaving the block. Off the main thread (where Python cannot
-    set handlers) nothing is deferred."""
+def deferred_interrupts(signals=None):
+    """Record `signals` (default `stop_signals()`) instead of acting on them inside the block; the yielded
+    `check()` raises KeyboardInterrupt if one arrived, and so does leaving the block. Off the main thread (where
+    Python cannot set handlers) nothing is deferred."""
     if threading.current_thread() is not threading.main_thread():
         yield lambda: None
         return
+    signals = stop_signals() if signals is None else signals
     pending = []
     _received.clear()
 

@@ -331,7 +331,7 @@ def _compute(todo, scenes, cache, workers, scheduler, progress, log, timing=Timi
     """Render `todo` on Dask and cache each render as it finishes. Ctrl-C and SIGTERM are deferred to the
     polling loop (`deferred_interrupts`): raised inside a Dask client call they leave a half-cancelled call
     whose clean-up logs a traceback."""
-    with deferred_interrupts((signal.SIGINT, signal.SIGTERM)) as check_interrupt:
+    with deferred_interrupts() as check_interrupt:
         client, cluster = _open_client(workers, scheduler)
         try:
             _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, check_interrupt, timing)
