@@ -349,3 +349,13 @@ def test_a_plugin_that_changes_folder_does_not_move_the_outputs(tmp_path, monkey
     assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "-q", "--visibility",
                  str(tmp_path / "ests.py") + ":Moves", "-o", "out.exr"]) == 0
     assert (work / "out.exr").is_file() and not (tmp_path / "out.exr").exists()
+
+
+def test_numpy_values_in_an_option_declaration_are_python_numbers(tmp_path):
+    """A plug-in's np.float32 default broke `estimators --json` (a traceback) and `render --stats` (after the
+    render)."""
+    from probvis.visibility.base import Option
+
+    opt = Option("q", float, np.float32(0.5), minimum=np.float64(0.0), maximum=np.int64(1), warm_up=np.float32(1))
+    assert [type(x) for x in (opt.default, opt.minimum, opt.maximum, opt.warm_up)] == [float, float, int, float]
+    json.dumps([opt.default, opt.minimum, opt.maximum])

@@ -57,6 +57,16 @@ class Option:
     metavar: str | None = None
     warm_up: object = None  # the value of the first run's warm-up render (4x4 pixels): a size, not a choice of kernels
 
+    def __post_init__(self):
+        """NumPy scalars among the declared values as Python's: they reach JSON (stats, `estimators --json`)."""
+        for name in ("default", "minimum", "maximum", "warm_up"):
+            value = getattr(self, name)
+            if isinstance(value, np.generic):
+                object.__setattr__(self, name, value.item())
+        if isinstance(self.choices, tuple) and any(isinstance(c, np.generic) for c in self.choices):
+            object.__setattr__(self, "choices", tuple(c.item() if isinstance(c, np.generic) else c
+                                                      for c in self.choices))
+
     @property
     def flag(self):
         """The command-line flag, e.g. `--adaptive-photons` for `adaptive_photons`."""
