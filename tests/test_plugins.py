@@ -2,8 +2,10 @@
 module and through the entry-point group, through the CLI, the Python API and `probvis experiment`."""
 import json
 import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -359,3 +361,28 @@ def test_numpy_values_in_an_option_declaration_are_python_numbers(tmp_path):
     opt = Option("q", float, np.float32(0.5), minimum=np.float64(0.0), maximum=np.int64(1), warm_up=np.float32(1))
     assert [type(x) for x in (opt.default, opt.minimum, opt.maximum, opt.warm_up)] == [float, float, int, float]
     json.dumps([opt.default, opt.minimum, opt.maximum])
+
+
+def test_a_plugin_that_swallows_the_interrupt_still_stops_the_render(tmp_path):
+    """A plug-in's `except BaseException` ate the KeyboardInterrupt of SIGTERM: the render went on, wrote its image
+    and exited 0. The stop is remembered and honoured at the next safe point."""
+    (tmp_path / "plug").mkdir()
+    (tmp_path / "plug" / "p.py").write_text(
+        "import time\nfrom pathlib import Path\n\nfrom probvis.visibility.exact import ExactVisibility\n\n\n"
+        "class Stubborn(ExactVisibility):\n    name = 'stubborn'\n\n    def prepare(self, *args):\n"
+        "        super().prepare(*args)\n        Path(__file__).with_name('started').touch()\n"
+        "        for _ in range(15):\n            try:\n                time.sleep(0.2)\n"
+        "            except BaseException:\n                pass\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "probvis", "render", "quad-shadow", "-D", "res=8", "--spp", "1",
+                             "-o", str(out / "o.exr"), "--visibility", f"{tmp_path / 'plug' / 'p.py'}:Stubborn"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    started = tmp_path / "plug" / "started"
+    deadline = time.monotonic() + 600
+    while not started.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=600)
+    assert proc.returncode == 130 and err.strip().splitlines()[-1] == "probvis: interrupted, nothing written", err
+    assert not list(out.iterdir())

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import ProbvisError
-from .interrupts import stop_signals
+from .interrupts import check_stop, reset_stop, stop_now, stop_signals
 from .settings import MAX_SEED, parse_float, parse_int
 from .visibility.base import Switch
 from .visibility.probabilistic.estimator import MAX_POWER
@@ -296,6 +296,7 @@ def _cmd_render(args):
     finally:  # a plug-in that changed folder: the outputs are named relative to the user's
         os.chdir(folder)
     _refuse_inputs(planned, result.stats["inputs"])
+    check_stop()  # a stop that a plug-in swallowed: nothing is written
     with staged_writes():  # every output or none
         for path in outputs:
             write_image(path, result.image, args.exposure)
@@ -448,10 +449,6 @@ def _cmd_tables(args):
     return 0
 
 
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
-
-
 def _cmd_experiment(args):
     from .experiments import experiment, load_experiment, quick_experiment
 
@@ -473,16 +470,12 @@ def _cmd_experiment(args):
         exp = dataclasses.replace(exp, seeds=args.seeds)
     out = Path(args.output or f"experiment-{exp.name}")
     command = "probvis " + shlex.join(args.argv)
-    previous = {s: signal.signal(s, _interrupt) for s in stop_signals() if s != signal.SIGINT}  # same as Ctrl-C
-    try:
+    try:  # `main` made SIGTERM and SIGHUP stop as Ctrl-C does
         _, index, run = experiment(exp, out, args.cache, args.workers, args.scheduler, not args.quiet, command)
     except KeyboardInterrupt:
         print(f"probvis: interrupted; finished renders are kept in {args.cache or out / 'cache'}, "
               f"run the same command to resume", file=sys.stderr)
         return 130
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
     _say(f"{run.computed} renders computed, {run.cells_cached} of {len(run.tasks)} cells from the cache; "
          f"report: {index}")
     return 0
@@ -565,11 +558,6 @@ def _drop_stdout():
         pass
 
 
-def _terminate(signum, frame):
-    """SIGTERM or SIGHUP stops a command as Ctrl-C does: between batches, nothing half-written."""
-    raise KeyboardInterrupt
-
-
 def _foreign_flags(argv, cls):
     """Estimator flags in `argv` that `cls` does not declare: (flag, names of the estimators that do)."""
     from .visibility import available_names, estimator_class
@@ -641,7 +629,8 @@ def main(argv=None):
     if os.environ.get("NUMBA_DISABLE_JIT", "0").strip() not in ("", "0"):  # kernels run as Python, on NumPy
         warnings.filterwarnings("ignore", message="overflow encountered in scalar")  # scalars: the hashes wrap
     main_thread = threading.current_thread() is threading.main_thread()
-    previous = {s: signal.signal(s, _terminate) for s in stop_signals() if s != signal.SIGINT} if main_thread else {}
+    reset_stop()
+    previous = {s: signal.signal(s, stop_now) for s in stop_signals()} if main_thread else {}
     if hasattr(sys.stdout, "reconfigure"):  # a scene's non-ASCII name under an ASCII locale: escaped, not a crash
         sys.stdout.reconfigure(errors="backslashreplace")
     try:

@@ -28,7 +28,7 @@ def deferred_interrupts(signals=None):
         yield lambda: None
         return
     signals = stop_signals() if signals is None else signals
-    pending = []
+    pending = list(_requested)  # a stop that arrived before, and that the code it interrupted swallowed
     _received.clear()
 
     def record(signum, frame):
@@ -52,6 +52,26 @@ def deferred_interrupts(signals=None):
 
 
 _received = []  # the stop signals the latest deferral recorded
+_requested = []  # stop signals `stop_now` raised on: remembered, since a plug-in's `except BaseException` may eat one
+
+
+def stop_now(signum, frame):
+    """A stop signal's handler outside a deferral: KeyboardInterrupt at once, and remembered, so that every later
+    safe point (`deferred_interrupts`, `check_stop`) stops too if the code it interrupted swallowed it."""
+    _requested.append(signum)
+    raise KeyboardInterrupt
+
+
+def check_stop():
+    """KeyboardInterrupt if a stop signal arrived since `reset_stop` (at a safe point: before writing outputs)."""
+    if _requested or _received:
+        raise KeyboardInterrupt
+
+
+def reset_stop():
+    """Forget earlier stop signals: a new command starts (the API may run several in one process)."""
+    _requested.clear()
+    _received.clear()
 
 
 def interrupt_received():
