@@ -153,3 +153,15 @@ def test_a_property_type_ply_does_not_have_is_named(tmp_path):
                     "3 0 1 2\n")
     with pytest.raises(ProbvisError, match="malformed PLY header: line 4: field type 'half' is not one of PLY's"):
         shapes.load_mesh(path)
+
+
+def test_an_element_count_that_is_no_whole_number_is_named(tmp_path):
+    """`element face 2.5` was reported as a header declaring 0 faces."""
+    from probvis.errors import ProbvisError
+
+    path = tmp_path / "m.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                    "element face 2.5\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+                    "3 0 1 2\n")
+    with pytest.raises(ProbvisError, match="malformed PLY header: element 'face' count '2.5' is not a whole number"):
+        shapes.load_mesh(path)

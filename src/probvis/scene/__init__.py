@@ -33,7 +33,14 @@ def load_scene(path, strict=False, **defaults):
     except OSError as exc:
         name = str(path) if len(str(path)) <= 80 else f"{str(path)[:60]}...({len(str(path))} characters)"
         raise ProbvisError(f"scene '{name}': {exc.strerror or exc}") from None
-    return read_scene(p, strict, **defaults)
+    except MemoryError:
+        raise ProbvisError(f"out of memory building the built-in scene '{path}' (the machine's or the process's "
+                           "limit, ulimit -v): raise the limit, or use a smaller scene") from None
+    try:
+        return read_scene(p, strict, **defaults)
+    except MemoryError:
+        raise ProbvisError(f"out of memory loading {p} (the machine's or the process's limit, ulimit -v): its "
+                           "meshes and images need more; raise the limit") from None
 
 
 __all__ = ["BUILTINS", "Camera", "Scene", "SceneBuilder", "ShapeInfo", "load_scene"]

@@ -34,6 +34,9 @@ def _header(fh):
         if words[0] == b"format" and len(words) == 3:
             fmt = words[1].decode("ascii", "replace")
         elif words[0] == b"element" and len(words) == 3:
+            if not words[2].isdigit():
+                raise ValueError(f"element '{words[1].decode('ascii', 'replace')}' count "
+                                 f"'{words[2].decode('ascii', 'replace')}' is not a whole number")
             current = elements.setdefault(words[1].decode("ascii", "replace"), [])
         elif words[0] == b"property" and current is not None:
             current.append((words[-1].decode("ascii", "replace"), words[1] == b"list"))
@@ -46,7 +49,10 @@ def read_ply(path):
     from plyfile import PlyData, PlyElementParseError, PlyHeaderParseError
 
     with open(path, "rb") as fh:
-        header = _header(fh)
+        try:
+            header = _header(fh)
+        except ValueError as exc:
+            raise ProbvisError(f"mesh {path}: malformed PLY header: {exc}") from None
     if header is None:
         return None
     if header[0] not in FORMATS:
