@@ -73,7 +73,7 @@ def test_a_negative_element_count_is_named(tmp_path):
 
     path = write_ply(tmp_path / "m.ply")
     path.write_bytes(path.read_bytes().replace(b"element vertex 40", b"element vertex -4", 1))
-    with pytest.raises(ProbvisError, match="malformed PLY header \\(a negative element count"):
+    with pytest.raises(ProbvisError, match="malformed PLY header: element .vertex. count .-4. is not a whole number"):
         shapes.load_mesh(path)
 
 
