@@ -204,6 +204,8 @@ def test_the_experiment_api_takes_numpy_workers_and_refuses_empty_folders(tmp_pa
             experiment(quick_experiment(), tmp_path / "rep", **kwargs)
     with pytest.raises(ProbvisError, match="out must name a folder"):
         experiment(quick_experiment(), "")
+    with pytest.raises(ProbvisError, match=r"exp must be an Experiment \(parse_experiment builds one from a dict\)"):
+        experiment({"scenes": []}, tmp_path / "rep")
 
 
 def test_studies_beyond_what_a_render_or_a_report_takes_are_refused():

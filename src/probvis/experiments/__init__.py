@@ -15,6 +15,9 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     """Run `exp` (an `Experiment` or a TOML path), cache its renders and write the report to folder `out`.
 
     Returns (results, path of index.html, run summary)."""
+    if not isinstance(exp, (Experiment, str, Path)):
+        raise ProbvisError(f"exp must be an Experiment (parse_experiment builds one from a dict) or an experiment "
+                           f"file's path, got {type(exp).__name__}")
     if not isinstance(exp, Experiment):
         exp = load_experiment(exp)
     if not isinstance(out, (str, Path)):
