@@ -1,4 +1,5 @@
 """Direct illumination against closed forms, determinism, and the stats contract."""
+import dataclasses
 import re
 
 import numba
@@ -243,12 +244,16 @@ def test_more_shadow_rays_per_pixel_than_a_batch_can_interrupt_are_refused():
     (lambda s: setattr(s, "material_texture", s.material_texture + 5), "scene.material_texture index scene.textures"),
     (lambda s: setattr(s, "vertex_normals", s.vertex_normals * np.nan), "scene.vertex_normals must be finite"),
     (lambda s: s.camera.to_world.__setitem__((0, 3), np.nan), "the camera's to_world must be a finite affine"),
+    (lambda s: setattr(s.camera, "fov_x", "40"), "camera.fov_x must be a number, got '40'"),
+    (lambda s: setattr(s.camera, "width", 8.0), "camera.width must be a whole number, got 8.0"),
+    (lambda s: setattr(s, "inputs", None), "scene.inputs must be a tuple of the paths"),
+    (lambda s: setattr(s, "source", object()), "scene.source must be a string, got object"),
 ])
 def test_a_scene_changed_after_loading_is_checked(change, message):
     """The API's Scene is a mutable record: a changed one was a TypeError, an AttributeError or a garbage image."""
     scene = probvis.load_scene("quad-shadow", res=8)
     scene.triangles = scene.triangles.copy()
-    scene.camera.to_world = scene.camera.to_world.copy()
+    scene.camera = dataclasses.replace(scene.camera, to_world=scene.camera.to_world.copy())
     change(scene)
     with pytest.raises(ProbvisError, match=re.escape(message)):
         probvis.render(scene, spp=1, shadow_rays=1)

@@ -1,11 +1,13 @@
 """The checks of a `Scene` handed to a render: the API's Scene is a mutable record, and a field changed since the
 scene was built (a camera of None, NaN normals, a texture index past the textures) would otherwise surface as a
 TypeError, a black image or an out-of-bounds read in a kernel."""
+from pathlib import Path
+
 import numpy as np
 
 from ..errors import ProbvisError
 from ..settings import RenderSettings
-from ..texture import Texture
+from ..texture import BITMAP, Texture
 from .scene import (EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, EMITTER_SPOT, Environment,
                     ShapeInfo)
 from .sensor import Camera
@@ -25,6 +27,22 @@ def check_scene(scene):
     if scene.environment is not None and not isinstance(scene.environment, Environment):
         raise ProbvisError(f"scene.environment must be an Environment or None, got "
                            f"{type(scene.environment).__name__}")
+    for name in ("name", "source"):
+        if not isinstance(getattr(scene, name), str):
+            raise ProbvisError(f"scene.{name} must be a string, got {type(getattr(scene, name)).__name__}")
+    if not isinstance(scene.inputs, tuple) or not all(isinstance(p, (str, Path)) for p in scene.inputs):
+        raise ProbvisError("scene.inputs must be a tuple of the paths the scene was read from")
+    for k, t in enumerate(scene.textures):
+        if not _fine(t.to_uv, (2, 3)) or not (_fine(t.image, (None, None, 3)) if t.kind == BITMAP
+                                              else _fine(t.colours, (2, 3))):
+            raise ProbvisError(f"scene.textures[{k}] must hold a finite (2, 3) to_uv and a finite (h, w, 3) image "
+                               "or (2, 3) checkerboard colours")
+    env = scene.environment
+    if env is not None and not (_fine(env.image, (None, None, 3)) and env.image.shape[0] >= 2
+                                and np.all(env.image >= 0) and _fine(env.to_world, (3, 3))
+                                and np.allclose(env.to_world @ env.to_world.T, np.eye(3), atol=1e-6)):
+        raise ProbvisError("scene.environment must hold a finite, non-negative (h >= 2, w, 3) image and a rotation "
+                           "(3, 3) to_world")
     n, m, e = (len(np.asarray(a)) for a in (scene.triangles, scene.reflectance, scene.emitter_radiance))
     for name, shape, kinds in (("triangles", (n, 3, 3), "f"), ("vertex_normals", (n, 3, 3), "f"),
                                ("tri_material", (n,), "iu"), ("tri_emitter", (n,), "iu"),
@@ -57,3 +75,9 @@ def check_scene(scene):
         raise ProbvisError("scene.tri_material and scene.tri_emitter must index scene.reflectance and "
                            "scene.emitter_radiance (-1: no emitter)")
     scene.validate_camera()
+
+
+def _fine(a, shape):
+    """Whether `a` is a finite numeric array of `shape` (None: any length)."""
+    return (isinstance(a, np.ndarray) and a.dtype.kind in "fiu" and a.ndim == len(shape)
+            and all(want is None or got == want for got, want in zip(a.shape, shape)) and bool(np.all(np.isfinite(a))))

@@ -1,5 +1,6 @@
 """The sensor a scene declares: Mitsuba's perspective or thin-lens camera with its film (`Camera`), and what
 makes one unusable (`camera_problem`)."""
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,9 +54,21 @@ def camera_problem(c):
     """What makes the `Camera` `c` unusable, or None: a size, field of view, clip range, crop window or lens that
     no render can use, or a principal point or aperture so far beyond the film that its rays miss the view (Mitsuba
     renders those black)."""
-    m = np.asarray(c.to_world)
-    if m.shape != (4, 4) or not np.all(np.isfinite(m)) or not np.all(m[3] == (0, 0, 0, 1)):
-        return "the camera's to_world must be a finite affine 4x4 matrix (last row 0 0 0 1)"
+    for f in dataclasses.fields(c):  # a Camera changed through the API: numbers where numbers are read
+        value, whole = getattr(c, f.name), "int" in str(f.type)
+        if f.name in ("to_world", "rfilter") or (value is None and "None" in str(f.type)):
+            continue
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer) if whole else
+                                                                  (int, float, np.integer, np.floating)):
+            return f"camera.{f.name} must be a {'whole number' if whole else 'number'}, got {value!r}"
+        if not np.isfinite(value):
+            return f"camera.{f.name} must be finite, got {value!r}"
+    if c.rfilter not in ("box", "tent", "gaussian") or not (c.filter_radius > 0 and c.filter_stddev > 0):
+        return "camera.rfilter must be box, tent or gaussian, with a positive filter_radius and filter_stddev"
+    m = c.to_world
+    if not isinstance(m, np.ndarray) or m.shape != (4, 4) or m.dtype.kind not in "fiu" \
+            or not np.all(np.isfinite(m)) or not np.all(m[3] == (0, 0, 0, 1)):
+        return "the camera's to_world must be a finite affine 4x4 array (last row 0 0 0 1)"
     for what, val in (("width", c.width), ("height", c.height)):
         if int(val) != val or not 1 <= val <= MAX_FILM_SIDE:
             return f"{what} must be a whole number from 1 to {MAX_FILM_SIDE}, got {val}"
