@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pytest
 
@@ -83,7 +85,7 @@ def test_the_io_functions_name_their_mistakes(tmp_path):
 
     cases = [
         (lambda: write_exr(tmp_path / "x.exr", np.zeros(5)),
-         r"expected an \(h, w, 3\) or \(h, w\) image, got shape \(5,\)"),
+         r"expected an \(h, w, 3\) or \(h, w\) image of at least one pixel, got shape \(5,\)"),
         (lambda: tonemap_srgb("x"), "expected an image of numbers, got str"),
         (lambda: write_png(5, np.zeros((2, 2, 3))), r"an output path must be a file name \(str or Path\), got 5"),
         (lambda: read_pfm(tmp_path / "nothere.pfm"), "cannot read PFM image .*nothere.pfm: No such file"),
@@ -116,3 +118,20 @@ def test_a_damaged_hdr_is_one_error_with_opencv_s_reason(tmp_path, capfd):
         read_linear_rgb(tmp_path / "t.hdr")
     out, err = capfd.readouterr()
     assert out == "" and err == ""
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda io, p: io.write_exr(p / "o.exr", None, channels={"R": np.zeros((4, 4)), "G": np.zeros((5, 5))}),
+     "channels must be (h, w) images of one size"),
+    (lambda io, p: io.write_image(p / "o.png", np.zeros((4, 4, 3)), 1e6), "exposure must be a number of stops"),
+    (lambda io, p: io.write_image(p / "o.png", np.zeros((4, 4, 3)), "2"), "exposure must be a number of stops"),
+    (lambda io, p: io.write_image(p / "o.png", np.zeros((1, 0, 3))), "of at least one pixel, got shape (1, 0, 3)"),
+    (lambda io, p: io.write_image(None, np.zeros((4, 4, 3))), "an output path must be a file name"),
+])
+def test_the_image_writers_name_bad_arguments(tmp_path, call, message):
+    """Each was a ValueError, OverflowError or TypeError from inside the writer."""
+    import probvis.io.image as io
+
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        call(io, tmp_path)
+    assert not list(tmp_path.iterdir())

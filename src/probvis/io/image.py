@@ -17,6 +17,7 @@ from ..errors import ProbvisError
 from .library_output import library_output
 
 FORMATS = (".exr", ".pfm", ".png")
+MAX_EXPOSURE = 64.0  # stops: 2^64 scales any radiance out of range
 MAX_IMAGE_BYTES = 4 << 30  # an image file larger than this is refused before reading
 
 
@@ -128,8 +129,8 @@ def _as_rgb(image):
         raise ProbvisError(f"expected an image of numbers, got {type(image).__name__} of {img.dtype}")
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
-    if img.ndim != 3 or img.shape[2] != 3:
-        raise ProbvisError(f"expected an (h, w, 3) or (h, w) image, got shape {img.shape}")
+    if img.ndim != 3 or img.shape[2] != 3 or min(img.shape[:2]) < 1:
+        raise ProbvisError(f"expected an (h, w, 3) or (h, w) image of at least one pixel, got shape {img.shape}")
     return img
 
 
@@ -153,6 +154,10 @@ def write_exr(path, image, channels=None):
         data = {"RGB": _float32(path, _as_rgb(image))}
     else:
         data = {k: _float32(path, v) for k, v in channels.items()}
+        shapes = {v.shape for v in data.values()}
+        if len(shapes) != 1 or len(next(iter(shapes))) != 2 or min(next(iter(shapes))) < 1:
+            raise ProbvisError(f"cannot write '{path}': channels must be (h, w) images of one size, got "
+                               f"{', '.join(f'{k} {v.shape}' for k, v in data.items())}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as tmp:
         with OpenEXR.File(header, data) as f:
@@ -344,6 +349,10 @@ def _read_pfm(path):
 
 def tonemap_srgb(image, exposure=0.0):
     """Linear radiance -> 8-bit sRGB after scaling by 2**exposure; negative values clamp to black."""
+    if isinstance(exposure, (bool, np.bool_)) or not isinstance(exposure, (int, float, np.integer, np.floating)) \
+            or not -MAX_EXPOSURE <= exposure <= MAX_EXPOSURE:
+        raise ProbvisError(f"exposure must be a number of stops from -{MAX_EXPOSURE:g} to {MAX_EXPOSURE:g}, got "
+                           f"{exposure!r}")
     x = np.clip(_as_rgb(image) * (2.0 ** exposure), 0.0, 1.0)
     srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
     return np.round(srgb * 255.0).astype(np.uint8)
@@ -359,6 +368,8 @@ def write_png(path, image, exposure=0.0):
 
 def write_image(path, image, exposure=0.0):
     """Write `image` in the format given by the file extension."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise ProbvisError(f"an output path must be a file name (str or Path), got {path!r}")
     ext = Path(path).suffix.lower()
     if ext == ".exr":
         write_exr(path, image)
