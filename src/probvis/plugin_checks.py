@@ -63,7 +63,7 @@ def plugin_errors(cls, stage):
         yield
     except (ProbvisError, MemoryError, KeyboardInterrupt, OSError):  # OSError: the machine's, not the plug-in's
         raise
-    except (Exception, SystemExit) as exc:  # a plug-in's sys.exit() too: it would end probvis without a word
+    except (Exception, SystemExit, GeneratorExit) as exc:  # sys.exit() too: it would end probvis without a word
         if cls.__module__.split(".")[0] == "probvis":
             raise
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "

@@ -135,3 +135,22 @@ def test_the_image_writers_name_bad_arguments(tmp_path, call, message):
     with pytest.raises(ProbvisError, match=re.escape(message)):
         call(io, tmp_path)
     assert not list(tmp_path.iterdir())
+
+
+def test_the_io_helpers_name_what_they_were_given(tmp_path):
+    """A device as a PFM (MemoryError), case shares of the wrong shape (IndexError), stats nested 100,000 deep
+    (RecursionError) and a summary of a dict that is no render's stats (KeyError)."""
+    from probvis.io import read_pfm, summary, write_case_images, write_stats
+
+    with pytest.raises(ProbvisError, match="cannot read PFM image /dev/zero: not a regular file"):
+        read_pfm("/dev/zero")
+    with pytest.raises(ProbvisError, match=re.escape("case shares are an (h, w, emitters, 4) array")):
+        write_case_images(tmp_path / "c.png", np.zeros((4, 4, 3)))
+    deep = level = {}
+    for _ in range(100_000):
+        level["a"] = level = {}
+    with pytest.raises(ProbvisError, match="the stats nest too deep"):
+        write_stats(tmp_path / "s.json", deep)
+    with pytest.raises(ProbvisError, match="summary takes a render's stats"):
+        summary({"a": 1})
+    assert not list(tmp_path.iterdir())

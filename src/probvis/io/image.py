@@ -323,6 +323,8 @@ def read_pfm(path):
 
 
 def _read_pfm(path):
+    if Path(path).exists() and not Path(path).is_file():
+        raise ValueError("not a regular file")
     with open(path, "rb") as f:
         kind = f.readline().strip()
         try:
@@ -379,21 +381,3 @@ def write_image(path, image, exposure=0.0):
         write_png(path, image, exposure)
     else:
         raise ProbvisError(f"cannot write '{path}': unknown format (use {', '.join(FORMATS)})")
-
-
-def case_colours(shares):
-    """(h, w, 4) shares of the occlusion cases (unknown, lit, shadowed, penumbra) as RGB: red penumbra,
-    green lit, blue shadowed, grey unknown."""
-    unknown, lit, shadowed, penumbra = (shares[..., c] for c in range(4))
-    return np.stack([penumbra + 0.5 * unknown, lit + 0.5 * unknown, shadowed + 0.5 * unknown], axis=-1)
-
-
-def write_case_images(path, cases):
-    """Write the (h, w, emitters, 4) case-share AOV as one image per emitter (`name-e<k>.ext` when there are
-    several); returns the paths written."""
-    n_emit = cases.shape[2]
-    p = Path(path)
-    paths = [str(p) if n_emit == 1 else str(p.with_name(f"{p.stem}-e{e}{p.suffix}")) for e in range(n_emit)]
-    for e, out in enumerate(paths):
-        write_image(out, case_colours(cases[:, :, e, :]))
-    return paths

@@ -11,12 +11,23 @@ def write_stats(path, stats):
         text = json.dumps(stats, indent=2, allow_nan=False) + "\n"
     except (TypeError, ValueError) as exc:
         raise ProbvisError(f"cannot write '{path}': the stats hold a value JSON cannot hold ({exc})") from None
+    except RecursionError:
+        raise ProbvisError(f"cannot write '{path}': the stats nest too deep") from None
     with atomic_path(path) as tmp:
         with open(tmp, "w") as f:
             f.write(text)
 
 
 def summary(stats):
+    """The lines `probvis render` prints of a render's `stats` (`RenderResult.stats`)."""
+    try:
+        return _summary(stats)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ProbvisError(f"summary takes a render's stats (RenderResult.stats); this dict lacks or mistypes "
+                           f"{exc}") from None
+
+
+def _summary(stats):
     s = stats["seconds"]
     it = stats["intersection_tests"]
     lines = [

@@ -1,0 +1,29 @@
+"""The occlusion map's case shares as images: one RGB image per emitter (`--case-image`)."""
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ProbvisError
+from .image import write_image
+
+
+def case_colours(shares):
+    """(h, w, 4) shares of the occlusion cases (unknown, lit, shadowed, penumbra) as RGB: red penumbra,
+    green lit, blue shadowed, grey unknown."""
+    unknown, lit, shadowed, penumbra = (shares[..., c] for c in range(4))
+    return np.stack([penumbra + 0.5 * unknown, lit + 0.5 * unknown, shadowed + 0.5 * unknown], axis=-1)
+
+
+def write_case_images(path, cases):
+    """Write the (h, w, emitters, 4) case-share AOV as one image per emitter (`name-e<k>.ext` when there are
+    several); returns the paths written."""
+    cases = np.asarray(cases)
+    if cases.ndim != 4 or cases.shape[3] != 4 or cases.dtype.kind not in "fiu":
+        raise ProbvisError(f"cannot write '{path}': case shares are an (h, w, emitters, 4) array, got "
+                           f"{cases.dtype} of shape {cases.shape}")
+    n_emit = cases.shape[2]
+    p = Path(path)
+    paths = [str(p) if n_emit == 1 else str(p.with_name(f"{p.stem}-e{e}{p.suffix}")) for e in range(n_emit)]
+    for e, out in enumerate(paths):
+        write_image(out, case_colours(cases[:, :, e, :]))
+    return paths
