@@ -243,11 +243,16 @@ def test_more_shadow_rays_per_pixel_than_a_batch_can_interrupt_are_refused():
     (lambda s: setattr(s, "environment", "garbage"), "scene.environment must be an Environment or None, got str"),
     (lambda s: setattr(s, "material_texture", s.material_texture + 5), "scene.material_texture index scene.textures"),
     (lambda s: setattr(s, "vertex_normals", s.vertex_normals * np.nan), "scene.vertex_normals must be finite"),
-    (lambda s: s.camera.to_world.__setitem__((0, 3), np.nan), "the camera's to_world must be a finite affine"),
+    (lambda s: s.camera.to_world.__setitem__((0, 3), np.nan), "the camera's to_world must be a finite, invertible affine"),
     (lambda s: setattr(s.camera, "fov_x", "40"), "camera.fov_x must be a number, got '40'"),
     (lambda s: setattr(s.camera, "width", 8.0), "camera.width must be a whole number, got 8.0"),
     (lambda s: setattr(s, "inputs", None), "scene.inputs must be a tuple of the paths"),
     (lambda s: setattr(s, "source", object()), "scene.source must be a string, got object"),
+    (lambda s: setattr(s.camera, "principal_y", np.nan), "camera.principal_y must be finite, got nan"),
+    (lambda s: setattr(s.camera, "film_width", 10 ** 12), "film_width must be a whole number from 1 to 32768"),
+    (lambda s: setattr(s.camera, "filter_radius", 1e6), "camera.rfilter must be box, tent or gaussian"),
+    (lambda s: setattr(s, "emitter_radiance", s.emitter_radiance * 1e300), "scene.emitter_radiance must be at most"),
+    (lambda s: setattr(s, "vertex_normals", s.vertex_normals * 0.0), "scene.vertex_normals must not be zero"),
 ])
 def test_a_scene_changed_after_loading_is_checked(change, message):
     """The API's Scene is a mutable record: a changed one was a TypeError, an AttributeError or a garbage image."""

@@ -7,10 +7,13 @@ import numpy as np
 
 from ..errors import ProbvisError
 from ..settings import RenderSettings
-from ..texture import BITMAP, Texture
+from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import (EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, EMITTER_SPOT, Environment,
                     ShapeInfo)
 from .sensor import Camera
+
+MAX_EMISSION = 1e30  # as the scene files' (mitsuba_xml.MAX_EMISSION): beyond, power sums overflow
+MAX_UV = 1e9  # a corner's uv: beyond, a texture's coordinates lose all precision
 
 
 def check_scene(scene):
@@ -33,16 +36,20 @@ def check_scene(scene):
     if not isinstance(scene.inputs, tuple) or not all(isinstance(p, (str, Path)) for p in scene.inputs):
         raise ProbvisError("scene.inputs must be a tuple of the paths the scene was read from")
     for k, t in enumerate(scene.textures):
-        if not _fine(t.to_uv, (2, 3)) or not (_fine(t.image, (None, None, 3)) if t.kind == BITMAP
-                                              else _fine(t.colours, (2, 3))):
-            raise ProbvisError(f"scene.textures[{k}] must hold a finite (2, 3) to_uv and a finite (h, w, 3) image "
-                               "or (2, 3) checkerboard colours")
+        if not (t.kind in (BITMAP, CHECKERBOARD) and t.wrap in WRAP_MODES.values() and _fine(t.to_uv, (2, 3))
+                and (_fine(t.image, (None, None, 3)) and min(t.image.shape[:2]) >= 1 if t.kind == BITMAP
+                     else _fine(t.colours, (2, 3)))):
+            raise ProbvisError(f"scene.textures[{k}] must be a BITMAP with a finite (h, w, 3) image of at least one "
+                               "pixel or a CHECKERBOARD with finite (2, 3) colours, with a known wrap mode and a "
+                               "finite (2, 3) to_uv")
     env = scene.environment
     if env is not None and not (_fine(env.image, (None, None, 3)) and env.image.shape[0] >= 2
-                                and np.all(env.image >= 0) and _fine(env.to_world, (3, 3))
+                                and env.image.shape[1] >= 1 and np.all(env.image >= 0) and _fine(env.to_world, (3, 3))
                                 and np.allclose(env.to_world @ env.to_world.T, np.eye(3), atol=1e-6)):
-        raise ProbvisError("scene.environment must hold a finite, non-negative (h >= 2, w, 3) image and a rotation "
-                           "(3, 3) to_world")
+        raise ProbvisError("scene.environment must hold a finite, non-negative (h >= 2, w >= 1, 3) image and a "
+                           "rotation (3, 3) to_world")
+    if (env is not None) != bool(np.any(np.asarray(scene.emitter_kind) == EMITTER_ENVIRONMENT)):
+        raise ProbvisError("scene.environment must be set exactly when an emitter's kind is EMITTER_ENVIRONMENT")
     n, m, e = (len(np.asarray(a)) for a in (scene.triangles, scene.reflectance, scene.emitter_radiance))
     for name, shape, kinds in (("triangles", (n, 3, 3), "f"), ("vertex_normals", (n, 3, 3), "f"),
                                ("tri_material", (n,), "iu"), ("tri_emitter", (n,), "iu"),
@@ -67,6 +74,15 @@ def check_scene(scene):
                            "scene.textures (-1: none)")
     if scene.textures and scene.tri_uv is None:
         raise ProbvisError("scene.tri_uv must hold the corners' uv of a scene with textures")
+    if scene.tri_uv is not None and not np.all(np.abs(scene.tri_uv) <= MAX_UV):
+        raise ProbvisError(f"scene.tri_uv must be finite and within ±{MAX_UV:g}")
+    if not np.all(np.abs(scene.vertex_normals).max(axis=-1, initial=0.0) > 0.0):
+        raise ProbvisError("scene.vertex_normals must not be zero")
+    if not np.all(scene.emitter_radiance <= MAX_EMISSION):
+        raise ProbvisError(f"scene.emitter_radiance must be at most {MAX_EMISSION:g}")
+    if any(not (0 <= s.first_triangle and s.n_triangles >= 0 and s.first_triangle + s.n_triangles <= n)
+           for s in scene.shapes):
+        raise ProbvisError("scene.shapes' first_triangle and n_triangles must lie within scene.triangles")
     plain = scene.reflectance[np.asarray(scene.material_texture) < 0]  # a textured one holds its texture's mean
     if not (np.all((plain >= 0.0) & (plain <= 1.0)) and np.all(scene.emitter_radiance >= 0.0)):
         raise ProbvisError("scene.reflectance must be within [0, 1] and scene.emitter_radiance non-negative")

@@ -63,12 +63,18 @@ def camera_problem(c):
             return f"camera.{f.name} must be a {'whole number' if whole else 'number'}, got {value!r}"
         if not np.isfinite(value):
             return f"camera.{f.name} must be finite, got {value!r}"
-    if c.rfilter not in ("box", "tent", "gaussian") or not (c.filter_radius > 0 and c.filter_stddev > 0):
-        return "camera.rfilter must be box, tent or gaussian, with a positive filter_radius and filter_stddev"
+    if c.rfilter not in ("box", "tent", "gaussian") or not (0 < c.filter_radius <= MAX_FILTER_RADIUS
+                                                            and 0 < 4 * c.filter_stddev <= MAX_FILTER_RADIUS):
+        return (f"camera.rfilter must be box, tent or gaussian, with a filter_radius and 4 filter_stddev above 0 "
+                f"and at most {MAX_FILTER_RADIUS:g} pixels")
     m = c.to_world
     if not isinstance(m, np.ndarray) or m.shape != (4, 4) or m.dtype.kind not in "fiu" \
-            or not np.all(np.isfinite(m)) or not np.all(m[3] == (0, 0, 0, 1)):
-        return "the camera's to_world must be a finite affine 4x4 array (last row 0 0 0 1)"
+            or not np.all(np.isfinite(m)) or not np.all(m[3] == (0, 0, 0, 1)) \
+            or not abs(np.linalg.det(m[:3, :3] / max(np.abs(m[:3, :3]).max(), 1e-300))) >= 1e-12:
+        return "the camera's to_world must be a finite, invertible affine 4x4 array (last row 0 0 0 1)"
+    for what, val in (("film_width", c.film_width), ("film_height", c.film_height)):
+        if val is not None and not 1 <= val <= MAX_FILM_SIDE:
+            return f"{what} must be a whole number from 1 to {MAX_FILM_SIDE}, got {val}"
     for what, val in (("width", c.width), ("height", c.height)):
         if int(val) != val or not 1 <= val <= MAX_FILM_SIDE:
             return f"{what} must be a whole number from 1 to {MAX_FILM_SIDE}, got {val}"
@@ -82,7 +88,7 @@ def camera_problem(c):
         return f"the crop window {c.width}x{c.height} at ({c.crop_x}, {c.crop_y}) does not fit the {fw}x{fh} film"
     if not (c.aperture_radius >= 0 and (c.aperture_radius == 0 or c.focus_distance > 0)):
         return "a thin lens needs aperture_radius >= 0 and a positive focus_distance"
-    if not max(abs(c.principal_x), abs(c.principal_y)) <= MAX_PRINCIPAL_OFFSET:
+    if not (abs(c.principal_x) <= MAX_PRINCIPAL_OFFSET and abs(c.principal_y) <= MAX_PRINCIPAL_OFFSET):
         return (f"principal_point_offset ({c.principal_x:g}, {c.principal_y:g}) moves the image more than "
                 f"{MAX_PRINCIPAL_OFFSET:g} film sizes off its axis, where its rays run along the film plane "
                 "(an offset is a fraction of the film: 0.1 moves it by a tenth)")
