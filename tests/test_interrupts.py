@@ -31,3 +31,15 @@ def test_a_signal_inside_numbas_compiler_acts_at_once():
                     pass
                 reached = True
     assert not reached
+
+
+def test_a_second_signal_acts_at_once():
+    """A plug-in stuck inside a batch kept the first Ctrl-C waiting for a safe point that never came."""
+    reached = []
+    with pytest.raises(KeyboardInterrupt):
+        with deferred_interrupts():
+            os.kill(os.getpid(), signal.SIGINT)
+            reached.append(1)
+            os.kill(os.getpid(), signal.SIGINT)
+            reached.append(2)
+    assert reached == [1]

@@ -4,7 +4,8 @@ runs, and raise KeyboardInterrupt at the next safe point instead.
 Python raises KeyboardInterrupt wherever the main thread happens to be. Inside a Numba kernel that leaves the
 interpreter in an error state; inside Dask's client calls it leaves a half-cancelled operation whose clean-up
 callback fails with a logged traceback. Both callers poll `check()` at points where stopping is clean. Inside
-Numba's compiler (a first run's minutes of Python code, no kernel running) a signal acts at once.
+Numba's compiler (a first run's minutes of Python code, no kernel running) a signal acts at once, and so does
+a second one anywhere (the user insists: a plug-in may be stuck inside a batch that never ends).
 """
 import signal
 import sys
@@ -32,10 +33,11 @@ def deferred_interrupts(signals=None):
     _received.clear()
 
     def record(signum, frame):
+        insisted = bool(pending)
         pending.append(signum)
         _received.append(signum)
-        if _compiling():  # Numba's compiler is Python code, no kernel runs: stop now, not after minutes
-            raise KeyboardInterrupt
+        if _compiling() or insisted:  # Numba's compiler is Python code, no kernel runs: stop now, not after
+            raise KeyboardInterrupt  # minutes; a second signal: the batch does not end (a plug-in stuck in it)
 
     previous = {s: signal.signal(s, record) for s in signals}
 

@@ -20,12 +20,14 @@ import importlib
 import os
 import pickle
 import selectors
+import signal
 import subprocess
 import sys
 from pathlib import Path
 
 DISCOVERY_SECONDS = 120  # the plain-Python warm-up takes about a second
 JOB_SECONDS = 600  # the largest kernel compiles in under a minute
+PARENT = "PROBVIS_PRECOMPILE_PARENT"  # the environment variable that gives a child its parent's process id
 
 
 def fill_cache(calls, workers, bar=None):
@@ -44,7 +46,7 @@ def _child(role, extra_env):
     """A child process running this module's `role`, with this process's probvis first on its path and not the
     working folder (`-P`: a `numba.py` there is not imported), its output to pipes (its errors, if any, are not
     shown: the warm-up reports them)."""
-    env = {**os.environ, **extra_env, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+    env = {**os.environ, **extra_env, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", PARENT: str(os.getpid()),
            "OPENBLAS_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore",
            "PYTHONPATH": os.pathsep.join(p for p in [str(Path(__file__).resolve().parent.parent),
                                                      *os.environ.get("PYTHONPATH", "").split(os.pathsep)] if p)}
@@ -211,5 +213,19 @@ def _compile_main():
         sys.stdout.buffer.flush()
 
 
+def _die_with_parent():
+    """Ask Linux to kill this child when the process that started it dies, however it dies (a SIGQUIT or SIGUSR1
+    has no handler there: the children went on compiling under init); elsewhere the parent's clean-up alone."""
+    import ctypes
+
+    try:
+        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != int(os.environ.get(PARENT, os.getppid())):  # it died before the request took effect
+        os._exit(1)
+
+
 if __name__ == "__main__":
+    _die_with_parent()
     {"discover": _discover_main, "compile": _compile_main}[sys.argv[1]]()
