@@ -247,3 +247,11 @@ def test_a_plugin_reference_estimator_is_found_beside_the_experiment_file(tmp_pa
                                      'source = "quad-shadow"\n[[methods]]\nname = "e"\nvisibility = "exact"\n')
     monkeypatch.chdir("/")
     assert load_experiment(tmp_path / "e.toml").reference.visibility == f"{tmp_path / 'plug.py'}:Mine"
+
+
+@pytest.mark.parametrize("name", ["a\tb", "x\u202ey", "line\nbreak"])
+def test_names_with_control_characters_are_refused(name):
+    """A tab or a right-to-left override in a method's name reached the report's plots (matplotlib warned of the
+    missing glyph) and its text."""
+    with pytest.raises(ProbvisError, match=r"methods\[0\].name: control characters"):
+        parse_experiment(doc(methods=[{"name": name, "visibility": "exact"}]))

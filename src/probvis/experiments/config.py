@@ -6,6 +6,7 @@ Paths inside the file are relative to the file.
 import math
 import re
 import tomllib
+import unicodedata
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -128,9 +129,15 @@ def _int_list(where, value, lowest=1, distinct=True, highest=MAX_SEED):
     return tuple(items)
 
 
+_BIDI_CONTROLS = {"LRE", "RLE", "LRO", "RLO", "PDF", "LRI", "RLI", "FSI", "PDI"}  # they reorder the report's text
+
+
 def _str(where, value):
     if not isinstance(value, str) or not value.strip():
         _fail(where, f"expected a non-empty string, got {value!r}")
+    if any(unicodedata.category(c) == "Cc" or unicodedata.bidirectional(c) in _BIDI_CONTROLS for c in value):
+        _fail(where, f"control characters (tabs, newlines, text-direction overrides) have no place in a name or "
+                     f"path here, got {value!r}")
     return value
 
 

@@ -488,6 +488,8 @@ def write_report(exp, run, results, folder, command=""):
     try:
         with warnings.catch_warnings():  # an exact method's relMSE of 0 has no place on a log axis: not plotted
             warnings.filterwarnings("ignore", message="Data has no positive values")
+            warnings.filterwarnings("ignore", message="Glyph .* missing from font")  # the plots' own layout,
+            warnings.filterwarnings("ignore", message="Tight layout not applied")  # nothing a user can act on
             return Report(exp, run, results, folder, command).write()
     except OSError as exc:
         raise ProbvisError(f"cannot write the report to '{folder}': {exc.strerror or exc}") from None
