@@ -154,3 +154,17 @@ def test_the_io_helpers_name_what_they_were_given(tmp_path):
     with pytest.raises(ProbvisError, match="summary takes a render's stats"):
         summary({"a": 1})
     assert not list(tmp_path.iterdir())
+
+
+def test_readers_refuse_what_is_no_regular_file(tmp_path):
+    """A FIFO hung read_pfm for ever, and a folder or FIFO read as an EXR was 'image not found'."""
+    import os
+
+    from probvis.io import read_exr, read_pfm
+
+    os.mkfifo(tmp_path / "f.pfm")
+    os.mkfifo(tmp_path / "f.exr")
+    (tmp_path / "d.exr").mkdir()
+    for read, name in ((read_pfm, "f.pfm"), (read_exr, "f.exr"), (read_exr, "d.exr")):
+        with pytest.raises(ProbvisError, match="not a regular file"):
+            read(tmp_path / name)

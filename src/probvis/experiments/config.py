@@ -163,7 +163,7 @@ def _scene(where, table, base):
     if reference is not None:
         ref = (base / _str(f"{where}.reference", reference)).resolve()
         if not ref.is_file():
-            _fail(f"{where}.reference", f"image not found: {ref}")
+            _fail(f"{where}.reference", f"{ref} is not a regular file" if ref.exists() else f"image not found: {ref}")
         if ref.suffix.lower() != ".exr":
             _fail(f"{where}.reference", f"{ref.name} is not an EXR image (a reference holds linear radiance: .exr)")
         reference = str(ref)

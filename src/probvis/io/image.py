@@ -169,7 +169,7 @@ def read_exr(path, channel=None):
     no image needs is refused before its pixels are allocated."""
     path = Path(path)
     if not path.is_file():
-        raise ProbvisError(f"image not found: {path}")
+        raise ProbvisError(f"image {path} is not a regular file" if path.exists() else f"image not found: {path}")
     with library_output() as said:  # the library reports a failed read (a truncated file) as a line of its own
         try:
             return _exr_pixels(path, channel, said)
@@ -355,7 +355,7 @@ def tonemap_srgb(image, exposure=0.0):
             or not -MAX_EXPOSURE <= exposure <= MAX_EXPOSURE:
         raise ProbvisError(f"exposure must be a number of stops from -{MAX_EXPOSURE:g} to {MAX_EXPOSURE:g}, got "
                            f"{exposure!r}")
-    x = np.clip(_as_rgb(image) * (2.0 ** exposure), 0.0, 1.0)
+    x = np.clip(np.nan_to_num(_as_rgb(image) * (2.0 ** exposure), nan=0.0), 0.0, 1.0)  # NaN: black, as negative
     srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
     return np.round(srgb * 255.0).astype(np.uint8)
 
