@@ -114,6 +114,8 @@ CASES = [
     (["render", "quad-shadow", "--visibility", "occlusion-map", "--photons", "1000", "--phot", "2000"],
      "did you mean --photons?"),
     (["render", "quad-shadow", "-o", "out.exr", ""], "unrecognized argument '' (an empty string"),
+    (["render", "--", "quad-shadow", "--spp", "1", "-o", "out.exr"],
+     "(after '--' every argument is a positional one: put the options before '--')"),
     (["experiment", "--quick", "-o", ""], "-o needs a folder name (got an empty one)"),
     (["experiment", "--quick", "--cache", " "], "--cache needs a folder name (got an empty one)"),
 ]
@@ -332,7 +334,7 @@ def test_a_non_ascii_name_under_an_ascii_locale_is_escaped(tmp_path):
     ("OMP_NUM_THREADS", "abc", "is not a value OpenMP (libgomp) accepts"),
     ("NUMBA_DEBUG", "abc", "is not a value Numba can read"), ("NUMBA_DISABLE_JIT", "abc", "is not a value Numba"),
     ("GOMP_SPINCOUNT", "abc", "is not a value OpenMP (libgomp) accepts"),
-    ("GOMP_STACKSIZE", "abc", "is not a value OpenMP (libgomp) accepts"),
+    ("GOMP_STACKSIZE", "abc", "is not a value OpenMP (libgomp) accepts"), ("PROBVIS_CACHE_DIR", " ", "is not a folder"),
     ("OMP_PLACES", "{garbage}", "is not a value OpenMP (libgomp) accepts"),
 ])
 def test_an_environment_setting_the_libraries_cannot_use_is_one_line(tmp_path, name, value, message):

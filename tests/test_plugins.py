@@ -124,8 +124,8 @@ def test_a_plugin_s_cache_key_changes_with_the_helpers_it_imports(tmp_path):
     from probvis.experiments.runner import estimator_fingerprint
 
     (tmp_path / "helper.py").write_text("Q = 0.5\n")
-    (tmp_path / "uses.py").write_text(example_source().replace("import numpy as np", "import numpy as np\nimport helper",
-                                                                1))
+    source = example_source().replace("import numpy as np", "import numpy as np\nimport helper", 1)
+    (tmp_path / "uses.py").write_text(source)
     spec = f"{tmp_path / 'uses.py'}:RouletteVisibility"
     sys.path.insert(0, str(tmp_path))
     try:
@@ -186,6 +186,10 @@ class _Broken(probvis.visibility.VisibilityEstimator):
             aovs = {"foo": ones}
         if self.mode == "raises":
             raise ZeroDivisionError("oops")
+        if self.mode == "out of memory":
+            raise MemoryError
+        if self.mode == "generator exit":
+            raise GeneratorExit
         if self.mode == "undeclared phase":
             with self.timed("nope"):
                 pass
@@ -211,6 +215,8 @@ def test_misbehaving_estimators_are_named_not_rendered(mode, message):
 @pytest.mark.parametrize("mode, message", [
     ("raises", r"raised ZeroDivisionError in the render \(.*\): oops \(a bug in the estimator; rerunning will not help\)"),
     ("undeclared phase", r"times phase 'nope', which it does not declare in `phases`"),
+    ("out of memory", r"ran out of memory in the render \(.*\): an allocation of its own"),
+    ("generator exit", r"raised GeneratorExit in the render"),
 ])
 def test_an_estimator_that_raises_is_named(mode, message):
     cls = type(f"Broken_{mode.replace(' ', '_')}", (_Broken,), {"mode": mode})

@@ -74,6 +74,9 @@ def _bad_environment():
     if threads is not None and not (threads.strip().isdigit() and threads.isascii()
                                     and 0 < int(threads) <= MAX_NUMBA_THREADS):
         return _bad_setting("NUMBA_NUM_THREADS", threads, f"a thread count from 1 to {MAX_NUMBA_THREADS}")
+    for name in ("NUMBA_CACHE_DIR", "PROBVIS_CACHE_DIR"):
+        if env.get(name) and not env[name].strip():
+            return _bad_setting(name, env[name], "a folder (it is blank: it would make a folder named by spaces)")
     layer = env.get("NUMBA_THREADING_LAYER")
     if layer is not None and layer.strip().lower() not in _THREADING_LAYERS:
         return _bad_setting("NUMBA_THREADING_LAYER", layer, f"one of Numba's threading layers "

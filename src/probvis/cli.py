@@ -125,7 +125,9 @@ class _Parser(argparse.ArgumentParser):
             for sub in self._subparsers._group_actions if self._subparsers else ():
                 flags += [f for p in sub.choices.values() for a in p._actions for f in a.option_strings]
             near = [f for f in dict.fromkeys(flags) if given and f.startswith(given[0].split("=")[0])]
-            if near:
+            if given and given[0].split("=")[0] in flags:  # a whole flag it did not take: it came after '--'
+                message += " (after '--' every argument is a positional one: put the options before '--')"
+            elif near:
                 message += f" (flags are spelt out in full: did you mean {' or '.join(near[:3])}?)"
         raise ProbvisError(message)
 
@@ -473,8 +475,10 @@ def _cmd_experiment(args):
     try:  # `main` made SIGTERM and SIGHUP stop as Ctrl-C does
         _, index, run = experiment(exp, out, args.cache, args.workers, args.scheduler, not args.quiet, command)
     except KeyboardInterrupt:
-        print(f"probvis: interrupted; finished renders are kept in {args.cache or out / 'cache'}, "
-              f"run the same command to resume", file=sys.stderr)
+        cache = Path(args.cache or out / "cache")
+        kept = cache.is_dir() and any(cache.glob("*.json"))
+        print(f"probvis: interrupted; finished renders are kept in {cache}, run the same command to resume" if kept
+              else "probvis: interrupted before any render finished", file=sys.stderr)
         return 130
     _say(f"{run.computed} renders computed, {run.cells_cached} of {len(run.tasks)} cells from the cache; "
          f"report: {index}")

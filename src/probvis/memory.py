@@ -43,7 +43,8 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=
 
         cls = type(estimator)
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_estimate() must "
-                           f"return a dict of byte counts (whole numbers from 0 to 2**63: no machine holds more), got {own!r:.200}")
+                           f"return a dict of byte counts (whole numbers from 0 to 2**63: no machine holds more), "
+                           f"got {own!r:.200}")
     parts.update(own)
     return parts
 

@@ -3,6 +3,7 @@ exceptions become one error naming its class and the stage, and results of the w
 refused before they reach the film as NaN pixels or the stats file as invalid JSON."""
 import dataclasses
 import json
+import re
 from contextlib import contextmanager
 
 import numpy as np
@@ -61,13 +62,20 @@ def plugin_errors(cls, stage):
     and the stage; probvis's own estimators' exceptions pass through (a bug in probvis, with its traceback)."""
     try:
         yield
-    except (ProbvisError, MemoryError, KeyboardInterrupt, OSError):  # OSError: the machine's, not the plug-in's
+    except (ProbvisError, KeyboardInterrupt, OSError):  # OSError: the machine's, not the plug-in's
         raise
+    except MemoryError:
+        if cls.__module__.split(".")[0] == "probvis":
+            raise
+        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) ran out of memory in "
+                           f"{stage}: an allocation of its own was larger than the machine or the process's limit "
+                           "allows") from None
     except (Exception, SystemExit, GeneratorExit) as exc:  # sys.exit() too: it would end probvis without a word
         if cls.__module__.split(".")[0] == "probvis":
             raise
+        text = re.sub(r"\x1b\[[0-9;]*m", "", str(exc))  # Numba's errors come with terminal colours
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "
-                           f"{type(exc).__name__} in {stage}: {exc} (a bug in the estimator; rerunning will not "
+                           f"{type(exc).__name__} in {stage}: {text} (a bug in the estimator; rerunning will not "
                            "help)") from None
 
 
@@ -91,7 +99,8 @@ def checked_stats(cls, stats):
     memory = stats.get("memory_bytes", {})
     if not is_byte_counts(memory):
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_bytes() must "
-                           f"return a dict of byte counts (whole numbers from 0 to 2**63: no machine holds more), got {memory!r}")
+                           f"return a dict of byte counts (whole numbers from 0 to 2**63: no machine holds more), "
+                           f"got {memory!r}")
     try:
         json.dumps(stats, allow_nan=False)
     except (TypeError, ValueError) as exc:

@@ -255,3 +255,9 @@ def test_names_with_control_characters_are_refused(name):
     missing glyph) and its text."""
     with pytest.raises(ProbvisError, match=r"methods\[0\].name: control characters"):
         parse_experiment(doc(methods=[{"name": name, "visibility": "exact"}]))
+
+
+def test_option_names_must_be_strings():
+    """A NaN key through the API was blamed on the built-in estimator's __init__."""
+    with pytest.raises(ProbvisError, match=r"methods\[0\].options: option names must be strings"):
+        parse_experiment(doc(methods=[{"name": "e", "visibility": "occlusion-map", "options": {float("nan"): 3}}]))

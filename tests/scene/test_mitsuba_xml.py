@@ -356,6 +356,8 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
      "</shape>", "<rotate>: the transform's entries go beyond ±1e+100 here"),
     ("<shape type='rectangle'><transform name='to_world'><scale value='1e200'/><scale value='1e200'/>"
      "</transform></shape>", "<scale>: the transform's entries go beyond ±1e+100 here"),
+    ("<shape type='rectangle'><bsdf type='normalmap'><texture type='bitmap' name='normalmap'><string "
+     "name='filename' value='nope.png'/></texture><bsdf type='diffuse'/></bsdf></shape>", "image not found"),
     ("<emitter type='point'><transform name='to_world'><matrix value='1 0 0 0 0 1 0 0 0 0 1 0 0 0 1 1'/>"
      "</transform></emitter>", "<emitter>: the light's to_world is projective (its last row must be 0 0 0 1)"),
 ])

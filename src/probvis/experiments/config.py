@@ -172,7 +172,8 @@ def _scene(where, table, base):
         _fail(f"{where}.reference_noise", f"expected a number >= 0, got {noise!r}")
     if "reference_noise" in table and reference is None:
         _fail(f"{where}.reference_noise", "applies to a reference file only (a rendered one measures its own)")
-    return SceneSpec(name, source, {k: (str(v).lower() if isinstance(v, bool) else str(v)) for k, v in defines.items()}, reference, float(noise))
+    defines = {k: str(v).lower() if isinstance(v, bool) else str(v) for k, v in defines.items()}  # TOML's true: "true"
+    return SceneSpec(name, source, defines, reference, float(noise))
 
 
 def _visibility(vis, base):
@@ -192,6 +193,8 @@ def _method(where, table, base):
     vis = _visibility(_str(f"{where}.visibility", table["visibility"]), base)
     options = {k: tuple(v) if isinstance(v, list) else v
                for k, v in _table(f"{where}.options", table.get("options", {})).items()}
+    if not all(isinstance(k, str) for k in options):
+        _fail(f"{where}.options", f"option names must be strings, got {sorted(map(repr, options))}")
     if not isinstance(table.get("baseline", False), bool):
         _fail(f"{where}.baseline", f"expected true or false, got {table['baseline']!r}")
     try:

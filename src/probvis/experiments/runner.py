@@ -91,8 +91,8 @@ def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, tim
 
 
 MAX_REFERENCE = 1e30  # radiance of a reference pixel, as of an emitter (scene.mitsuba_xml.MAX_EMISSION)
-MAX_FINGERPRINT_FILES = 2000
-MIN_OPEN_FILES = 256  # below, a LocalCluster's sockets and pipes may not fit (it failed to start under 20)  # Python files hashed for a plug-in's fingerprint
+MAX_FINGERPRINT_FILES = 2000  # Python files hashed for a plug-in's fingerprint
+MIN_OPEN_FILES = 256  # below, a LocalCluster's sockets and pipes may not fit (it failed to start under 20)
 
 
 @functools.cache

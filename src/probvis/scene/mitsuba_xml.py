@@ -490,6 +490,9 @@ class _Reader:
         lines = {ch.attrs.get("name"): ch for ch in node.children if ch.tag in _PROPERTY_TAGS}
         textures = [ch for ch in objs if ch.tag == "texture" or (ch.tag == "ref" and self.ref_kind(ch) == "texture")]
         named = {ch.attrs.get("name"): ch for ch in textures}
+        for ch in textures:  # read though only its colour is used: a missing or broken file is an error, as in Mitsuba
+            if ch.tag == "texture":
+                self.texture(ch)
         nested = [ch for ch in objs if ch.tag in ("bsdf", "ref") and ch not in textures]
 
         def colour(name, default):
