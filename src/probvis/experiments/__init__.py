@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ProbvisError
+from ..interrupts import deferred_interrupts
 from .config import Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment
 from .report import write_report
 from .results import measure
@@ -37,7 +38,9 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
         raise ProbvisError(f"report folder '{out}' is a file: give -o a folder (new or existing)")
     run = run_experiment(exp, Path(cache) if cache else out / "cache", workers, scheduler, progress, log)
     results = measure(exp, run)
-    return results, write_report(exp, run, results, out, command), run
+    with deferred_interrupts():  # seconds: an interrupt waits for a whole report rather than leave half of one
+        index = write_report(exp, run, results, out, command)
+    return results, index, run
 
 
 __all__ = ["Experiment", "MethodSpec", "SceneSpec", "experiment", "load_experiment", "measure", "parse_experiment",
