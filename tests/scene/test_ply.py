@@ -1,4 +1,6 @@
 """The binary PLY reader (`scene.ply.read_ply`) against trimesh's reader, and the files it leaves to it."""
+import re
+
 import numpy as np
 import pytest
 
@@ -144,24 +146,17 @@ def test_an_ascii_ply_with_another_element_is_read():
     assert mesh[1].tolist() == [[0, 1, 2]] and mesh[0].shape == (3, 3)
 
 
-def test_a_property_type_ply_does_not_have_is_named(tmp_path):
+@pytest.mark.parametrize("edit, message", [
+    (("property float x", "property half x"), "malformed PLY header: line 4: field type 'half' is not one of PLY's"),
+    (("element face 1", "element face 2.5"), "malformed PLY header: element 'face' count '2.5' is not a whole number"),
+])
+def test_a_malformed_header_is_named(tmp_path, edit, message):
+    """A property type PLY does not have; an element count that is no whole number (reported as '0 faces')."""
     from probvis.errors import ProbvisError
 
     path = tmp_path / "m.ply"
-    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty half x\nproperty float y\nproperty float z\n"
-                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
-                    "3 0 1 2\n")
-    with pytest.raises(ProbvisError, match="malformed PLY header: line 4: field type 'half' is not one of PLY's"):
-        shapes.load_mesh(path)
-
-
-def test_an_element_count_that_is_no_whole_number_is_named(tmp_path):
-    """`element face 2.5` was reported as a header declaring 0 faces."""
-    from probvis.errors import ProbvisError
-
-    path = tmp_path / "m.ply"
-    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
-                    "element face 2.5\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
-                    "3 0 1 2\n")
-    with pytest.raises(ProbvisError, match="malformed PLY header: element 'face' count '2.5' is not a whole number"):
+    path.write_text(("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                     "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+                     "3 0 1 2\n").replace(*edit))
+    with pytest.raises(ProbvisError, match=re.escape(message)):
         shapes.load_mesh(path)
