@@ -1,6 +1,7 @@
 """Experiment files: the shipped ones parse; every mistake is one clear error naming what is wrong."""
 import os
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,7 +27,6 @@ def test_quick_preset_covers_every_estimator():
 
 
 def test_proxies_experiment_parses(shared):
-    from pathlib import Path
 
     folder = Path(__file__).resolve().parents[2] / "experiments"
     exp, sixteen = load_experiment(folder / "proxies.toml"), load_experiment(folder / "proxies-16spp.toml")
@@ -37,7 +37,6 @@ def test_proxies_experiment_parses(shared):
 
 
 def test_paper_experiment_parses(shared):
-    from pathlib import Path
 
     exp = load_experiment(Path(__file__).resolve().parents[2] / "experiments" / "paper.toml")
     assert [s.name for s in exp.scenes] == ["city", "leaves", "cornell-bunny"]
@@ -187,7 +186,7 @@ def test_an_experiment_built_in_python_may_use_tuples_and_numpy():
                                  methods=[{"name": "p", "visibility": "probvis",
                                            "options": {"probabilities": [0.2, 0.4, 0.4]}}]))
     numpy = parse_experiment(doc(spp=np.int64(2), resolution=np.array([8, 8]), shadow_rays=(1, np.uint8(4)),
-                                 scenes=tuple(MINIMAL["scenes"]),
+                                 scenes=({"name": "q", "source": Path("quad-shadow")},),
                                  methods=[{"name": "p", "visibility": "probvis",
                                            "options": {"probabilities": np.array([0.2, 0.4, 0.4])}}]))
     assert numpy == plain

@@ -4,6 +4,7 @@ Every key is checked against the schema below, so a typo is an error naming the 
 Paths inside the file are relative to the file.
 """
 import math
+import os
 import re
 import tomllib
 import unicodedata
@@ -213,7 +214,7 @@ def _method(where, table, base):
 
 def _as_toml(value, depth=0):
     """A document built in Python as TOML would give it: tuples and NumPy arrays as lists, NumPy scalars as
-    Python's."""
+    Python's, paths as strings."""
     if depth > MAX_DEPTH:
         raise ProbvisError(f"the experiment nests lists or dicts more than {MAX_DEPTH} deep (does one contain "
                            "itself?)")
@@ -223,6 +224,8 @@ def _as_toml(value, depth=0):
         return [_as_toml(v, depth + 1) for v in value]
     if isinstance(value, np.generic):
         return value.item()
+    if isinstance(value, os.PathLike):  # a source, reference or plug-in file given as a Path
+        return os.fspath(value)
     return value
 
 
