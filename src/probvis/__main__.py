@@ -123,8 +123,7 @@ def main():
     stops = [signal.SIGTERM] + ([signal.SIGHUP] if signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN else [])
     previous = {s: signal.signal(s, _terminate) for s in stops}
     try:
-        with warnings.catch_warnings(record=True) as said:
-            warnings.simplefilter("always")
+        with warnings.catch_warnings(record=True) as said:  # the filters as they are: what they show is recorded
             from .cli import main as cli_main
         for w in said:  # Numba parses its NUMBA_* variables as it loads, and only warns of one it cannot read
             found = re.search(r"Environment variable '(\w+)' is defined but its associated value '(.*)' could not "
