@@ -14,6 +14,7 @@ from pathlib import Path
 from . import __version__
 from .errors import ProbvisError
 from .interrupts import check_stop, reset_stop, stop_now, stop_signals
+from .io.image import MAX_EXPOSURE
 from .settings import MAX_SEED, parse_float, parse_int
 from .visibility.base import Switch
 from .visibility.probabilistic.estimator import MAX_POWER
@@ -61,13 +62,14 @@ def _positive_float(text):
 
 
 def _exposure(text):
-    """argparse type: a finite exposure in stops within +-64 (2^64 scales any radiance out of range)."""
+    """argparse type: a finite exposure in stops within ±MAX_EXPOSURE."""
     try:
         v = parse_float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number of stops, got '{text}'") from None
-    if not -64.0 <= v <= 64.0:  # NaN fails too
-        raise argparse.ArgumentTypeError(f"must be a number of stops from -64 to 64, got {text}")
+    if not -MAX_EXPOSURE <= v <= MAX_EXPOSURE:  # NaN fails too
+        raise argparse.ArgumentTypeError(f"must be a number of stops from -{MAX_EXPOSURE:g} to {MAX_EXPOSURE:g}, "
+                                         f"got {text}")
     return v
 
 
@@ -487,14 +489,17 @@ def _cmd_experiment(args):
 
 def _warning_line(message, category, filename, lineno, file=None, line=None):
     """A warning as one line: a library's multi-line, coloured text (Numba's) keeps its first line, uncoloured."""
-    text = re.sub(r"\x1b\[[0-9;]*m", "", str(message)).strip().splitlines()
+    text = str(message).strip().splitlines()
     print(f"probvis: warning: {_one_line(text[0]) if text else category.__name__}", file=sys.stderr)
 
 
+_COLOURS = re.compile(r"\x1b\[[0-9;]*m")  # terminal colours, as Numba's errors and warnings carry them
+
+
 def _one_line(text):
-    """`text` with its control characters escaped (a newline in a file name, a terminal escape in a file's
-    line): a message stays one line and cannot drive the terminal."""
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(text))
+    """`text` without terminal colours and with its other control characters escaped (a newline in a file name,
+    a terminal escape in a file's line): a message stays one line and cannot drive the terminal."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in _COLOURS.sub("", str(text)))
 
 
 def _visibility_arg(argv):

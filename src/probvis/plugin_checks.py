@@ -3,7 +3,8 @@ exceptions become one error naming its class and the stage, and results of the w
 refused before they reach the film as NaN pixels or the stats file as invalid JSON."""
 import dataclasses
 import json
-import re
+import os
+import sys
 from contextlib import contextmanager
 
 import numpy as np
@@ -64,19 +65,36 @@ def plugin_errors(cls, stage):
         yield
     except (ProbvisError, KeyboardInterrupt, OSError):  # OSError: the machine's, not the plug-in's
         raise
-    except MemoryError:
-        if cls.__module__.split(".")[0] == "probvis":
-            raise
+    except MemoryError as exc:
+        if cls.__module__.split(".")[0] == "probvis" or not _raised_in_plugin(exc):  # probvis's own buffers: the
+            raise  # command line's out-of-memory line, naming the settings that size them
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) ran out of memory in "
                            f"{stage}: an allocation of its own was larger than the machine or the process's limit "
                            "allows") from None
     except (Exception, SystemExit, GeneratorExit) as exc:  # sys.exit() too: it would end probvis without a word
         if cls.__module__.split(".")[0] == "probvis":
             raise
-        text = re.sub(r"\x1b\[[0-9;]*m", "", str(exc))  # Numba's errors come with terminal colours
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "
-                           f"{type(exc).__name__} in {stage}: {text} (a bug in the estimator; rerunning will not "
+                           f"{type(exc).__name__} in {stage}: {exc} (a bug in the estimator; rerunning will not "
                            "help)") from None
+
+
+def _raised_in_plugin(exc):
+    """Whether the innermost frame of `exc` that is neither a library's nor Python's own (NumPy allocates for
+    whoever calls it) lies outside probvis: the plug-in's code, not probvis's buffers."""
+    own = os.path.dirname(os.path.abspath(__file__))
+    libraries = {os.path.abspath(p) for p in (sys.prefix, sys.base_prefix)}
+    frames = []
+    tb = exc.__traceback__
+    while tb is not None:
+        frames.append(os.path.abspath(tb.tb_frame.f_code.co_filename))
+        tb = tb.tb_next
+    for path in reversed(frames):
+        if path.startswith(own + os.sep):
+            return False
+        if not any(path.startswith(lib + os.sep) for lib in libraries) and "site-packages" not in path:
+            return True
+    return False
 
 
 def checked_cases(estimator, cases, like):

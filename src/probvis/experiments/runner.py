@@ -27,6 +27,7 @@ from ..errors import ProbvisError
 from ..interrupts import deferred_interrupts
 from ..io.image import atomic_path, read_exr, write_exr
 from ..scene import load_scene
+from ..scene.scene import MAX_EMISSION
 from .config import MethodSpec, Timing
 
 
@@ -90,7 +91,6 @@ def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, tim
     return r.stats, r.image.astype(np.float32), r.aovs["triangle_tests"].astype(np.float32)
 
 
-MAX_REFERENCE = 1e30  # radiance of a reference pixel, as of an emitter (scene.mitsuba_xml.MAX_EMISSION)
 MAX_FINGERPRINT_FILES = 2000  # Python files hashed for a plug-in's fingerprint
 MIN_OPEN_FILES = 256  # below, a LocalCluster's sockets and pipes may not fit (it failed to start under 20)
 
@@ -275,10 +275,10 @@ def _reference_file(spec, scene):
     if img.shape[:2] != want:
         raise ProbvisError(f"scene '{spec.name}': reference {spec.reference} is {img.shape[1]}x{img.shape[0]}, "
                            f"the scene renders {want[1]}x{want[0]}")
-    if img.min() < 0.0 or img.max() > MAX_REFERENCE or not img.max() > 0.0:
+    if img.min() < 0.0 or img.max() > MAX_EMISSION or not img.max() > 0.0:
         raise ProbvisError(f"scene '{spec.name}': reference {spec.reference} ranges from {img.min():g} to "
                            f"{img.max():g}: a reference is converged radiance, non-negative, not all black and at "
-                           f"most {MAX_REFERENCE:g} (is it the right file?)")
+                           f"most {MAX_EMISSION:g} (is it the right file?)")
     return img
 
 

@@ -18,7 +18,7 @@ from ..settings import (MAX_SEED, MAX_SHADOW_RAYS, MAX_SPP, RenderSettings, pars
 from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
-from .scene import MAX_COORDINATE, SceneBuilder
+from .scene import MAX_COORDINATE, MAX_EMISSION, SceneBuilder
 from .sensor import MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV, Camera, camera_problem
 from .serialized import load_serialized
 from .spectrum import spectrum_to_rgb
@@ -38,7 +38,6 @@ _CONDUCTORS = {"a-C", "Ag", "Al", "AlAs", "AlAs_palik", "AlSb", "AlSb_palik", "A
                "VN", "VN_palik", "W", "W_palik", "none"}
 MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarters of the samples out
 MAX_NESTING = 64  # elements deep: real scenes nest a handful
-MAX_EMISSION = 1e30  # radiance, intensity or scale: beyond, power sums overflow
 MAX_TRANSFORM = 1e100  # a composed transform's entries: beyond, its products and inverse overflow
 MIN_CUTOFF = 1e-3  # degrees: a spot's narrowest cone
 MAX_UV_SCALE = 1e9  # a texture's to_uv entries
@@ -125,6 +124,11 @@ def _invertible_affine(m):
 
 
 _VAR = re.compile(r"\$(\w+)")  # any <default> name, as Mitsuba substitutes it
+
+
+def _by_name(node):
+    """The property elements among `node`'s children by their name: where a value's error is located."""
+    return {ch.attrs.get("name"): ch for ch in node.children if ch.tag in _PROPERTY_TAGS}
 
 
 def _unique_ids(root, fail):
@@ -479,25 +483,19 @@ class _Reader:
                                "uniform, and its coordinates lose all precision)")
         return m
 
-    def texture_colour(self, node):
-        """Mean colour of a texture nested in a BSDF probvis approximates."""
-        texture = self.texture(node)
-        return np.full(3, 0.5) if texture is None else np.clip(texture.mean(), 0.0, 1.0)
 
     def nearest_diffuse(self, node, kind):
         """The diffuse colour nearest to a BSDF probvis does not model (documented in docs/decisions.md)."""
         props, objs = self.loose_params(node)
-        lines = {ch.attrs.get("name"): ch for ch in node.children if ch.tag in _PROPERTY_TAGS}
+        lines = _by_name(node)
         textures = [ch for ch in objs if ch.tag == "texture" or (ch.tag == "ref" and self.ref_kind(ch) == "texture")]
-        named = {ch.attrs.get("name"): ch for ch in textures}
-        for ch in textures:  # read though only its colour is used: a missing or broken file is an error, as in Mitsuba
-            if ch.tag == "texture":
-                self.texture(ch)
+        # each read, though only a colour is used: a missing or broken file is an error, as in Mitsuba
+        named = {ch.attrs.get("name"): self.texture(ch) for ch in textures}
         nested = [ch for ch in objs if ch.tag in ("bsdf", "ref") and ch not in textures]
 
         def colour(name, default):
-            if name in named:
-                return self.texture_colour(named[name])
+            if name in named:  # a texture's mean; grey 0.5 for one probvis does not read
+                return np.full(3, 0.5) if named[name] is None else np.clip(named[name].mean(), 0.0, 1.0)
             value = props.get(name, default)
             if isinstance(value, (str, bool)):
                 self.fail(lines[name], f"'{name}' of a {kind} bsdf is a colour: give it as <rgb>, <spectrum>, "
@@ -837,7 +835,7 @@ class _Reader:
                 if st != "independent":
                     warnings.warn(f"{self.path}:{ch.line}: sampler '{st}' rendered with probvis's independent "
                                   "sampler (same expected image, different noise)", stacklevel=2)
-                lines = {c.attrs.get("name"): c for c in ch.children}
+                lines = _by_name(ch)
                 sp, _ = self.params(ch, {"sample_count": ("integer",), "seed": ("integer",),
                                          "jitter": ("boolean",), "dimension": ("integer",),
                                          "scramble_seed": ("integer",)})
@@ -997,7 +995,7 @@ class _Reader:
                                       "shading_samples": ("integer",), "hide_emitters": ("boolean",)})
         if props.get("hide_emitters", False):
             self.fail(node, "hide_emitters=true is not supported")
-        lines = {c.attrs.get("name"): c for c in node.children}
+        lines = _by_name(node)
         base = props.get("shading_samples", 1)
         if not 1 <= base <= MAX_SHADOW_RAYS:
             self.fail(lines.get("shading_samples", node), f"shading_samples must be from 1 to {MAX_SHADOW_RAYS}, "

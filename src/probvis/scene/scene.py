@@ -14,6 +14,7 @@ from . import transform as tf
 from .sensor import Camera, camera_problem
 
 MAX_COORDINATE = 1e30  # a position beyond this is refused: squared distances would overflow
+MAX_EMISSION = 1e30  # radiance, intensity or scale: beyond, power sums overflow
 EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT = 0, 1, 2, 3, 4
 
 

@@ -8,11 +8,10 @@ import numpy as np
 from ..errors import ProbvisError
 from ..settings import RenderSettings
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
-from .scene import (EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, EMITTER_SPOT, Environment,
-                    ShapeInfo)
+from .scene import (EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, EMITTER_SPOT, MAX_EMISSION,
+                    Environment, ShapeInfo)
 from .sensor import Camera
 
-MAX_EMISSION = 1e30  # as the scene files' (mitsuba_xml.MAX_EMISSION): beyond, power sums overflow
 MAX_UV = 1e9  # a corner's uv: beyond, a texture's coordinates lose all precision
 
 

@@ -50,13 +50,16 @@ class Camera:
         return (self.film_width or self.width, self.film_height or self.height)
 
 
+_WHOLE_FIELDS = ("width", "height", "film_width", "film_height", "crop_x", "crop_y")  # pixels: whole numbers
+
+
 def camera_problem(c):
     """What makes the `Camera` `c` unusable, or None: a size, field of view, clip range, crop window or lens that
     no render can use, or a principal point or aperture so far beyond the film that its rays miss the view (Mitsuba
     renders those black)."""
     for f in dataclasses.fields(c):  # a Camera changed through the API: numbers where numbers are read
-        value, whole = getattr(c, f.name), "int" in str(f.type)
-        if f.name in ("to_world", "rfilter") or (value is None and "None" in str(f.type)):
+        value, whole = getattr(c, f.name), f.name in _WHOLE_FIELDS
+        if f.name in ("to_world", "rfilter") or (value is None and f.name in ("film_width", "film_height")):
             continue
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer) if whole else
                                                                   (int, float, np.integer, np.floating)):

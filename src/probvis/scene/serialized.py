@@ -30,7 +30,8 @@ def _serialized_bytes(flags, n_v, n_f):
 
 
 def _inflate_mesh(stream, version):
-    """The decompressed bytes of one mesh of a serialized file: its header first, then exactly the arrays the header
+    """The decompressed bytes of one mesh of a serialized file, with its header's (flags, offset of the arrays,
+    vertex count, face count): the header first, then exactly the arrays the header
     declares (never the rest of the stream: a file may hold gigabytes of anything after a valid mesh), refused
     when they could not fit in the compressed bytes or in memory."""
     inflate = zlib.decompressobj()
@@ -44,7 +45,7 @@ def _inflate_mesh(stream, version):
         raw += inflate.decompress(inflate.unconsumed_tail, need - len(raw))
     if len(raw) < need:
         raise ValueError(f"it declares {n_v} vertices and {n_f} triangles, but its data ends after {len(raw)} bytes")
-    return raw
+    return raw, flags, pos, n_v, n_f
 
 
 def load_serialized(path, shape_index=0):
@@ -80,10 +81,9 @@ def load_serialized(path, shape_index=0):
         raise ProbvisError(f"{path}: corrupt serialized file (mesh {shape_index} starts at byte {offset}, beyond its "
                            f"{len(data)} bytes)")
     try:
-        raw = _inflate_mesh(data[offset + 4:], version)
+        raw, flags, pos, n_v, n_f = _inflate_mesh(data[offset + 4:], version)
     except (zlib.error, struct.error, ValueError) as exc:
         raise ProbvisError(f"{path}: corrupt serialized mesh {shape_index} ({exc})") from None
-    flags, pos, n_v, n_f = _serialized_header(raw, version)
     real = np.float64 if flags & _SER_DOUBLE else np.float32
 
     def take(n, dtype):

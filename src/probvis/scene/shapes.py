@@ -275,8 +275,8 @@ def _bad_row(path, obj, statement, index, in_file_order):
     with open(path, "rb") as fh:
         head = [fh.readline(1024) for _ in range(1000)]
     ends = [k for k, line in enumerate(head) if line.strip() == b"end_header"]
-    elements = [line.split()[1] for line in head if line.startswith(b"element ")]
-    if in_file_order and ends and b"format ascii" in b"".join(head) and elements[:1] == [b"vertex"]:
+    elements = [line.split()[1:2] for line in head if line.startswith(b"element ")]
+    if in_file_order and ends and b"format ascii" in b"".join(head) and elements[:1] == [[b"vertex"]]:
         return f"{path}:{ends[0] + 2 + index}"
     return f"{path} (vertex {index})"
 

@@ -36,10 +36,10 @@ def look_at(origin, target, up):
     if np.linalg.norm(d) == 0.0:
         raise ValueError("lookat origin and target coincide")
     d /= np.linalg.norm(d)
-    up = np.asarray(up, dtype=np.float64)
+    up = tamed(up)  # its direction is all that counts: 1e300 must not overflow the cross product
     if not np.abs(up).max() > 0.0:
         raise ValueError("lookat 'up' is the zero vector")
-    left = np.cross(up / np.abs(up).max(), d)  # its direction is all that counts: scaled, 1e300 cannot overflow
+    left = np.cross(up, d)
     if np.linalg.norm(left) < 1e-12:
         raise ValueError("lookat 'up' is parallel to the viewing direction")
     left /= np.linalg.norm(left)

@@ -19,13 +19,12 @@ from ..accel import build_bvh, occluded_segments
 from ..errors import ProbvisError
 from ..proxies import KINDS, MIN_TRIANGLES, build_proxies
 from ..rng import uniforms
-from ..settings import parse_float
 from ..shading import ShadedBatch
 from ..shells import ShellTests, shell_memory, shell_tests
 from ..transmittance import RESOLUTION as VOLUME_RESOLUTION, transmittances
 from .base import Option, Phase, RenderPath, Switch, VisibilityEstimator, VisibilityResult
 from .exact import meshes_for_shells, survey_heavy_meshes
-from .occlusion_map.verification import Q_LOWEST
+from .occlusion_map.verification import probability_problem
 from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SUM_BOTH,
                            SUM_INV_P, SUM_MISMATCH, SUM_MISMATCH_W, SUM_W, SUM_WV, SUM_WV2, VOLUME_VOXEL,
                            WEIGHT_FLOOR, Correction, geometry_tests, shade_proxy)
@@ -35,15 +34,7 @@ PILOT_Q = 0.5  # q where the pilot measured nothing (it found no segment)
 
 
 def _parse_q(value):
-    if isinstance(value, str) and value == "auto":
-        return None
-    try:
-        q = parse_float(value) if isinstance(value, str) else float(value)
-    except (TypeError, ValueError):
-        q = None
-    if isinstance(value, bool) or q is None or not Q_LOWEST <= q <= 1.0:  # NaN fails too
-        return f"must be auto or a probability from {Q_LOWEST:g} to 1, got {value!r}"
-    return None
+    return probability_problem(value, ("auto",))
 
 
 class ProxyVisibility(VisibilityEstimator):

@@ -36,18 +36,24 @@ SEGMENT_DIM = 1 << 20  # rng dimension of a segment's verification draw, above a
 _PAIR_SALT = np.uint64(0x5645524946590000)  # derives a camera sample's verification key from its rng key
 
 
-def parse_verify(value):
-    """'auto', 'off' or a probability from Q_LOWEST to 1: the error message for anything else, or None."""
-    if isinstance(value, str) and value in ("auto", "off"):
+def probability_problem(value, words):
+    """The error message for a setting that is one of `words` or a fixed probability from Q_LOWEST to 1, or None:
+    `verify` here, the proxies' `q`."""
+    if isinstance(value, str) and value in words:
         return None
     try:
         q = parse_float(value) if isinstance(value, str) else float(value)
     except (TypeError, ValueError):
         q = None
     if isinstance(value, bool) or q is None or not Q_LOWEST <= q <= 1.0:  # NaN fails too
-        return (f"must be auto, off or a probability from {Q_LOWEST:g} to 1, got {value!r} (below, each correction "
-                "weighs more than a thousand segments: the image is the unverified one in practice)")
+        return (f"must be {', '.join(words)} or a probability from {Q_LOWEST:g} to 1, got {value!r} (below, each "
+                "correction weighs more than a thousand segments: the image is the uncorrected one in practice)")
     return None
+
+
+def parse_verify(value):
+    """'auto', 'off' or a probability from Q_LOWEST to 1: the error message for anything else, or None."""
+    return probability_problem(value, ("auto", "off"))
 
 
 def auto_q(case, photons, unseen, floors=None):
