@@ -13,7 +13,7 @@ import xxhash
 
 
 def cache_dir(kind):
-    """Where entries of `kind` ("proxies", "shells", "closed", "parts", "structure") are cached."""
+    """Where entries of `kind` ("proxies", "shells", "closed", "parts", "structure", "plans") are cached."""
     return Path(os.environ.get("PROBVIS_CACHE_DIR") or Path.home() / ".cache" / "probvis") / kind
 
 
@@ -28,7 +28,7 @@ def content_key(label, *arrays):
     return h.hexdigest()
 
 
-def _fits(arrays, expect):
+def fits(arrays, expect):
     """Whether loaded `arrays` hold what `expect` describes: per name (shape, dtype kinds), None in a shape for
     any length; floats finite."""
     for name, (shape, kinds) in expect.items():
@@ -54,28 +54,41 @@ def _check_sizes(path):
                     raise ValueError(f"{info.filename} declares {shape} beyond its {info.file_size} bytes")
 
 
+def load(kind, key, expect=None):
+    """The dict of arrays stored under `key`, or None where there is none or it cannot be read or does not hold
+    what `expect` describes (`fits`: a damaged or foreign file)."""
+    path = cache_dir(kind) / f"{key}.npz"
+    if not path.is_file():
+        return None
+    try:
+        _check_sizes(path)
+        with np.load(path, allow_pickle=False) as f:
+            arrays = {k: f[k] for k in f.files}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error):
+        return None
+    return arrays if expect is None or fits(arrays, expect) else None
+
+
+def store(kind, key, arrays):
+    """Store a dict of arrays under `key`, atomically; a cache that cannot be written is a warning."""
+    path = cache_dir(kind) / f"{key}.npz"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+        os.replace(tmp, path)
+    except OSError as exc:
+        warnings.warn(f"{kind}: cannot cache in {path.parent} ({exc.strerror or exc})", stacklevel=3)
+
+
 def load_or_build(kind, key, build, use_cache=True, expect=None):
-    """(arrays, cached): the dict of arrays stored under `key`, or `build()`'s (a dict of arrays, or None when
-    there is nothing to store), stored for next time. An entry that cannot be read or does not hold what
-    `expect` describes (`_fits`: a damaged or foreign file) is rebuilt."""
-    path = cache_dir(kind) / f"{key}.npz" if use_cache else None
-    if path is not None and path.is_file():
-        try:
-            _check_sizes(path)
-            with np.load(path, allow_pickle=False) as f:
-                arrays = {k: f[k] for k in f.files}
-            if expect is None or _fits(arrays, expect):
-                return arrays, True
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error):
-            pass  # a damaged entry is rebuilt
+    """(arrays, cached): the dict of arrays stored under `key` (`load`), or `build()`'s (a dict of arrays, or
+    None when there is nothing to store), stored for next time. A damaged or foreign entry is rebuilt."""
+    arrays = load(kind, key, expect) if use_cache else None
+    if arrays is not None:
+        return arrays, True
     out = build()
-    if out is not None and path is not None:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            with open(tmp, "wb") as f:
-                np.savez(f, **out)
-            os.replace(tmp, path)
-        except OSError as exc:
-            warnings.warn(f"{kind}: cannot cache in {path.parent} ({exc.strerror or exc})", stacklevel=3)
+    if out is not None and use_cache:
+        store(kind, key, out)
     return out, False

@@ -99,7 +99,8 @@ def test_images_are_unbiased(q, shells):
     def mean(seed, **vis):
         return probvis.render(scene, spp=2, shadow_rays=4, seed=seed, **vis).image.mean()
 
-    options = dict(OPTIONS, q=q, shells=shells)
+    # q auto decides anew for every seed (no cached decision): the survey, the pilot and the plan under test
+    options = dict(OPTIONS, q=q, shells=shells, cache=q != "auto")
     diff = np.array([mean(s, visibility="proxy", visibility_options=options) - mean(s) for s in range(12)])
     assert abs(diff.mean()) < 4 * np.std(diff, ddof=1) / np.sqrt(len(diff)) + 1e-12
     stats = probvis.render(scene, spp=2, shadow_rays=4, visibility="proxy", visibility_options=options).stats
@@ -305,6 +306,62 @@ def test_a_pilot_dearer_than_its_budget_is_skipped(monkeypatch):
     ran = probvis.render(scene, spp=2, shadow_rays=4, seed=3, visibility="proxy", visibility_options=OPTIONS)
     assert ran.stats["estimator"]["pilot"]["ran"] and ran.stats["estimator"]["pilot_segments"] > 0
 
+
+
+@pytest.mark.parametrize("shells", ["off", "on"])
+def test_a_decision_is_cached_by_scene_view_and_settings(cache, shells, monkeypatch):
+    """q auto's decision (survey, pilot, plan) is stored by scene, view and settings, not the seed: the next render
+    reads it and builds only what it chose, and renders the first render's image bit for bit where the seed is the
+    same (a plan measured again would differ with the timings). Other samples, another view or another light
+    decide again; without the cache nothing is stored. (The plan is made to use the proxy everywhere, which a
+    render this small would not choose, so that the proxies are rebuilt from the record.)"""
+    allocate_ = proxy_plan.allocate
+    monkeypatch.setattr(proxy_plan, "GAIN_MARGIN", 1e-9)
+    monkeypatch.setattr(proxy_plan, "allocate", lambda *a, **k: (np.ones(len(a[0]), bool),) + allocate_(*a, **k)[1:])
+    scene = blob_scene()
+    options = dict(OPTIONS, shells=shells)
+
+    def run(scene, seed=1, spp=2, **more):
+        r = probvis.render(scene, spp=spp, shadow_rays=4, seed=seed, visibility="proxy",
+                           visibility_options=dict(options, **more))
+        return r, r.stats["estimator"]
+
+    first, e1 = run(scene)
+    assert not e1["pilot"]["cached"] and e1["pilot"]["ran"] and e1["seconds"]["pilot"] > 0
+    again, e2 = run(scene)
+    assert e2["pilot"]["cached"] and e2["seconds"]["pilot"] == e2["seconds"]["survey"] == 0
+    np.testing.assert_array_equal(first.image, again.image)
+    assert e2["emitters"] == e1["emitters"] and e2["emitters"][0]["regions_with_proxy"] == REGIONS ** 2
+    assert [p["name"] for p in e2["proxies"]] == ["blob"]
+    assert ("shells" in e2) == ("shells" in e1) == (shells == "on")
+    assert run(scene, seed=5)[1]["pilot"]["cached"]  # the seed is not in the key
+    assert not run(scene, spp=3)[1]["pilot"]["cached"]
+    moved = blob_scene()
+    moved.camera = Camera(tf.look_at([0, -4.5, 3], [0, 0, 0.6], [0, 0, 1]), 45.0, 24, 24)
+    assert not run(moved)[1]["pilot"]["cached"]
+    brighter = blob_scene()
+    brighter.emitter_radiance = brighter.emitter_radiance * 2
+    assert not run(brighter)[1]["pilot"]["cached"]
+    stored = sorted(cache.glob("plans/*.npz"))
+    assert len(stored) == 4
+    run(blob_scene(), spp=4, cache=False)
+    assert sorted(cache.glob("plans/*.npz")) == stored
+
+
+def test_a_damaged_or_foreign_decision_is_decided_again(cache):
+    scene = blob_scene()
+    run = lambda: probvis.render(scene, spp=2, shadow_rays=4, seed=1, visibility="proxy",  # noqa: E731
+                                 visibility_options=OPTIONS)
+    first = run()
+    (path,) = cache.glob("plans/*.npz")
+    path.write_bytes(b"PK\x03\x04 not a zip")
+    damaged = run()
+    assert not damaged.stats["estimator"]["pilot"]["cached"]
+    np.savez(path, proxy_meshes=np.array([123456789]), shell_meshes=np.array([], np.int64),
+             predicted=np.array([], float), pilot_ran=np.array([1]))
+    foreign = run()  # a mesh the scene does not have
+    assert not foreign.stats["estimator"]["pilot"]["cached"] and foreign.stats["estimator"]["proxies"]
+    assert run().stats["estimator"]["pilot"]["cached"] and first.image.shape == (24, 24, 3)
 
 
 def test_a_segments_q_follows_its_weight():

@@ -55,7 +55,8 @@ class Option:
     count: int | None = None
     check: object = None
     metavar: str | None = None
-    warm_up: object = None  # the value of the first run's warm-up render (4x4 pixels): a size, not a choice of kernels
+    warm_up: object = None  # its value in the first run's warm-up render (4x4 pixels): a size or a switch of caches,
+    # never a choice of kernels
 
     def __post_init__(self):
         """NumPy scalars among the declared values as Python's: they reach JSON (stats, `estimators --json`)."""

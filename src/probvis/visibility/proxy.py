@@ -28,7 +28,7 @@ from .occlusion_map.verification import probability_problem
 from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SUM_BOTH,
                            SUM_INV_P, SUM_MISMATCH, SUM_MISMATCH_W, SUM_W, SUM_WV, SUM_WV2, VOLUME_VOXEL,
                            WEIGHT_FLOOR, Correction, geometry_tests, shade_proxy)
-from .proxy_plan import REGIONS, Pilot, film_regions
+from .proxy_plan import REGIONS, Decision, Pilot, decision_key, film_regions
 
 PILOT_Q = 0.5  # q where the pilot measured nothing (it found no segment)
 
@@ -52,7 +52,8 @@ class ProxyVisibility(VisibilityEstimator):
                "emitter) or a number from 0.001 to 1", check=_parse_q, metavar="auto|Q"),
         Option("shells", Switch, "auto", "decide segments exactly by conservative shells of the heavy meshes first; "
                "auto: of the closed ones that the segments often cross, kept where the pilot predicts they pay"),
-        Option("cache", bool, True, "cache proxies and shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
+        Option("cache", bool, True, "cache proxies, shells and q auto's decision on disk ($PROBVIS_CACHE_DIR, default "
+               "~/.cache/probvis)", warm_up=False),
     )
     phases = (
         Phase("survey", "prepare", "a pilot of shadow segments: which heavy meshes they cross"),
@@ -77,26 +78,6 @@ class ProxyVisibility(VisibilityEstimator):
             if p.triangles is not None and p.min_triangles <= shape.n_triangles <= p.triangles:
                 raise ProbvisError(f"triangles {p.triangles} is not below the {shape.n_triangles} of mesh "
                                    f"'{shape.name}' (or raise min_triangles above it)")
-        with self.timed("survey"):  # the cheapest evidence first: which heavy meshes the segments cross
-            survey = survey_heavy_meshes(scene, integrator, settings, p.min_triangles, p.cache)
-        shell_meshes = meshes_for_shells(p.shells, survey)
-        # with q auto, no proxy for a mesh that few segments come near, nor for any where the pilot would cost
-        # more than PILOT_BUDGET of the render: exact visibility then renders, as `exact` would
-        only = {m.shape.first_triangle for m in survey if m.crossed or p.q != "auto"}
-        tags = (["plain"] if p.shells != "on" or not shell_meshes else []) + (["shells"] if shell_meshes else [])
-        self.pilot = Pilot(integrator, settings) if p.q == "auto" and only else None
-        self.pilot_fits = False
-        if self.pilot is not None:
-            with self.timed("pilot"):
-                self.pilot_fits = self.pilot.probe(tags)
-            only = only if self.pilot_fits else set()
-        with self.timed("proxies"):
-            self.proxies = build_proxies(scene, p.ratio, p.triangles, p.min_triangles, p.cache, p.kind, only)
-        has_proxy = self.proxies.n_decimated + self.proxies.n_volumes > 0
-        with self.timed("proxy_bvh"):  # no proxy: nothing to test but the scene, whose BVH stands in
-            self.proxy_bvh = build_bvh(self.proxies.triangles) if has_proxy else bvh
-        with self.timed("shells"):
-            self.shells = shell_tests(scene, bvh, shell_meshes, p.cache)
         e, r = scene.n_emitters, REGIONS * REGIONS
         self.fixed_q = None if p.q == "auto" else float(p.q)
         self.q = np.full((r, e), self.fixed_q or PILOT_Q)  # per region and emitter
@@ -109,19 +90,77 @@ class ProxyVisibility(VisibilityEstimator):
         self.shells_dropped = False  # the pilot found exact visibility faster without them
         self.costs = None  # (ρ, e) from the pilot: costs relative to exact visibility's fused kernel (no shells)
         self.camera_cost = None  # κ: the camera rays' cost, relative to the same
-        if not has_proxy:
-            self.exact[:] = True  # nothing to gain: every segment is tested exactly
-        elif self.fixed_q is None:
+        self.pilot, self.decision = None, None
+        options = {k: getattr(p, k) for k in ("ratio", "triangles", "min_triangles", "kind", "shells")}
+        key = decision_key(integrator, settings, options) if p.q == "auto" and p.cache else None
+        cached = Decision.load(key, e) if key is not None else None
+        shapes = {s.first_triangle: s for s in scene.shapes}
+        if cached is not None and not set(cached.proxy_meshes + cached.shell_meshes) <= shapes.keys():
+            cached = None  # a foreign record
+        self.decision = cached or self._decide(scene, bvh, settings, integrator)
+        self.decision.cached = cached is not None
+        if cached is not None:  # the same scene, view and settings decided before: build only what it chose
+            self._build(scene, bvh, set(cached.proxy_meshes), [shapes[f] for f in cached.shell_meshes])
+            if cached.plan is not None:
+                cached.plan.shells = self.shells
+            self._apply(cached.plan)
+        elif key is not None:
+            self.decision.store(key)
+
+    def _decide(self, scene, bvh, settings, integrator):
+        """Survey the heavy meshes, probe the pilot's cost, build what may be used and plan (a `Decision`)."""
+        p = self.params
+        with self.timed("survey"):  # the cheapest evidence first: which heavy meshes the segments cross
+            survey = survey_heavy_meshes(scene, integrator, settings, p.min_triangles, p.cache)
+        shell_meshes = meshes_for_shells(p.shells, survey)
+        # with q auto, no proxy for a mesh that few segments come near, nor for any where the pilot would cost
+        # more than PILOT_BUDGET of the render: exact visibility then renders, as `exact` would
+        only = {m.shape.first_triangle for m in survey if m.crossed or p.q != "auto"}
+        tags = (["plain"] if p.shells != "on" or not shell_meshes else []) + (["shells"] if shell_meshes else [])
+        self.pilot = Pilot(integrator, settings) if p.q == "auto" and only else None
+        fits = False
+        if self.pilot is not None:
+            with self.timed("pilot"):
+                fits = self.pilot.probe(tags, self.seconds["survey"])
+            only = only if fits else set()
+        has_proxy = self._build(scene, bvh, only, shell_meshes)
+        plan = None
+        if has_proxy and self.fixed_q is None:
             configs = {"plain": ShellTests.none(bvh)} if p.shells != "on" or not self.shells.active else {}
             if self.shells.active:  # with shells (forced on: the only configuration)
                 configs["shells"] = self.shells
             with self.timed("pilot"):
                 plan = self.pilot.plan(self._kernel, configs, PILOT_Q)
-            self.exact, self.q, self.gain, self.shells = plan.exact, plan.q, plan.gain, plan.shells
-            self.weight = plan.weight
-            self.shells_dropped, self.costs, self.camera_cost = plan.shells_dropped, plan.costs, plan.camera_cost
-            self.sums += plan.sums
-            self.pilot_segments = plan.segments
+        if not has_proxy or plan is not None:  # a fixed q with proxies keeps it everywhere
+            self._apply(plan)
+        kept = [] if plan is not None and plan.shells_dropped else shell_meshes
+        used = has_proxy and not (plan is not None and plan.exact.all())  # exact everywhere needs no proxy
+        return Decision(tuple(sorted(only)) if used else (), tuple(s.first_triangle for s in kept), plan,
+                        self.pilot.predicted if self.pilot is not None else None, fits)
+
+    def _build(self, scene, bvh, only, shell_meshes):
+        """The proxies of the meshes `only` (first triangles), their BVH and the shells of `shell_meshes`; True if
+        there is any proxy."""
+        p = self.params
+        with self.timed("proxies"):
+            self.proxies = build_proxies(scene, p.ratio, p.triangles, p.min_triangles, p.cache, p.kind, only)
+        has_proxy = self.proxies.n_decimated + self.proxies.n_volumes > 0
+        with self.timed("proxy_bvh"):  # no proxy: nothing to test but the scene, whose BVH stands in
+            self.proxy_bvh = build_bvh(self.proxies.triangles) if has_proxy else bvh
+        with self.timed("shells"):
+            self.shells = shell_tests(scene, bvh, shell_meshes, p.cache)
+        return has_proxy
+
+    def _apply(self, plan):
+        """Take a `Plan`'s choices; None: exact visibility everywhere (no proxy to test)."""
+        if plan is None:
+            self.exact[:] = True  # nothing to gain: every segment is tested exactly
+            return
+        self.exact, self.q, self.gain, self.shells = plan.exact, plan.q, plan.gain, plan.shells
+        self.weight = plan.weight
+        self.shells_dropped, self.costs, self.camera_cost = plan.shells_dropped, plan.costs, plan.camera_cost
+        self.sums += plan.sums
+        self.pilot_segments = plan.segments
 
     def render_path(self):
         """Exact visibility's fused kernel where every region of every emitter went exact (and no shells decide
@@ -243,6 +282,7 @@ class ProxyVisibility(VisibilityEstimator):
         if self.shells.shells is not None:
             out["shells"] = self.shells.report()
         out["shells_dropped"] = self.shells_dropped
-        if self.pilot is not None:  # q auto's probe: the pilot ran only if it fit its budget
-            out["pilot"] = dict({k: float(v) for k, v in self.pilot.predicted.items()}, ran=self.pilot_fits)
+        d = self.decision
+        if d.predicted is not None:  # q auto's probe: the pilot ran only if it fit its budget
+            out["pilot"] = dict({k: float(v) for k, v in d.predicted.items()}, ran=d.pilot_ran, cached=d.cached)
         return out

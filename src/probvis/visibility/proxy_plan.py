@@ -13,9 +13,11 @@ than PILOT_BUDGET of the render, nothing else is run or built, and exact visibil
 import time
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from ..color import LUMINANCE
+from .. import disk_cache
 from ..settings import MAX_SEED
 from ..shells import ShellTests
 from .base import CASE_UNKNOWN
@@ -30,6 +32,8 @@ REGIONS = 8  # q per emitter in REGIONS x REGIONS tiles of the film
 SHRINK = 256  # a region's mismatch energy and variance are shrunk toward its emitter's by this many segments' worth
 PILOT_SALT = 0x50524F5859  # mixed into its seed, apart from the render's samples
 Q_MIN = 0.02  # a region's q is never below this (a segment's, `segment_q`, never below a tenth of its region's)
+PLAN_VERSION = 1  # of the cached decision's record (`Decision`)
+PREDICTED = ("render_seconds", "pilot_seconds")  # the probe's predictions, in seconds (stored)
 GAIN_MARGIN = 1.25  # proxies are used where the predicted gain exceeds this: a small view flatters them
 SHELL_MARGIN = 1.05  # shells are kept where their plan predicts this much more than the plan without them
 
@@ -48,6 +52,76 @@ class Plan:
     camera_cost: float = None  # κ: the camera rays' cost, relative to the same
     sums: np.ndarray = None  # (emitters, N_SUMS) what the pilot measured
     segments: int = 0  # pilot segments measured both ways
+
+
+@dataclass
+class Decision:
+    """What `q=auto` decided before the render, cached on disk under `decision_key`: the meshes that get proxies
+    and shells (by their first triangle), the plan (None: exact visibility everywhere, the pilot not run or
+    nothing to plan; its `shells` are not stored but built again from `shell_meshes`), the probe's predictions
+    and whether the pilot ran; `cached`: read from the cache."""
+
+    proxy_meshes: tuple
+    shell_meshes: tuple
+    plan: Plan = None
+    predicted: dict = None
+    pilot_ran: bool = False
+    cached: bool = False
+
+    def store(self, key):
+        out = {"proxy_meshes": np.array(self.proxy_meshes, np.int64),
+               "shell_meshes": np.array(self.shell_meshes, np.int64),
+               "predicted": np.array([self.predicted[k] for k in PREDICTED] if self.predicted else [], float),
+               "pilot_ran": np.array([self.pilot_ran], np.int64)}
+        if self.plan is not None:
+            p = self.plan
+            out.update(exact=p.exact, q=p.q, gain=np.nan_to_num(p.gain, nan=-1.0), weight=p.weight, sums=p.sums,
+                       costs=np.array(p.costs if p.costs is not None else [], float),
+                       camera_cost=np.array([] if p.camera_cost is None else [p.camera_cost], float),
+                       counts=np.array([p.segments, p.shells_dropped], np.int64))
+        disk_cache.store("plans", key, out)
+
+    @classmethod
+    def load(cls, key, n_emitters):
+        """The record `store` stored under `key`, or None (none, damaged or foreign)."""
+        e, r = n_emitters, REGIONS * REGIONS
+        base = {"proxy_meshes": ((None,), "i"), "shell_meshes": ((None,), "i"), "predicted": ((None,), "f"),
+                "pilot_ran": ((1,), "i")}
+        a = disk_cache.load("plans", key, base)
+        if a is None or len(a["predicted"]) not in (0, len(PREDICTED)):
+            return None
+        predicted = None
+        if len(a["predicted"]):
+            predicted = dict(zip(PREDICTED, map(float, a["predicted"])))
+            predicted["budget_seconds"] = PILOT_BUDGET * predicted["render_seconds"]
+        meshes = tuple(map(int, a["proxy_meshes"])), tuple(map(int, a["shell_meshes"]))
+        if "exact" not in a:
+            return cls(*meshes, None, predicted, bool(a["pilot_ran"][0]))
+        planned = {"exact": ((r, e), "b"), "q": ((r, e), "f"), "gain": ((e,), "f"), "weight": ((e,), "f"),
+                   "sums": ((e, N_SUMS), "f"), "costs": ((None,), "f"), "camera_cost": ((None,), "f"),
+                   "counts": ((2,), "i")}
+        if not disk_cache.fits(a, planned) or len(a["costs"]) not in (0, 2) or len(a["camera_cost"]) > 1:
+            return None
+        segments, dropped = (int(x) for x in a["counts"])
+        plan = Plan(a["exact"], a["q"], np.where(a["gain"] < 0, np.nan, a["gain"]), None, bool(dropped), a["weight"],
+                    tuple(map(float, a["costs"])) or None,
+                    float(a["camera_cost"][0]) if len(a["camera_cost"]) else None, a["sums"], segments)
+        return cls(*meshes, plan, predicted, bool(a["pilot_ran"][0]))
+
+
+
+def decision_key(integrator, settings, options):
+    """The cache key of a `Decision`: XXH3 of the scene as the kernels see it (geometry, materials, emitters),
+    the view, the samples, the threads and the estimator's options; not the seed (the pilot draws apart from
+    the render's samples) nor textures' images (a plan only weighs cost against variance: any plan keeps the
+    image unbiased, so a key that misses an edit costs efficiency, never correctness)."""
+    sa, cam = integrator.scene_arrays, integrator.camera
+    scene = [sa.triangles, sa.tri_material, sa.tri_emitter, sa.reflectance, sa.twosided, sa.emitter_radiance,
+             sa.material_texture]
+    view = [np.asarray(x, float).ravel() for x in cam]
+    label = (f"proxy plan v{PLAN_VERSION} budget {PILOT_BUDGET} spp {settings.spp} rays {settings.shadow_rays} "
+             f"threads {numba.get_num_threads()} {sorted(options.items())}")
+    return disk_cache.content_key(label, *scene, *integrator.emitters.arrays, *view)
 
 
 def allocate(n, variance, mismatch, rho, exact=1.0, base=1.0, rounds=20, scaled=None):
@@ -154,11 +228,12 @@ class Pilot:
             self.best[name] = min(self.best.get(name, np.inf), time.perf_counter() - t0)
         return outs
 
-    def probe(self, tags):
+    def probe(self, tags, before=0.0):
         """Time camera rays and exact visibility on the first set of pilot samples and on one sample (twice: the
         first run may load kernels), for a pilot of the configurations `tags`; True if the pilot's predicted
-        seconds fit PILOT_BUDGET of the render's."""
-        t_start = time.perf_counter()
+        seconds, with the `before` seconds that deciding took already (the survey), fit PILOT_BUDGET of the
+        render's."""
+        t_start = time.perf_counter() - before
         one = {"camera": np.inf, "exact": np.inf}
         for _ in range(2):
             t0 = time.perf_counter()
