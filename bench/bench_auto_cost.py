@@ -3,23 +3,26 @@
 
 Exact visibility without shells (the baseline), exact visibility's default (`--shells auto`: a survey, then
 shells only where they are predicted to pay) and `proxy` with its efficiency-aware q (the survey, then a pilot
-only where it fits in 3% of the render), on the same scene in one process, in the order A B C C B A for each
-seed, at 4 spp x 16 and 64 shadow rays and 16 spp x 16. Seconds = the estimator's preparation + the render
+only where it fits in 3% of the render), deciding afresh (its cached decisions removed first: a first render)
+and with the decision cached (a render of the same scene again), on the same scene in one process, in the
+order A B C D D C B A for each seed, at 4 spp x 16 and 64 shadow rays and 16 spp x 16. Seconds = the estimator's preparation + the render
 (not the scene load and BVH every method shares), median over the seeds' two renders each; the ratio is the
 baseline's seconds over the method's (its efficiency where the images are the same, which is said). Built-ins
 at 256x256, shared scenes (with ../shared beside the repository) at 128x128 as in experiments/proxies.toml.
 """
 import argparse
+import shutil
 import statistics
 from pathlib import Path
 
 import numpy as np
 
 import probvis
+from probvis.disk_cache import cache_dir
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 METHODS = [("exact, no shells", "exact", {"shells": "off"}), ("exact default", "exact", {}),
-           ("proxy auto", "proxy", {})]
+           ("proxy auto, deciding", "proxy", {}), ("proxy auto, decided", "proxy", {})]
 SETTINGS = [(4, 16), (4, 64), (16, 16)]
 
 
@@ -44,6 +47,8 @@ def main():
             for seed in range(args.seeds):
                 images = {}
                 for label, vis, opts in METHODS + METHODS[::-1]:
+                    if label.endswith("deciding"):
+                        shutil.rmtree(cache_dir("plans"), ignore_errors=True)
                     r = probvis.render(scene, spp=spp, shadow_rays=rays, seed=seed, visibility=vis,
                                        visibility_options=opts)
                     seconds[label].append(r.stats["seconds"]["prepare"] + r.stats["seconds"]["render"])

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from probvis.cli import main
@@ -116,6 +117,9 @@ CASES = [
     (["render", "quad-shadow", "-o", "out.exr", ""], "unrecognized argument '' (an empty string"),
     (["render", "--", "quad-shadow", "--spp", "1", "-o", "out.exr"],
      "(after '--' every argument is a positional one: put the options before '--')"),
+    (["scenes", "--json"], "(--json is an option of 'probvis info' and 'probvis estimators' and 'probvis tables', "
+                           "not of 'probvis scenes')"),
+    (["tables", "--seed", "3"], "(--seed is an option of 'probvis render', not of 'probvis tables')"),
     (["experiment", "--quick", "-o", ""], "-o needs a folder name (got an empty one)"),
     (["experiment", "--quick", "--cache", " "], "--cache needs a folder name (got an empty one)"),
 ]
@@ -480,3 +484,34 @@ def test_a_closed_terminal_stops_a_render_as_ctrl_c_does(tmp_path):
     _, err = proc.communicate(timeout=TIME_LIMIT)
     assert proc.returncode == 130 and err.strip().splitlines()[-1] == "probvis: interrupted, nothing written", err
     assert not list(tmp_path.iterdir())
+
+
+def test_messages_say_what_is_wrong(tmp_path, monkeypatch):
+    """Messages that misled: a PLY without z is not 'truncated'; a built-in given as a Path is named as such; an
+    array of probabilities is three numbers; an unknown --verify word gets no note about tiny probabilities; the
+    thread limit says where it comes from."""
+    from pathlib import Path
+
+    import numba
+
+    import probvis
+    from probvis import ProbvisError
+    from probvis.visibility.occlusion_map.verification import parse_verify
+
+    ply = tmp_path / "m.ply"
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nelement face 1\n"
+                   "property list uchar int vertex_indices\nend_header\n0 0\n1 0\n0 1\n3 0 1 2\n")
+    from probvis.scene.shapes import load_mesh
+
+    with pytest.raises(ProbvisError, match="its vertex element has no 'z' property"):
+        load_mesh(ply)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ProbvisError, match="a built-in scene is named by a string: 'cornell-box'"):
+        probvis.render(Path("cornell-box"), spp=1)
+    r = probvis.render("quad-shadow", spp=1, shadow_rays=2, defines={"res": 8}, visibility="probvis",
+                       visibility_options={"probabilities": np.array([0.5, 0.25, 0.25])})
+    assert list(r.stats["visibility"]["probabilities"]) == [0.5, 0.25, 0.25]
+    assert "below" not in parse_verify("AUTO") and "below, each correction" in parse_verify("1e-9")
+    monkeypatch.setenv("NUMBA_NUM_THREADS", str(numba.config.NUMBA_NUM_THREADS))
+    with pytest.raises(ProbvisError, match=rf"between 1 and {numba.config.NUMBA_NUM_THREADS} \(NUMBA_NUM_THREADS="):
+        probvis.render("quad-shadow", spp=1, defines={"res": 8}, threads=numba.config.NUMBA_NUM_THREADS + 1)

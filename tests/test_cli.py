@@ -213,3 +213,73 @@ def test_an_output_that_is_one_of_the_scene_s_inputs_is_refused(tmp_path, capsys
     assert texture.read_bytes() == before and not (tmp_path / "out.png").exists()
     result = probvis.render(str(path), spp=1)
     assert result.stats["inputs"] == [str(path.resolve()), str(texture.resolve())]
+
+
+def _two_lights(tmp_path):
+    """A textured floor under two area lights (so --case-image writes NAME-e0.png and NAME-e1.png)."""
+    from probvis.io import write_png
+
+    write_png(tmp_path / "tex.png", np.full((4, 4, 3), 0.5))
+    light = """<shape type="rectangle"><transform name="to_world"><scale value="{s}"/><rotate x="1" angle="180"/>
+        <translate x="{x}" z="1.5"/></transform><emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>"""
+    body = sensor(w=8, h=8) + """<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap"
+        name="reflectance"><string name="filename" value="$tex"/></texture></bsdf></shape>
+        <shape type="cube"><transform name="to_world"><scale value="0.2"/><translate z="0.5"/></transform></shape>
+        """ + light.format(s=0.3, x=0) + light.format(s=0.2, x=0.8)
+    return write_scene(tmp_path / "two.xml", body, '<default name="tex" value="tex.png"/>')
+
+
+@pytest.mark.parametrize("setup, message", [
+    ("texture", "--case-image c.png (c-e0.png): the scene reads this file"),
+    ("link to output", "with several emitters it writes c-e0.png, the same file as -o o.png"),
+    ("link to texture", "--case-image c.png (c-e1.png): the scene reads this file"),
+    ("folder", "cannot write 'c-e1.png': it is a folder"),
+])
+def test_each_emitter_s_case_image_is_planned_like_any_output(tmp_path, monkeypatch, capsys, setup, message):
+    """With several emitters --case-image writes NAME-e<k>.ext: those files get every output check (a scene
+    input, a link to another output or an input, a folder), and nothing is written when one fails."""
+    import os
+
+    scene = _two_lights(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    defines = []
+    if setup == "texture":
+        (tmp_path / "c-e0.png").write_bytes((tmp_path / "tex.png").read_bytes())
+        defines = ["-D", "tex=c-e0.png"]
+    elif setup == "link to output":
+        os.symlink("o.png", "c-e0.png")
+    elif setup == "link to texture":
+        os.symlink("tex.png", "c-e1.png")
+    else:
+        os.mkdir("c-e1.png")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    assert main(["render", str(scene), "--visibility", "occlusion-map", "--photons", "1000", "--spp", "1",
+                 "--shadow-rays", "1", "-q", "--case-image", "c.png", "-o", "o.png", *defines]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
+    assert not (tmp_path / "o.png").exists()
+
+
+def test_outputs_are_committed_all_or_none(tmp_path, monkeypatch):
+    """`staged_writes`: when a later rename fails, the earlier ones are undone (a replaced file gets its old
+    content back, a new one is removed)."""
+    import os
+
+    from probvis.io import image
+
+    old = tmp_path / "a.png"
+    old.write_bytes(b"old")
+    real = os.replace
+
+    def failing(src, dst):
+        if str(dst).endswith("b.png"):
+            raise OSError(28, "No space left on device")
+        return real(src, dst)
+
+    monkeypatch.setattr(image.os, "replace", failing)
+    with pytest.raises(ProbvisError, match="cannot write '.*b.png': No space left on device"):
+        with image.staged_writes():
+            for name in ("a.png", "new.png", "b.png"):
+                image.write_png(tmp_path / name, np.full((2, 2, 3), 0.5))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png"] and old.read_bytes() == b"old"

@@ -282,6 +282,14 @@ def test_a_plugin_s_every_method_is_checked(methods, message):
      "option 'k': its check raised ZeroDivisionError on the default 1"),
     (probvis.visibility.Option("k", int, 1, "not in a tuple"), "options must be a tuple of Options"),
     (None, "options must be a tuple of Options, got None"),
+    ((probvis.visibility.Option("x", bool, False, "a"), probvis.visibility.Option("no_x", int, 1, "b")),
+     "options 'x' and 'no_x' both make the flag --no-x"),
+    ((probvis.visibility.Option("a_b", int, 1, "a"), probvis.visibility.Option("a-b", int, 1, "b")),
+     "option names are identifiers (letters, digits, '_'), got 'a-b'"),
+    ((probvis.visibility.Option(5, int, 1, "a"),), "option names are identifiers (letters, digits, '_'), got 5"),
+    ((probvis.visibility.Option("", int, 1, "a"),), "option names are identifiers (letters, digits, '_'), got ''"),
+    ((probvis.visibility.Option("my opt", int, 1, "a"),), "got 'my opt'"),
+    ((probvis.visibility.Option("k", int, 1, "red\x1b[31m"),), "option 'k': help must be one line of plain text"),
 ])
 def test_a_plugin_s_options_are_checked_when_it_loads(options, message):
     cls = type("Declared", (_Exact,), {"options": options})
@@ -296,10 +304,34 @@ def test_a_plugin_s_options_are_checked_when_it_loads(options, message):
     ({"aovs": (probvis.visibility.Aov("a", "h", "weird"),)}, "AOV 'a' has kind 'weird'"),
     ({"phases": "prepare"}, "phases must be a tuple of Phases, got 'prepare'"),
     ({"unbiased": "no"}, "unbiased must be True or False, got 'no'"),
+    ({"summary": "line one\nline two\x1b[31mred"}, "summary must be one line of plain text"),
+    ({"aovs": (probvis.visibility.Aov("cases", "the cases", kind="cases"),)}, "named 'cases', from the estimator's "
+                                                                            "classify (got 'cases', no classify)"),
+    ({"aovs": (probvis.visibility.Aov("triangle_tests", "clash"),)}, "AOV 'triangle_tests' is one of the film's own"),
+    ({"aovs": (probvis.visibility.Aov("second_moment", "clash"),)}, "AOV 'second_moment' is one of the film's own"),
+    ({"aovs": (probvis.visibility.Aov("a", "x"), probvis.visibility.Aov("a", "y"))}, "declares AOV 'a' twice"),
+    ({"phases": (probvis.visibility.Phase("load", "prepare"),)}, "phase 'load' is one of probvis's own"),
+    ({"phases": (probvis.visibility.Phase("render", "batch"),)}, "phase 'render' is one of probvis's own"),
+    ({"phases": (probvis.visibility.Phase("a b", "batch"),)}, "phase names are identifiers"),
 ])
 def test_a_plugin_s_name_phases_and_aovs_are_checked_when_it_loads(declared, message):
     with pytest.raises(ProbvisError, match=re.escape(message)):
         estimator_class(type("Declared", (_Exact,), declared))
+
+
+def test_a_plugin_gets_the_scene_read_only():
+    """A plug-in that writes the scene's arrays (reflectance zeroed in prepare) fails in its own code as its bug;
+    the caller's Scene is unchanged for the next render (it was black with exact visibility)."""
+    def zero(self, scene, bvh, emitters, settings, integrator):
+        _Exact.prepare(self, scene, bvh, emitters, settings, integrator)
+        scene.reflectance[:] = 0.0
+
+    scene = probvis.load_scene("quad-shadow", res=8)
+    before = probvis.render(scene, spp=1).image
+    with pytest.raises(ProbvisError, match="raised ValueError in the render .*read-only"):
+        probvis.render(scene, spp=1, visibility=type("Writes", (_Exact,), {"prepare": zero}))
+    np.testing.assert_array_equal(probvis.render(scene, spp=1).image, before)
+    assert before.mean() > 0 and scene.reflectance.flags.writeable
 
 
 def test_a_plugin_file_that_raises_is_one_line_and_writes_nothing(tmp_path):

@@ -123,12 +123,20 @@ class _Parser(argparse.ArgumentParser):
             message = "unrecognized argument '' (an empty string: check the command's quoting)"
         if message.startswith("unrecognized arguments: ") and "--" in message:
             given = [a for a in message.split(": ", 1)[1].split() if a.startswith("--")]
-            flags = [f for a in self._actions for f in a.option_strings]
+            flags, owners = [f for a in self._actions for f in a.option_strings], {}
             for sub in self._subparsers._group_actions if self._subparsers else ():
-                flags += [f for p in sub.choices.values() for a in p._actions for f in a.option_strings]
-            near = [f for f in dict.fromkeys(flags) if given and f.startswith(given[0].split("=")[0])]
-            if given and given[0].split("=")[0] in flags:  # a whole flag it did not take: it came after '--'
+                for name, p in sub.choices.items():
+                    for f in (f for a in p._actions for f in a.option_strings):
+                        flags.append(f)
+                        owners.setdefault(f, []).append(name)
+            flag = given[0].split("=")[0] if given else None
+            near = [f for f in dict.fromkeys(flags) if flag and f.startswith(flag)]
+            argv = getattr(self, "argv", [])
+            if flag in flags and "--" in argv:  # a whole flag it did not take: it came after '--'
                 message += " (after '--' every argument is a positional one: put the options before '--')"
+            elif flag in flags and argv and argv[0] in self._subparsers._group_actions[0].choices:
+                others = " and ".join(f"'probvis {o}'" for o in dict.fromkeys(owners.get(flag, [])))
+                message += f" ({flag} is an option of {others}, not of 'probvis {argv[0]}')"
             elif near:
                 message += f" (flags are spelt out in full: did you mean {' or '.join(near[:3])}?)"
         raise ProbvisError(message)
@@ -259,14 +267,35 @@ def _plan_outputs(outputs, args):
         if key in seen:
             raise ProbvisError(f"{flag} {path}: the same file as {seen[key]}; give each output its own name")
         seen[key] = f"{flag} {path}"
-    if args.case_image:  # with several emitters it writes NAME-e0.ext, NAME-e1.ext, ... instead
-        case = Path(args.case_image).resolve()
+    if args.case_image:  # with several emitters it writes NAME-e0.ext, NAME-e1.ext, ... instead: the names
+        # of that form already there, and a long one's length, are checked now; every one once the scene's emitters
+        # are known (`_plan_case_images`)
+        given = Path(args.case_image)
+        case = given.resolve()
         per_emitter = re.compile(re.escape(case.stem) + r"-e\d+" + re.escape(case.suffix))
         for key, owner in seen.items():
             if key.parent == case.parent and per_emitter.fullmatch(key.name):
                 raise ProbvisError(f"--case-image {args.case_image}: with several emitters it writes {key.name}, the "
                                    f"same file as {owner}; give each output its own name")
+        folder = given.parent if str(given.parent) else Path(".")
+        there = sorted(folder / n for n in os.listdir(folder) if per_emitter.fullmatch(n)) if folder.is_dir() else []
+        check_writable(given.with_name(f"{given.stem}-e99{given.suffix}"), FORMATS, "--case-image's output")
+        _plan_case_images(args, seen, there)
     return seen
+
+
+def _plan_case_images(args, planned, paths):
+    """Check the per-emitter case images `paths` as `_plan_outputs` checks outputs, and add them to `planned`."""
+    from .io import check_writable
+    from .io.image import FORMATS
+
+    for path in paths:
+        check_writable(path, FORMATS, "--case-image's output")
+        key = Path(path).resolve()
+        if key in planned and not planned[key].startswith(f"--case-image {args.case_image}"):
+            raise ProbvisError(f"--case-image {args.case_image}: with several emitters it writes {path}, the same "
+                               f"file as {planned[key]}; give each output its own name")
+        planned[key] = f"--case-image {args.case_image} ({Path(path).name})"
 
 
 def _refuse_inputs(planned, inputs):
@@ -281,6 +310,7 @@ def _refuse_inputs(planned, inputs):
 def _cmd_render(args):
     from .integrator import render
     from .io import staged_writes, summary, write_case_images, write_exr, write_image, write_stats
+    from .io.case_images import case_image_paths
 
     cls = args.estimator_class
     if args.case_image and not any(a.kind == "cases" for a in cls.aovs):
@@ -299,6 +329,10 @@ def _cmd_render(args):
                         filter_importance=args.filter_importance or None)
     finally:  # a plug-in that changed folder: the outputs are named relative to the user's
         os.chdir(folder)
+    if args.case_image and "cases" not in result.aovs:
+        raise ProbvisError(f"--case-image: '{cls.name}' classified no shading point (its classify returned None)")
+    if args.case_image and result.aovs["cases"].shape[2] > 1:
+        _plan_case_images(args, planned, case_image_paths(args.case_image, result.aovs["cases"].shape[2]))
     _refuse_inputs(planned, result.stats["inputs"])
     check_stop()  # a stop that a plug-in swallowed: nothing is written
     with staged_writes():  # every output or none
@@ -623,7 +657,9 @@ def _parse(argv):
         repeated = _repeated_option(argv, cls)
         if repeated:
             raise ProbvisError(f"{' and '.join(repeated)} set the same option: give it once")
-    args = _parser(cls).parse_args(argv)
+    parser = _parser(cls)
+    parser.argv = argv  # for its error lines: whether the command has a '--'
+    args = parser.parse_args(argv)
     args.estimator_class = cls
     return args
 

@@ -14,7 +14,8 @@ import xxhash
 
 def cache_dir(kind):
     """Where entries of `kind` ("proxies", "shells", "closed", "parts", "structure", "plans") are cached."""
-    return Path(os.environ.get("PROBVIS_CACHE_DIR") or Path.home() / ".cache" / "probvis") / kind
+    folder = os.environ.get("PROBVIS_CACHE_DIR")  # '~' expanded where a quoted value kept it from the shell
+    return (Path(os.path.expanduser(folder)) if folder else Path.home() / ".cache" / "probvis") / kind
 
 
 def content_key(label, *arrays):

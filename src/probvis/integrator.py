@@ -11,6 +11,7 @@ are in cache, the staged path's numbers bit for bit); an estimator with a kernel
 itself (`shade`). This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0`: each camera sample takes
 `shadow_rays` emitter samples (emitter by power, triangle by area, uniform point) with a Lambertian BRDF.
 """
+import os
 import sys
 import time
 from contextlib import nullcontext
@@ -160,7 +161,8 @@ def render_pass(scene, settings, estimator, progress=False):
     emitters = build_emitter_sampler(scene)
     integrator = Integrator(scene, bvh, emitters, settings.filter_importance)
     t1 = time.perf_counter()
-    estimator.prepare(scene, bvh, emitters, settings, integrator)
+    own = type(estimator).__module__.split(".")[0] == "probvis"
+    estimator.prepare(scene if own else scene.read_only(), bvh, emitters, settings, integrator)
     t2 = time.perf_counter()
     n_pix_total = scene.camera.width * scene.camera.height
     spp, n_shadow = settings.spp, settings.shadow_rays
@@ -336,7 +338,9 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     settings = (settings or scene.defaults).replace(spp=spp, shadow_rays=shadow_rays, seed=seed, threads=threads,
                                                     filter_importance=filter_importance).check_budget()
     if settings.threads is not None and settings.threads > numba.config.NUMBA_NUM_THREADS:
-        raise ProbvisError(f"threads must be between 1 and {numba.config.NUMBA_NUM_THREADS}, got {settings.threads}")
+        n = numba.config.NUMBA_NUM_THREADS
+        why = f"NUMBA_NUM_THREADS={n} in the environment" if os.environ.get("NUMBA_NUM_THREADS") else f"{n} cores"
+        raise ProbvisError(f"threads must be between 1 and {n} ({why}), got {settings.threads}")
     threads = settings.threads or numba.config.NUMBA_NUM_THREADS
     numba.set_num_threads(threads)
     if isinstance(visibility, VisibilityEstimator):

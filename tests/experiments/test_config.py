@@ -260,3 +260,60 @@ def test_option_names_must_be_strings():
     """A NaN key through the API was blamed on the built-in estimator's __init__."""
     with pytest.raises(ProbvisError, match=r"methods\[0\].options: option names must be strings"):
         parse_experiment(doc(methods=[{"name": "e", "visibility": "occlusion-map", "options": {float("nan"): 3}}]))
+
+
+def test_an_experiment_changed_in_python_is_checked_again(tmp_path):
+    """`experiment()` parses an `Experiment` it is given again, as a file's: a field replaced with a wrong type
+    or value (the CLI replaces `seeds`) is refused before any render, naming the field."""
+    import dataclasses
+
+    from probvis.experiments import experiment
+
+    exp = parse_experiment(doc(spp=1, resolution=[8, 8], shadow_rays=[1]))
+    for change, message in ((dict(methods=("exact",)), "methods: expected a tuple of MethodSpecs"),
+                            (dict(table_shadow_rays=99), "table_shadow_rays: 99 is not one of shadow_rays"),
+                            (dict(baseline="nope"), "baseline: 'nope' is not one of the methods (e)"),
+                            (dict(spp=0), "spp"), (dict(seeds=(-1,)), "seeds")):
+        with pytest.raises(ProbvisError, match=re.escape(message)):
+            experiment(dataclasses.replace(exp, **change), tmp_path / "rep")
+    with pytest.raises(ProbvisError, match="progress must be True or False, got 'no'"):
+        experiment(exp, tmp_path / "rep", progress="no")
+    assert not (tmp_path / "rep").exists()
+
+
+@pytest.mark.parametrize("setup, message", [
+    (lambda rep: (rep / "index.html").mkdir(parents=True), "'{rep}/index.html' is a folder, where the report writes"),
+    (lambda rep: (rep / "data" / "q.js").mkdir(parents=True), "'{rep}/data/q.js' is a folder"),
+    (lambda rep: (rep.mkdir(), (rep / "images").write_text("x")), "'{rep}/images' is a file, where the report keeps"),
+])
+def test_a_report_that_could_not_be_written_whole_is_refused_before_any_render(tmp_path, setup, message):
+    from probvis.experiments import experiment
+
+    rep = tmp_path / "rep"
+    setup(rep)
+    before = sorted(p.relative_to(rep) for p in rep.rglob("*"))
+    with pytest.raises(ProbvisError, match=re.escape(message.format(rep=rep))):
+        experiment(parse_experiment(doc(spp=1, resolution=[8, 8], shadow_rays=[1])), rep)
+    assert sorted(p.relative_to(rep) for p in rep.rglob("*")) == before  # no cache, no renders
+
+
+def test_the_libraries_environment_is_taken_in_stride(tmp_path, monkeypatch):
+    """A bogus MPLBACKEND (validated by matplotlib as it loads) does not stop the report's plots; a Dask
+    configuration file that is not YAML is one line naming DASK_CONFIG; '~' in PROBVIS_CACHE_DIR is the home."""
+    import subprocess
+    import sys
+
+    env = dict(os.environ, MPLBACKEND="bogus")
+    code = "from probvis.experiments.report import _pyplot; print(_pyplot().get_backend())"
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert r.returncode == 0 and r.stdout.strip().lower() == "agg" and not r.stderr, r.stderr
+    (tmp_path / "bad.yaml").write_text("distributed: [unclosed\n  :: x\n")
+    code = "from probvis.experiments.runner import _open_client; _open_client(1, None)"
+    r = subprocess.run([sys.executable, "-c", code], env=dict(os.environ, DASK_CONFIG=str(tmp_path)),
+                       capture_output=True, text=True)
+    assert f"ProbvisError: cannot load Dask (DASK_CONFIG={tmp_path}): ValueError: A dask config file" in r.stderr
+    from probvis.disk_cache import cache_dir
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.setenv("PROBVIS_CACHE_DIR", "~/pc")
+    assert cache_dir("plans") == tmp_path / "pc" / "plans"

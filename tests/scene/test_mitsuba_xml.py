@@ -123,6 +123,8 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
     ("<shape type='cube' id='c'/><shape type='rectangle'><ref id='c'/></shape>", "id 'c' is a <shape>, not a bsdf"),
     ("<shape type='rectangle'><ref id='m'/></shape><bsdf type='diffuse' id='m'/>",
      "id 'm' is defined after this reference (line"),
+    ("<shape type='instance'><ref id='g'/></shape><shape type='shapegroup' id='g'><shape type='cube'/></shape>",
+     "id 'g' is defined after this reference (line"),
     ("<shape type='obj'><string name='filename' value='.'/></shape>", "is not a regular file"),
     ("<default name='res'/>", "missing attribute 'value' of parameter 'res'"),
     ("<shape type='rectangle'><emitter type='area'><spectrum name='radiance' value='5000:1, 6000:1'/></emitter>"
@@ -566,3 +568,14 @@ def test_a_scene_path_that_loops_is_named_as_such(tmp_path):
     (tmp_path / "b.xml").symlink_to(tmp_path / "a.xml")
     with pytest.raises(ProbvisError, match="a.xml: a symbolic link that loops or points to nothing"):
         probvis.load_scene(tmp_path / "a.xml")
+
+
+def test_a_parameter_name_with_other_characters_is_substituted_as_mitsuba_does(tmp_path):
+    """Mitsuba replaces '$' + each declared name literally: `<default name="my-fov">` is usable as $my-fov (it was
+    'undefined parameter $my'); an undeclared name is still named."""
+    body = sensor().replace('value="40"', 'value="$my-fov"') + LIGHT
+    path = write_scene(tmp_path / "s.xml", body, '<default name="my-fov" value="30"/>')
+    assert probvis.load_scene(path).camera.fov_x == pytest.approx(30.0)
+    path = write_scene(tmp_path / "t.xml", body.replace("$my-fov", "$fov2"), '<default name="my-fov" value="30"/>')
+    with pytest.raises(ProbvisError, match=re.escape("undefined parameter '$fov2'")):
+        probvis.load_scene(path)

@@ -6,8 +6,9 @@ import numpy as np
 
 from ..errors import ProbvisError
 from ..interrupts import deferred_interrupts
-from .config import Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment
-from .report import write_report
+from .config import (Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment,
+                     recheck)
+from .report import report_problem, write_report
 from .results import measure
 from .runner import run_experiment
 
@@ -19,8 +20,9 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     if not isinstance(exp, (Experiment, str, Path)):
         raise ProbvisError(f"exp must be an Experiment (parse_experiment builds one from a dict) or an experiment "
                            f"file's path, got {type(exp).__name__}")
-    if not isinstance(exp, Experiment):
-        exp = load_experiment(exp)
+    exp = recheck(exp) if isinstance(exp, Experiment) else load_experiment(exp)
+    if not isinstance(progress, bool):
+        raise ProbvisError(f"progress must be True or False, got {progress!r}")
     if not isinstance(out, (str, Path)):
         raise ProbvisError(f"out must be the report's folder (a path), got {type(out).__name__}")
     if cache is not None and not isinstance(cache, (str, Path)):
@@ -36,6 +38,8 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ProbvisError(f"report folder '{out}' is a file: give -o a folder (new or existing)")
+    if (problem := report_problem(exp, out)) is not None:
+        raise ProbvisError(problem)
     run = run_experiment(exp, Path(cache) if cache else out / "cache", workers, scheduler, progress, log)
     results = measure(exp, run)
     with deferred_interrupts():  # seconds: an interrupt waits for a whole report rather than leave half of one

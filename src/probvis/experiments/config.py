@@ -3,6 +3,7 @@
 Every key is checked against the schema below, so a typo is an error naming the key, never a silent default.
 Paths inside the file are relative to the file.
 """
+import dataclasses
 import math
 import os
 import re
@@ -310,6 +311,30 @@ def parse_experiment(data, base=Path("."), source=""):
         table_shadow_rays=table_rays, timing_repeats=_int("timing_repeats", data.get("timing_repeats", 1), 1, 16),
         timing_seconds=_seconds("timing_seconds", data.get("timing_seconds", math.inf)),
         seconds=_choice("seconds", data.get("seconds", "total"), ("total", "render")))
+
+
+def recheck(exp):
+    """An `Experiment` built or changed in Python (`dataclasses.replace`) checked as `parse_experiment` checks a
+    file's: its fields as the table they came from, parsed again."""
+    for field_name, kind in (("scenes", SceneSpec), ("methods", MethodSpec)):
+        items = getattr(exp, field_name)
+        if not isinstance(items, (tuple, list)) or not all(isinstance(x, kind) for x in items):
+            _fail(field_name, f"expected a tuple of {kind.__name__}s, got {items!r}"[:300])
+    if not isinstance(exp.reference, ReferenceSettings):
+        _fail("reference", f"expected a ReferenceSettings, got {exp.reference!r}"[:300])
+    if exp.baseline not in [m.name for m in exp.methods]:
+        _fail("baseline", f"{exp.baseline!r} is not one of the methods ({', '.join(m.name for m in exp.methods)})")
+    data = {"name": exp.name, "description": exp.description, "spp": exp.spp, "seeds": exp.seeds,
+            "shadow_rays": exp.shadow_rays, "table_shadow_rays": exp.table_shadow_rays,
+            "timing_repeats": exp.timing_repeats, "timing_seconds": exp.timing_seconds, "seconds": exp.seconds,
+            "reference": dataclasses.asdict(exp.reference),
+            "scenes": [{k: v for k, v in dataclasses.asdict(s).items()
+                        if v is not None and (k != "reference_noise" or s.reference is not None)}
+                       for s in exp.scenes],
+            "methods": [dict(dataclasses.asdict(m), baseline=m.name == exp.baseline) for m in exp.methods]}
+    data.update({k: v for k, v in (("resolution", exp.resolution), ("target_relmse", exp.target_relmse))
+                 if v is not None})
+    return parse_experiment(data, source=exp.name if isinstance(exp.name, str) else "")
 
 
 MAX_DEPTH = 16  # lists and tables: an experiment nests three levels

@@ -11,8 +11,11 @@ import hashlib
 import html
 import io
 import json
+import logging
 import math
+import os
 import shutil
+import sys
 import warnings
 from importlib import resources
 from pathlib import Path
@@ -65,9 +68,20 @@ def _finite(obj):
 
 
 def _pyplot():
+    """matplotlib's pyplot on the Agg backend, whatever the environment says: the report draws PNG files only, so
+    MPLBACKEND (which matplotlib validates as it loads: a bogus one is a ValueError) is set aside while it loads,
+    and its logger's notes about an unusable MPLCONFIGDIR (it falls back to a temporary folder) are not shown."""
+    if "matplotlib" not in sys.modules:
+        logging.getLogger("matplotlib").setLevel(logging.ERROR)
+        backend = os.environ.pop("MPLBACKEND", None)
+        try:
+            import matplotlib
+        finally:
+            if backend is not None:
+                os.environ["MPLBACKEND"] = backend
     import matplotlib
 
-    matplotlib.use("Agg")
+    matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
     return plt
@@ -135,6 +149,7 @@ class Report:
                        if t.seed == self.seed}
 
     def write(self):
+        _pyplot()  # matplotlib loaded for the PNG plots, whatever MPLBACKEND says
         for sub in ("images", "plots", "data"):
             (self.folder / sub).mkdir(parents=True, exist_ok=True)
         for name in STATIC:
@@ -483,6 +498,27 @@ Data: <a href=results.csv>results.csv</a>, <a href=results.json>results.json</a>
 """
 
 
+def report_problem(exp, folder):
+    """What would stop the report's writing in `folder` half-way, as an error message (None: nothing): a file
+    where the report makes a folder, or a folder where it writes a file. Checked before any render."""
+    folder = Path(folder)
+    slugs = [_slug(spec.name) for spec in exp.scenes]
+    folders = ["images", "plots", "data"] + [f"images/{slug}" for slug in slugs]
+    files = [*STATIC, "results.csv", "results.json", "results.md", "index.html"]
+    for slug in slugs:
+        files += [f"data/{slug}.js", f"images/{slug}/reference.png"]
+        files += [f"plots/{slug}-{kind}.png" for kind in ("convergence", "cost", "strip")]
+        files += [f"plots/{slug}-tests-{sr}.png" for sr in exp.shadow_rays]
+        files += [f"images/{slug}/{_slug(m.name)}-{sr}.png" for m in exp.methods for sr in exp.shadow_rays]
+    for name in folders:
+        if (folder / name).exists() and not (folder / name).is_dir():
+            return f"cannot write the report: '{folder / name}' is a file, where the report keeps a folder"
+    for name in files:
+        if (folder / name).is_dir():
+            return f"cannot write the report: '{folder / name}' is a folder, where the report writes a file"
+    return None
+
+
 def write_report(exp, run, results, folder, command=""):
     """Write the report; on failure (a full disk, say) say so — the renders stay in the cache."""
     try:
@@ -492,4 +528,5 @@ def write_report(exp, run, results, folder, command=""):
             warnings.filterwarnings("ignore", message="Tight layout not applied")  # nothing a user can act on
             return Report(exp, run, results, folder, command).write()
     except OSError as exc:
-        raise ProbvisError(f"cannot write the report to '{folder}': {exc.strerror or exc}") from None
+        where = exc.filename or folder
+        raise ProbvisError(f"cannot write the report to '{folder}' ('{where}'): {exc.strerror or exc}") from None

@@ -10,6 +10,7 @@ import hashlib
 import inspect
 import json
 import logging
+import multiprocessing
 import os
 import resource
 import signal
@@ -196,9 +197,28 @@ def _check_reachable(scheduler):
         raise ProbvisError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
 
 
+def _one_line(text):
+    """A library's message as one line (YAML errors span several)."""
+    return " ".join(str(text).split())[:500]
+
+
+def _script_main():
+    """Whether the process runs a user's script (not probvis's command): its workers re-import it."""
+    path = getattr(sys.modules.get("__main__"), "__file__", None)
+    return path is not None and "probvis" not in (Path(path).name, Path(path).parent.name)
+
+
 def _open_client(workers, scheduler):
     """A Dask client: to `scheduler` when given, else to an embedded LocalCluster of `workers` processes."""
-    from dask.distributed import Client, LocalCluster
+    if multiprocessing.current_process().name.startswith("Dask Worker"):
+        raise ProbvisError("experiment() runs in a worker process that imported the script calling it: put the "
+                           "call under `if __name__ == \"__main__\":` (Dask's workers import the script that starts "
+                           "them)")
+    try:
+        from dask.distributed import Client, LocalCluster
+    except Exception as exc:  # Dask reads its configuration as it loads (DASK_CONFIG's YAML files)
+        config = f" (DASK_CONFIG={os.environ['DASK_CONFIG']})" if os.environ.get("DASK_CONFIG") else ""
+        raise ProbvisError(f"cannot load Dask{config}: {type(exc).__name__}: {_one_line(exc)}") from None
 
     if scheduler:
         try:
@@ -220,7 +240,17 @@ def _open_client(workers, scheduler):
         files, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
         hint = (f" (this process may open only {files} files, ulimit -n: raise it to a few thousand)"
                 if files != resource.RLIM_INFINITY and files < MIN_OPEN_FILES else "")
-        raise ProbvisError(f"cannot start a local Dask cluster: {exc.__cause__ or exc}{hint}") from None
+        settings = sorted(k for k in os.environ if k.startswith("DASK_"))
+        if not hint and settings:
+            hint = f" (Dask's configuration in the environment: {', '.join(settings)})"
+        if not hint and _script_main():
+            hint = (" (from a script, experiment() must be called under `if __name__ == \"__main__\":`: the workers "
+                    "import the script that starts them)")
+        cause = exc.__cause__ or exc  # the first of the chain that says something
+        while not str(cause).strip() and (cause.__cause__ or cause.__context__) is not None:
+            cause = cause.__cause__ or cause.__context__
+        reason = str(cause).strip() or f"{type(cause).__name__} (no message)"
+        raise ProbvisError(f"cannot start a local Dask cluster: {_one_line(reason)}{hint}") from None
     finally:
         if main:
             signal.signal(signal.SIGINT, previous)

@@ -14,6 +14,12 @@ def case_colours(shares):
     return np.stack([penumbra + 0.5 * unknown, lit + 0.5 * unknown, shadowed + 0.5 * unknown], axis=-1)
 
 
+def case_image_paths(path, n_emitters):
+    """The files `write_case_images` writes for `n_emitters`: `path` itself for one, `name-e<k>.ext` for several."""
+    p = Path(path)
+    return [str(p) if n_emitters == 1 else str(p.with_name(f"{p.stem}-e{e}{p.suffix}")) for e in range(n_emitters)]
+
+
 def write_case_images(path, cases):
     """Write the (h, w, emitters, 4) case-share AOV as one image per emitter (`name-e<k>.ext` when there are
     several); returns the paths written."""
@@ -21,9 +27,7 @@ def write_case_images(path, cases):
     if cases.ndim != 4 or cases.shape[3] != 4 or cases.dtype.kind not in "fiu":
         raise ProbvisError(f"cannot write '{path}': case shares are an (h, w, emitters, 4) array, got "
                            f"{cases.dtype} of shape {cases.shape}")
-    n_emit = cases.shape[2]
-    p = Path(path)
-    paths = [str(p) if n_emit == 1 else str(p.with_name(f"{p.stem}-e{e}{p.suffix}")) for e in range(n_emit)]
+    paths = case_image_paths(path, cases.shape[2])
     for e, out in enumerate(paths):
         write_image(out, case_colours(cases[:, :, e, :]))
     return paths

@@ -58,7 +58,8 @@ def check_writable(path, formats=FORMATS, role="an image"):
         if len(path.name.encode()) > os.pathconf(parent, "PC_NAME_MAX"):
             raise OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG))
     except OSError as exc:
-        raise ProbvisError(f"cannot write '{path}': {exc.strerror or exc}") from None
+        link = f" (a link to '{os.path.realpath(path)}')" if os.path.islink(path) else ""
+        raise ProbvisError(f"cannot write '{path}'{link}: {exc.strerror or exc}") from None
 
 
 MAX_IMAGE_PIXELS = 1 << 27  # a PNG or JPEG larger than this (3 GiB as linear RGB) is refused from its header
@@ -75,16 +76,47 @@ def staged_writes():
     outer, _staged = _staged, []
     try:
         yield
-        for tmp, path, shown in _staged:
-            try:
-                os.replace(tmp, path)
-            except OSError as exc:
-                raise ProbvisError(f"cannot write '{shown}': {exc.strerror or exc}") from None
+        _commit(_staged)
     finally:
         for tmp, _, _ in _staged:
             if os.path.exists(tmp):
                 os.unlink(tmp)
         _staged = outer
+
+
+def _commit(staged):
+    """Rename each (temporary, destination, name given) of `staged` over its destination, all or none: a
+    destination a rename cannot replace (a folder) is found before the first; a rename that fails later puts
+    back what the earlier ones replaced (kept as hard links meanwhile) and removes what they created."""
+    for _, path, shown in staged:
+        if os.path.isdir(path):
+            raise ProbvisError(f"cannot write '{shown}': it is a folder")
+    done = []
+    try:
+        for tmp, path, shown in staged:
+            previous = f"{tmp}.previous" if os.path.lexists(path) else None
+            if previous is not None:
+                try:
+                    os.link(path, previous)
+                except OSError:  # a file system without hard links: this one cannot be put back
+                    previous = None
+            try:
+                os.replace(tmp, path)
+            except OSError as exc:
+                if previous is not None:
+                    os.unlink(previous)
+                raise ProbvisError(f"cannot write '{shown}': {exc.strerror or exc}") from None
+            done.append((path, previous))
+    except BaseException:
+        for path, previous in reversed(done):
+            try:
+                os.replace(previous, path) if previous is not None else os.unlink(path)
+            except OSError:
+                pass
+        raise
+    for _, previous in done:
+        if previous is not None and os.path.lexists(previous):
+            os.unlink(previous)
 
 
 @contextmanager

@@ -29,6 +29,9 @@ def load_scene(path, strict=False, **defaults):
             return builtin_scene(path, **defaults)
         p = Path(path)
         if p.suffix.lower() != ".xml" and not p.exists():
+            if str(path) in BUILTINS:
+                raise ProbvisError(f"{path!r} is not a scene file here; a built-in scene is named by a string: "
+                                   f"'{path}'")
             raise ProbvisError(f"'{path}' is neither a scene file nor a built-in scene ({', '.join(BUILTINS)})")
     except OSError as exc:
         name = str(path) if len(str(path)) <= 80 else f"{str(path)[:60]}...({len(str(path))} characters)"

@@ -123,7 +123,8 @@ def _invertible_affine(m):
     return bool(size > 0 and abs(np.linalg.det(m[:3, :3] / size)) >= 1e-12 and np.all(m[3] == (0, 0, 0, 1)))
 
 
-_VAR = re.compile(r"\$(\w+)")  # any <default> name, as Mitsuba substitutes it
+_VAR = re.compile(r"\$(\w+)")  # a parameter's name in a value, where every declared name is a word
+_WORD = re.compile(r"\w+")
 
 
 def _by_name(node):
@@ -187,7 +188,15 @@ class _Reader:
                 return self.defaults[name]
             self.fail(node, f"undefined parameter '${name}' (declare it with <default> or pass -D {name}=...)")
 
-        return _VAR.sub(sub, raw)
+        return self._variables().sub(sub, raw)
+
+    def _variables(self):
+        """`$name` of any parameter, as Mitsuba substitutes it: declared names with other characters than letters,
+        digits and '_' ('my-fov') first, longest first, then any word (an undeclared one is named as such)."""
+        odd = sorted((n for n in {*self.defaults, *self.overrides} if not _WORD.fullmatch(n)), key=len, reverse=True)
+        if not odd:
+            return _VAR
+        return re.compile(r"\$(" + "|".join(map(re.escape, odd)) + r"|\w+)")
 
     def check_attrs(self, node, allowed):
         extra = set(node.attrs) - set(allowed)
@@ -554,7 +563,8 @@ class _Reader:
             target = self.id_nodes.get(key)
             if target is None:
                 self.fail(node, f"reference to unknown id '{key}'")
-            if target.tag == kind:
+            group = target.tag == "shape" and target.attrs.get("type") == "shapegroup"
+            if target.tag == kind or (group and kind == "shapegroup"):
                 self.fail(node, f"id '{key}' is defined after this reference (line {target.line}): move it above")
             self.fail(node, f"id '{key}' is a <{target.tag}>, not a {kind}")
         k, val = self.ids[key]

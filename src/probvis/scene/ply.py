@@ -59,6 +59,10 @@ def read_ply(path):
         raise ProbvisError(f"mesh {path}: PLY format '{header[0]}' is not one of {', '.join(FORMATS)}")
     elements = header[1]
     vertex, face = elements.get("vertex", []), elements.get("face", [])
+    missing = [c for c in "xyz" if c not in {name for name, _ in vertex}]
+    if "vertex" in elements and missing:
+        raise ProbvisError(f"mesh {path}: its vertex element has no {' or '.join(repr(c) for c in missing)} "
+                           "property (a PLY mesh's vertices need x, y and z)")
     lists = [name for name, is_list in face if is_list]
     index = next((name for name in INDEX_NAMES if name in lists), lists[0] if len(lists) == 1 else None)
     if index is None or any(is_list for _, is_list in vertex):

@@ -102,6 +102,23 @@ class Scene:
         out.validate_camera()
         return out
 
+    def read_only(self):
+        """A copy whose arrays (the camera's and the environment's too) are read-only views of these: what a
+        plug-in estimator is handed, so that a write fails in its own code instead of changing the caller's scene
+        for later renders."""
+        def frozen(record):
+            if record is None:
+                return None
+            views = {}
+            for f in dataclasses.fields(record):
+                value = getattr(record, f.name)
+                if isinstance(value, np.ndarray):
+                    views[f.name] = value.view()
+                    views[f.name].flags.writeable = False
+            return dataclasses.replace(record, **views)
+
+        return dataclasses.replace(frozen(self), camera=frozen(self.camera), environment=frozen(self.environment))
+
     def content_hash(self):
         """SHA-256 of the scene: geometry, materials, emitters and camera (including the resolution), not the
         render settings. Used to cache renders across runs."""

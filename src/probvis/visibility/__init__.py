@@ -6,12 +6,13 @@ import importlib.util
 import inspect
 import re
 import sys
+import unicodedata
 from importlib.metadata import entry_points
 from pathlib import Path
 
 from ..errors import ProbvisError
 from .base import (CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES, OPTION_TYPES, Aov,
-                   Option, Phase, RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, VisibilityResult)
+                   Option, Phase, RenderPath, ShadingPoints, ShadowQuery, Switch, VisibilityEstimator, VisibilityResult)
 
 ENTRY_POINT_GROUP = "probvis.visibility"
 BUILTIN = {
@@ -65,6 +66,11 @@ RESERVED_OPTIONS = {"output", "define", "defines", "seed", "spp", "shadow_rays",
                     "filter_importance", "clamp_negative", "stats", "tests_image", "threads", "exposure", "quiet",
                     "help", "scene", "command"}
 
+# a study's time by phase (`experiments.results.phases`) and the film's AOVs: an estimator's of the same name would
+# replace probvis's own
+RESERVED_PHASES = ("load", "bvh_build", "prepare", "prepare_other", "render")
+RESERVED_AOVS = ("triangle_tests", "node_tests", "second_moment", "cases")
+
 
 def _entry_points():
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
@@ -104,13 +110,36 @@ def _check_declarations(cls, what):
             raise ProbvisError(f"{where}: {field} must be a tuple of {kind.__name__}s, got {value!r}"[:300])
     if not isinstance(cls.unbiased, bool):
         raise ProbvisError(f"{where}: unbiased must be True or False, got {cls.unbiased!r}")
+    texts = [("summary", cls.summary)] + [(f"{kind} '{x.name}': help", x.help) for kind, xs in
+                                           (("option", cls.options), ("phase", cls.phases), ("AOV", cls.aovs))
+                                           for x in xs]
+    for field, text in texts:
+        if not isinstance(text, str) or any(unicodedata.category(c)[0] == "C" for c in text):
+            raise ProbvisError(f"{where}: {field} must be one line of plain text, got {text!r}"[:300])
+    for kind, xs in (("option", cls.options), ("phase", cls.phases), ("AOV", cls.aovs)):
+        for x in xs:
+            if not isinstance(x.name, str) or not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", x.name):
+                raise ProbvisError(f"{where}: {kind} names are identifiers (letters, digits, '_'), got {x.name!r}")
+        names = [x.name for x in xs]
+        if kind != "option" and len(set(names)) < len(names):
+            raise ProbvisError(f"{where} declares {kind} '{next(n for n in names if names.count(n) > 1)}' twice")
     for phase in cls.phases:
         if phase.stage not in ("prepare", "batch"):
             raise ProbvisError(f"{where}: phase '{phase.name}' has stage {phase.stage!r} (prepare or batch)")
+        if phase.name in RESERVED_PHASES:
+            raise ProbvisError(f"{where}: phase '{phase.name}' is one of probvis's own ({', '.join(RESERVED_PHASES)}) "
+                               "in a study's time by phase: rename it")
     for aov in cls.aovs:
         if aov.kind not in ("cases", "segment"):
             raise ProbvisError(f"{where}: AOV '{aov.name}' has kind {aov.kind!r} (cases or segment)")
-    names = [o.name for o in cls.options]
+        if aov.kind == "segment" and aov.name in RESERVED_AOVS:
+            raise ProbvisError(f"{where}: AOV '{aov.name}' is one of the film's own ({', '.join(RESERVED_AOVS)}): "
+                               "rename it")
+        if aov.kind == "cases" and (aov.name != "cases" or cls.classify is VisibilityEstimator.classify):
+            raise ProbvisError(f"{where}: a 'cases' AOV is the film's case shares, named 'cases', from the "
+                               f"estimator's classify (got '{aov.name}'"
+                               f"{'' if cls.classify is not VisibilityEstimator.classify else ', no classify'})")
+    names, flags = [o.name for o in cls.options], {}
     for o in cls.options:
         if o.type not in OPTION_TYPES:
             raise ProbvisError(f"{where}: option '{o.name}' has type {getattr(o.type, '__name__', o.type)!r}, which "
@@ -121,6 +150,9 @@ def _check_declarations(cls, what):
             raise ProbvisError(f"{where}: option '{o.name}' ({o.flag}) clashes with probvis's own {o.flag} (rename it)")
         if o.type is tuple and not (isinstance(o.count, int) and not isinstance(o.count, bool) and o.count > 0):
             raise ProbvisError(f"{where}: option '{o.name}' is a tuple and needs count, how many numbers it takes")
+        for flag in [o.flag] + (["--no-" + o.flag[2:]] if o.type in (bool, Switch) else []):
+            if flags.setdefault(flag, o.name) != o.name:
+                raise ProbvisError(f"{where}: options '{flags[flag]}' and '{o.name}' both make the flag {flag}")
         if o.default is not None:
             try:
                 o.parse(o.default)

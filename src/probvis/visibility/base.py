@@ -125,6 +125,8 @@ class Option:
             raise bad
         if self.type is tuple:
             items = value.split(",") if isinstance(value, str) else value
+            if isinstance(items, np.ndarray) and items.ndim == 1:  # an array of numbers, as a list's
+                items = items.tolist()
             if not isinstance(items, (list, tuple)) or len(items) != self.count:
                 raise bad
             return tuple(_number(x, float, bad) for x in items)

@@ -46,8 +46,9 @@ def probability_problem(value, words):
     except (TypeError, ValueError):
         q = None
     if isinstance(value, bool) or q is None or not Q_LOWEST <= q <= 1.0:  # NaN fails too
-        return (f"must be {', '.join(words)} or a probability from {Q_LOWEST:g} to 1, got {value!r} (below, each "
-                "correction weighs more than a thousand segments: the image is the uncorrected one in practice)")
+        why = (" (below, each correction weighs more than a thousand segments: the image is the uncorrected one in "
+               "practice)") if q is not None and 0.0 <= q < Q_LOWEST else ""
+        return f"must be {', '.join(words)} or a probability from {Q_LOWEST:g} to 1, got {value!r}{why}"
     return None
 
 
