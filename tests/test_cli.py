@@ -266,7 +266,7 @@ def test_outputs_are_committed_all_or_none(tmp_path, monkeypatch):
     content back, a new one is removed)."""
     import os
 
-    from probvis.io import image
+    from probvis.io import atomic, image
 
     old = tmp_path / "a.png"
     old.write_bytes(b"old")
@@ -277,9 +277,9 @@ def test_outputs_are_committed_all_or_none(tmp_path, monkeypatch):
             raise OSError(28, "No space left on device")
         return real(src, dst)
 
-    monkeypatch.setattr(image.os, "replace", failing)
+    monkeypatch.setattr(atomic.os, "replace", failing)
     with pytest.raises(ProbvisError, match="cannot write '.*b.png': No space left on device"):
-        with image.staged_writes():
+        with atomic.staged_writes():
             for name in ("a.png", "new.png", "b.png"):
                 image.write_png(tmp_path / name, np.full((2, 2, 3), 0.5))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png"] and old.read_bytes() == b"old"

@@ -101,7 +101,7 @@ def test_the_io_functions_name_their_mistakes(tmp_path):
 
 def test_an_empty_write_is_refused(tmp_path):
     """OpenEXR's writer reports nothing when it can write nothing (ulimit -f 0): an empty file is an error."""
-    from probvis.io.image import atomic_path
+    from probvis.io.atomic import atomic_path
 
     with pytest.raises(ProbvisError, match="cannot write '.*e.exr': nothing could be written"):
         with atomic_path(str(tmp_path / "e.exr")) as tmp:

@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ProbvisError
-from ..io.image import atomic_path, tonemap_srgb, write_png
+from ..io.atomic import atomic_path
+from ..io.image import tonemap_srgb, write_png
 from .results import UNSTEADY
 
 STATIC = ("viewer.js", "report.css")
@@ -71,16 +72,15 @@ def _pyplot():
     """matplotlib's pyplot on the Agg backend, whatever the environment says: the report draws PNG files only, so
     MPLBACKEND (which matplotlib validates as it loads: a bogus one is a ValueError) is set aside while it loads,
     and its logger's notes about an unusable MPLCONFIGDIR (it falls back to a temporary folder) are not shown."""
+    backend = None
     if "matplotlib" not in sys.modules:
         logging.getLogger("matplotlib").setLevel(logging.ERROR)
         backend = os.environ.pop("MPLBACKEND", None)
-        try:
-            import matplotlib
-        finally:
-            if backend is not None:
-                os.environ["MPLBACKEND"] = backend
-    import matplotlib
-
+    try:
+        import matplotlib
+    finally:
+        if backend is not None:
+            os.environ["MPLBACKEND"] = backend
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 

@@ -26,7 +26,8 @@ import numpy as np
 from .. import __version__
 from ..errors import ProbvisError
 from ..interrupts import deferred_interrupts
-from ..io.image import atomic_path, read_exr, write_exr
+from ..io.atomic import atomic_path
+from ..io.image import read_exr, write_exr
 from ..scene import load_scene
 from ..scene.scene import MAX_EMISSION
 from .config import MethodSpec, Timing

@@ -8,12 +8,12 @@ import errno
 import os
 import re
 import tempfile
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ProbvisError
+from .atomic import atomic_path
 from .library_output import library_output
 
 FORMATS = (".exr", ".pfm", ".png")
@@ -63,96 +63,6 @@ def check_writable(path, formats=FORMATS, role="an image"):
 
 
 MAX_IMAGE_PIXELS = 1 << 27  # a PNG or JPEG larger than this (3 GiB as linear RGB) is refused from its header
-
-
-_staged = None  # (temporary, destination, name given) of the writes `staged_writes` holds back (None: inactive)
-
-
-@contextmanager
-def staged_writes():
-    """Hold back the renames of every `atomic_path` write inside the block until all of them succeeded: a
-    command's outputs appear together or not at all (one failing write leaves none of the others)."""
-    global _staged
-    outer, _staged = _staged, []
-    try:
-        yield
-        _commit(_staged)
-    finally:
-        for tmp, _, _ in _staged:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-        _staged = outer
-
-
-def _commit(staged):
-    """Rename each (temporary, destination, name given) of `staged` over its destination, all or none: a
-    destination a rename cannot replace (a folder) is found before the first; a rename that fails later puts
-    back what the earlier ones replaced (kept as hard links meanwhile) and removes what they created."""
-    for _, path, shown in staged:
-        if os.path.isdir(path):
-            raise ProbvisError(f"cannot write '{shown}': it is a folder")
-    done = []
-    try:
-        for tmp, path, shown in staged:
-            previous = f"{tmp}.previous" if os.path.lexists(path) else None
-            if previous is not None:
-                try:
-                    os.link(path, previous)
-                except OSError:  # a file system without hard links: this one cannot be put back
-                    previous = None
-            try:
-                os.replace(tmp, path)
-            except OSError as exc:
-                if previous is not None:
-                    os.unlink(previous)
-                raise ProbvisError(f"cannot write '{shown}': {exc.strerror or exc}") from None
-            done.append((path, previous))
-    except BaseException:
-        for path, previous in reversed(done):
-            try:
-                os.replace(previous, path) if previous is not None else os.unlink(path)
-            except OSError:
-                pass
-        raise
-    for _, previous in done:
-        if previous is not None and os.path.lexists(previous):
-            os.unlink(previous)
-
-
-@contextmanager
-def atomic_path(path):
-    """Yield a temporary path beside `path` (beside its target, for a symbolic link: the link is written
-    through, as a plain write would); rename it over `path` only when the block succeeds (inside
-    `staged_writes`, when all of them did)."""
-    if not isinstance(path, (str, os.PathLike)) or not str(path):
-        raise ProbvisError(f"an output path must be a file name (str or Path), got {path!r}")
-    shown, path = path, Path(os.path.realpath(path))
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent or ".")
-    except OSError as exc:
-        missing = isinstance(exc, FileNotFoundError) or not path.parent.is_dir()
-        raise ProbvisError(f"cannot write '{shown}': " + (f"folder '{Path(shown).parent}' does not exist" if missing
-                                                          else exc.strerror or str(exc))) from None
-    os.close(fd)
-    try:
-        yield tmp
-        if os.path.getsize(tmp) == 0:  # OpenEXR's writer reports no error when it can write nothing
-            raise ProbvisError(f"cannot write '{shown}': nothing could be written (a full disk, or a file size limit: "
-                               "ulimit -f)")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the file the usual permissions
-        if _staged is not None:
-            _staged.append((tmp, path, shown))
-            return
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise ProbvisError(f"cannot write '{shown}': {exc.strerror or exc}") from None
-    except RuntimeError as exc:  # OpenEXR's writer: "Failed to write ... image file "<tmp>". File too large."
-        raise ProbvisError(f"cannot write '{shown}': {str(exc).rsplit(chr(34) + '. ', 1)[-1].rstrip('.')}") from None
-    finally:
-        if os.path.exists(tmp) and (_staged is None or all(tmp != t for t, _, _ in _staged)):
-            os.unlink(tmp)
 
 
 def _as_rgb(image):

@@ -2,7 +2,7 @@
 import json
 
 from ..errors import ProbvisError
-from .image import atomic_path
+from .atomic import atomic_path
 
 
 def write_stats(path, stats):
