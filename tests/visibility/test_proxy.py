@@ -341,7 +341,8 @@ def test_a_decision_is_cached_by_scene_view_and_settings(cache, shells, monkeypa
     assert not run(moved)[1]["pilot"]["cached"]
     brighter = blob_scene()
     brighter.emitter_radiance = brighter.emitter_radiance * 2
-    assert not run(brighter)[1]["pilot"]["cached"]
+    decided = run(brighter)[1]
+    assert not decided["pilot"]["cached"] and not decided["decision_cached"] and run(brighter)[1]["decision_cached"]
     stored = sorted(cache.glob("plans/*.npz"))
     assert len(stored) == 4
     run(blob_scene(), spp=4, cache=False)

@@ -283,6 +283,8 @@ class ProxyVisibility(VisibilityEstimator):
             out["shells"] = self.shells.report()
         out["shells_dropped"] = self.shells_dropped
         d = self.decision
+        if self.fixed_q is None:  # q auto's decision, made for this render or read from the cache
+            out["decision_cached"] = d.cached
         if d.predicted is not None:  # q auto's probe: the pilot ran only if it fit its budget
             out["pilot"] = dict({k: float(v) for k, v in d.predicted.items()}, ran=d.pilot_ran, cached=d.cached)
         return out
