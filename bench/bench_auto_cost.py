@@ -5,10 +5,11 @@ Exact visibility without shells (the baseline), exact visibility's default (`--s
 shells only where they are predicted to pay) and `proxy` with its efficiency-aware q (the survey, then a pilot
 only where it fits in 3% of the render), deciding afresh (its cached decisions removed first: a first render)
 and with the decision cached (a render of the same scene again), on the same scene in one process, in the
-order A B C D D C B A for each seed, at 4 spp x 16 and 64 shadow rays and 16 spp x 16. Seconds = the estimator's preparation + the render
-(not the scene load and BVH every method shares), median over the seeds' two renders each; the ratio is the
-baseline's seconds over the method's (its efficiency where the images are the same, which is said). Built-ins
-at 256x256, shared scenes (with ../shared beside the repository) at 128x128 as in experiments/proxies.toml.
+order A B C D D C B A for each seed, at 4 spp x 16 and 64 shadow rays and 16 spp x 16. Seconds = the
+estimator's preparation + the render (not the scene load and BVH every method shares), median over the seeds'
+two renders each; the ratio is the baseline's seconds over the method's (its efficiency where the images are
+the same, which is said). Built-ins at 256x256, shared scenes (with ../shared beside the repository) at 128x128
+as in experiments/proxies.toml.
 """
 import argparse
 import shutil

@@ -120,6 +120,8 @@ CASES = [
     (["scenes", "--json"], "(--json is an option of 'probvis info' and 'probvis estimators' and 'probvis tables', "
                            "not of 'probvis scenes')"),
     (["tables", "--seed", "3"], "(--seed is an option of 'probvis render', not of 'probvis tables')"),
+    (["render", "d" * 300 + ".xml"], ": File name too long"),
+    (["info", "d" * 300 + ".xml"], ": File name too long"),
     (["experiment", "--quick", "-o", ""], "-o needs a folder name (got an empty one)"),
     (["experiment", "--quick", "--cache", " "], "--cache needs a folder name (got an empty one)"),
 ]
@@ -340,6 +342,8 @@ def test_a_non_ascii_name_under_an_ascii_locale_is_escaped(tmp_path):
     ("GOMP_SPINCOUNT", "abc", "is not a value OpenMP (libgomp) accepts"),
     ("GOMP_STACKSIZE", "abc", "is not a value OpenMP (libgomp) accepts"), ("PROBVIS_CACHE_DIR", " ", "is not a folder"),
     ("OMP_PLACES", "{garbage}", "is not a value OpenMP (libgomp) accepts"),
+    ("NUMBA_THREADING_LAYER_PRIORITY", "bogus", "is not an order of tbb, omp and workqueue"),
+    ("PROBVIS_CACHE_DIR", "~nosuchuser-probvis/pc", "is not a folder: it names the home of a user"),
 ])
 def test_an_environment_setting_the_libraries_cannot_use_is_one_line(tmp_path, name, value, message):
     """NUMBA_NUM_THREADS=0 was Numba's traceback at import, 'abc' its warning then a render, 99999 a crash
@@ -515,3 +519,18 @@ def test_messages_say_what_is_wrong(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_NUM_THREADS", str(numba.config.NUMBA_NUM_THREADS))
     with pytest.raises(ProbvisError, match=rf"between 1 and {numba.config.NUMBA_NUM_THREADS} \(NUMBA_NUM_THREADS="):
         probvis.render("quad-shadow", spp=1, defines={"res": 8}, threads=numba.config.NUMBA_NUM_THREADS + 1)
+
+
+def test_the_command_s_warnings_stay_warnings_and_jit_may_be_off(tmp_path):
+    """PYTHONWARNINGS=error made probvis's own warnings tracebacks; NUMBA_DISABLE_JIT=1 (a valid value: the
+    kernels run as Python) was an AttributeError before the render."""
+    path = write_scene(tmp_path / "s.xml", sensor(w=8, h=8) + """<emitter type="point"><point name="position" x="0"
+        y="0" z="3"/><rgb name="intensity" value="5"/></emitter><shape type="rectangle"/>""")
+    for env, args in (({"PYTHONWARNINGS": "error"}, ["-D", "foo=1"]), ({"NUMBA_DISABLE_JIT": "1"}, [])):
+        r = subprocess.run([sys.executable, "-m", "probvis", "render", str(path), "--spp", "1", "--shadow-rays", "1",
+                            "-q", "-o", "o.exr", *args], capture_output=True, text=True, cwd=tmp_path,
+                           timeout=4 * TIME_LIMIT, env={**os.environ, **env})
+        assert r.returncode == 0 and (tmp_path / "o.exr").exists() and "Traceback" not in r.stderr, r.stderr
+        assert not args or r.stderr.strip() == (f"probvis: warning: {path}: -D foo: the scene declares no such "
+                                                "parameter (its parameters: none)"), r.stderr
+        (tmp_path / "o.exr").unlink()

@@ -283,3 +283,13 @@ def test_outputs_are_committed_all_or_none(tmp_path, monkeypatch):
             for name in ("a.png", "new.png", "b.png"):
                 image.write_png(tmp_path / name, np.full((2, 2, 3), 0.5))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png"] and old.read_bytes() == b"old"
+
+
+def test_a_one_emitter_case_image_ignores_per_emitter_names(tmp_path, monkeypatch):
+    """With one emitter --case-image writes NAME itself: a folder named NAME-e0.png beside it is no reason to
+    refuse (it was, before the render)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "c-e0.png").mkdir()
+    assert main(["render", "quad-shadow", "-D", "res=8", "--visibility", "occlusion-map", "--photons", "1000",
+                 "--spp", "1", "--shadow-rays", "1", "-q", "--case-image", "c.png", "-o", "o.exr"]) == 0
+    assert (tmp_path / "c.png").is_file() and (tmp_path / "c-e0.png").is_dir()

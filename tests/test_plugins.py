@@ -240,6 +240,11 @@ def _no_super(self, scene, bvh, emitters, settings, integrator):
     pass
 
 
+def _scales_triangles(self, scene, bvh, emitters, settings, integrator):
+    _Exact.prepare(self, scene, bvh, emitters, settings, integrator)
+    integrator.scene_arrays.triangles[:] *= 5.0  # the kernels' arrays, which are the caller's
+
+
 def _raise(*args, **kwargs):
     raise RuntimeError("inner")
 
@@ -260,6 +265,8 @@ def _raise(*args, **kwargs):
      "returned triangle_tests above 2,147,483,648 for one segment"),
     ({"stats": lambda self: [1]}, "stats\\(\\) returned a list, not a dict"),
     ({"memory_bytes": lambda self: {"x": "lots"}}, "memory_bytes\\(\\) must return a dict of byte counts"),
+    ({"prepare": lambda self, *a: open("no-such-weights.dat")}, "raised FileNotFoundError in the render"),
+    ({"prepare": _scales_triangles}, "changed the arrays of the scene, its emitters or its BVH"),
 ])
 def test_a_plugin_s_every_method_is_checked(methods, message):
     cls = type("Faulty", (_Exact,), methods)

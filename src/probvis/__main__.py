@@ -1,6 +1,7 @@
 """The `probvis` console command and `python -m probvis`: starts the command line, and reports a start that
 fails (Ctrl-C or SIGTERM while the libraries load, a compiled library that cannot load under the process's
 limits) in one line."""
+import errno
 import importlib.util
 import os
 import re
@@ -83,6 +84,14 @@ def _bad_environment():
                                                            f"({', '.join(_THREADING_LAYERS)})")
     if layer is not None and layer.strip().lower() == "tbb" and importlib.util.find_spec("tbb") is None:
         return _bad_setting("NUMBA_THREADING_LAYER", layer, "usable here: Intel TBB is not installed (pip install tbb)")
+    priority = env.get("NUMBA_THREADING_LAYER_PRIORITY")
+    if priority is not None and sorted(priority.split()) != ["omp", "tbb", "workqueue"]:
+        return _bad_setting("NUMBA_THREADING_LAYER_PRIORITY", priority, "an order of tbb, omp and workqueue "
+                            "(all three, separated by spaces)")
+    cache = env.get("PROBVIS_CACHE_DIR")
+    if cache and cache.strip() and os.path.expanduser(cache).startswith("~"):
+        return _bad_setting("PROBVIS_CACHE_DIR", cache, "a folder: it names the home of a user this machine does not "
+                            "know")
     opt = env.get("NUMBA_OPT")
     if opt is not None and opt.strip().lower() not in ("0", "1", "2", "3", "max"):
         return _bad_setting("NUMBA_OPT", opt, "an optimisation level (0, 1, 2, 3 or max)")
@@ -146,7 +155,7 @@ def main():
     try:
         return cli_main()
     except (ImportError, OSError, SystemError) as exc:  # a library loaded later, or the interpreter's own allocation
-        if _address_limit() is None:
+        if _address_limit() is None or (isinstance(exc, OSError) and exc.errno not in (None, errno.ENOMEM)):
             raise
         print(_start_failure(exc), file=sys.stderr)
         return 1

@@ -267,9 +267,8 @@ def _plan_outputs(outputs, args):
         if key in seen:
             raise ProbvisError(f"{flag} {path}: the same file as {seen[key]}; give each output its own name")
         seen[key] = f"{flag} {path}"
-    if args.case_image:  # with several emitters it writes NAME-e0.ext, NAME-e1.ext, ... instead: the names
-        # of that form already there, and a long one's length, are checked now; every one once the scene's emitters
-        # are known (`_plan_case_images`)
+    if args.case_image:  # with several emitters it writes NAME-e0.ext, NAME-e1.ext, ... instead: a long name's
+        # length is checked now, every one once the scene's emitters are known (`_plan_case_images`)
         given = Path(args.case_image)
         case = given.resolve()
         per_emitter = re.compile(re.escape(case.stem) + r"-e\d+" + re.escape(case.suffix))
@@ -277,10 +276,7 @@ def _plan_outputs(outputs, args):
             if key.parent == case.parent and per_emitter.fullmatch(key.name):
                 raise ProbvisError(f"--case-image {args.case_image}: with several emitters it writes {key.name}, the "
                                    f"same file as {owner}; give each output its own name")
-        folder = given.parent if str(given.parent) else Path(".")
-        there = sorted(folder / n for n in os.listdir(folder) if per_emitter.fullmatch(n)) if folder.is_dir() else []
         check_writable(given.with_name(f"{given.stem}-e99{given.suffix}"), FORMATS, "--case-image's output")
-        _plan_case_images(args, seen, there)
     return seen
 
 
@@ -667,6 +663,8 @@ def _parse(argv):
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     warnings.showwarning = _warning_line
+    # the command's warnings are lines on stderr, whatever PYTHONWARNINGS or -W say (error made them tracebacks)
+    warnings.filterwarnings("default", category=UserWarning)
     sys.unraisablehook = _unraisable
     # Numba guards its first parallel launch with a multiprocessing lock; without one (no /dev/shm, a file size
     # limit) it warns at length, though a render runs one process
@@ -707,6 +705,11 @@ def main(argv=None):
         _drop_stdout()
         print(f"probvis: error: cannot write to the standard output: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:  # a file the checks did not foresee (a name too long for the file system, say)
+        if exc.filename is None:
+            raise
+        print(f"probvis: error: {_one_line(exc.filename)}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     except Exception as exc:  # Ctrl-C or SIGTERM while compiled code returned (a SystemError chains it as a
         # cause) or inside Numba's compiler, where a callback swallows it and the compile fails on its own terms
         from .interrupts import interrupt_received

@@ -3,6 +3,7 @@ were derived from, under `$PROBVIS_CACHE_DIR` (default `~/.cache/probvis`). Entr
 damaged entry is rebuilt and a cache that cannot be written is a warning, never an error."""
 import math
 import os
+import pwd
 import warnings
 import zipfile
 import zlib
@@ -15,7 +16,10 @@ import xxhash
 def cache_dir(kind):
     """Where entries of `kind` ("proxies", "shells", "closed", "parts", "structure", "plans") are cached."""
     folder = os.environ.get("PROBVIS_CACHE_DIR")  # '~' expanded where a quoted value kept it from the shell
-    return (Path(os.path.expanduser(folder)) if folder else Path.home() / ".cache" / "probvis") / kind
+    if folder:
+        return Path(os.path.expanduser(folder)) / kind
+    home = os.environ.get("HOME") or pwd.getpwuid(os.getuid()).pw_dir  # an empty HOME is not the root folder
+    return Path(home) / ".cache" / "probvis" / kind
 
 
 def content_key(label, *arrays):
@@ -59,27 +63,46 @@ def load(kind, key, expect=None):
     """The dict of arrays stored under `key`, or None where there is none or it cannot be read or does not hold
     what `expect` describes (`fits`: a damaged or foreign file)."""
     path = cache_dir(kind) / f"{key}.npz"
-    if not path.is_file():
-        return None
     try:
+        if not path.is_file():
+            return None
         _check_sizes(path)
         with np.load(path, allow_pickle=False) as f:
             arrays = {k: f[k] for k in f.files}
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error):
         return None
+    digest = arrays.pop(DIGEST, None)
+    if digest is None or digest.tobytes() != _digest(arrays):  # changed since it was stored, or not ours
+        return None
     return arrays if expect is None or fits(arrays, expect) else None
+
+
+DIGEST = "__digest__"  # an entry's own member: XXH3 of the others as stored
+
+
+def _digest(arrays):
+    h = xxhash.xxh3_128()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name} {a.dtype.str}{a.shape}".encode())
+        h.update(a.reshape(-1).view(np.uint8))
+    return h.digest()
 
 
 def store(kind, key, arrays):
     """Store a dict of arrays under `key`, atomically; a cache that cannot be written is a warning."""
     path = cache_dir(kind) / f"{key}.npz"
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
         with open(tmp, "wb") as f:
-            np.savez(f, **arrays)
+            np.savez(f, **arrays, **{DIGEST: np.frombuffer(_digest(arrays), np.uint8)})
         os.replace(tmp, path)
     except OSError as exc:
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:
+            pass
         warnings.warn(f"{kind}: cannot cache in {path.parent} ({exc.strerror or exc})", stacklevel=3)
 
 

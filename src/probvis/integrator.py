@@ -33,7 +33,7 @@ from .film import Film, splat_chunk, splat_filter
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
-from .plugin_checks import checked_cases, checked_result, checked_stats, plugin_errors
+from .plugin_checks import arrays_digest, check_unchanged, checked_cases, checked_result, checked_stats, plugin_errors
 from .render_stats import render_stats
 from .scene import Scene, load_scene
 from .segments import SegmentBuffers, compact, sample_emitters, sample_radiance
@@ -162,6 +162,7 @@ def render_pass(scene, settings, estimator, progress=False):
     integrator = Integrator(scene, bvh, emitters, settings.filter_importance)
     t1 = time.perf_counter()
     own = type(estimator).__module__.split(".")[0] == "probvis"
+    watched = None if own else arrays_digest(integrator)
     estimator.prepare(scene if own else scene.read_only(), bvh, emitters, settings, integrator)
     t2 = time.perf_counter()
     n_pix_total = scene.camera.width * scene.camera.height
@@ -204,6 +205,8 @@ def render_pass(scene, settings, estimator, progress=False):
             if bar is not None:
                 bar.close()
     seconds = {"bvh": t1 - t0, "prepare": t2 - t1, "render": time.perf_counter() - t2}
+    if watched is not None:
+        check_unchanged(estimator, integrator, watched)
     return _Pass(film, bvh, chosen, n_segments, camera_hits,
                  case_totals if film.case_counts is not None else None, seconds)
 
@@ -215,7 +218,8 @@ def _cold_cache():
     """Whether Numba's on-disk cache lacks the kernels (a first run, or a changed probvis)."""
     from .fused_exact import _shade_blocks
 
-    index = getattr(getattr(_shade_blocks._cache, "_cache_file", None), "_index_path", None)
+    # under NUMBA_DISABLE_JIT the kernels are plain functions: nothing to compile, no cache
+    index = getattr(getattr(getattr(_shade_blocks, "_cache", None), "_cache_file", None), "_index_path", None)
     return index is not None and not Path(index).exists()
 
 

@@ -8,6 +8,7 @@ import sys
 from contextlib import contextmanager
 
 import numpy as np
+import xxhash
 
 from .cases import CASE_VERIFIED, N_CASES
 from .errors import ProbvisError
@@ -63,8 +64,13 @@ def plugin_errors(cls, stage):
     and the stage; probvis's own estimators' exceptions pass through (a bug in probvis, with its traceback)."""
     try:
         yield
-    except (ProbvisError, KeyboardInterrupt, OSError):  # OSError: the machine's, not the plug-in's
+    except (ProbvisError, KeyboardInterrupt):
         raise
+    except OSError as exc:  # the machine's, unless the plug-in's own code raised it (a data file it reads)
+        if cls.__module__.split(".")[0] == "probvis" or not _raised_in_plugin(exc):
+            raise
+        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "
+                           f"{type(exc).__name__} in {stage}: {exc}") from None
     except MemoryError as exc:
         if cls.__module__.split(".")[0] == "probvis" or not _raised_in_plugin(exc):  # probvis's own buffers: the
             raise  # command line's out-of-memory line, naming the settings that size them
@@ -125,3 +131,23 @@ def checked_stats(cls, stats):
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): stats() returned a value "
                            f"JSON cannot hold ({exc}); return numbers, strings, lists and dicts") from None
     return stats
+
+
+def arrays_digest(integrator):
+    """XXH3 of the arrays a plug-in estimator reaches through the integrator (the kernels' scene, its textures,
+    the emitters, the BVH): they are the caller's and the render's own, so a plug-in must not change them."""
+    h = xxhash.xxh3_128()
+    for record in (integrator.scene_arrays, integrator.textures, integrator.emitters.arrays, integrator.bvh.arrays):
+        for a in record:
+            if isinstance(a, np.ndarray):
+                h.update(np.ascontiguousarray(a).reshape(-1).view(np.uint8))
+    return h.digest()
+
+
+def check_unchanged(estimator, integrator, digest):
+    """An error if a plug-in changed those arrays during its render (`digest`: theirs before `prepare`)."""
+    if arrays_digest(integrator) != digest:
+        cls = type(estimator)
+        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) changed the arrays of the "
+                           "scene, its emitters or its BVH that the integrator handed it: the image is not the "
+                           "scene's (a bug in the estimator: treat them as read-only)")

@@ -276,8 +276,11 @@ def test_an_experiment_changed_in_python_is_checked_again(tmp_path):
                             (dict(spp=0), "spp"), (dict(seeds=(-1,)), "seeds")):
         with pytest.raises(ProbvisError, match=re.escape(message)):
             experiment(dataclasses.replace(exp, **change), tmp_path / "rep")
-    with pytest.raises(ProbvisError, match="progress must be True or False, got 'no'"):
-        experiment(exp, tmp_path / "rep", progress="no")
+    for kwargs, message in ((dict(progress="no"), "progress must be True or False, got 'no'"),
+                            (dict(command=123), "command must be the command line shown in the report"),
+                            (dict(log=5), "log must be a function taking a line")):
+        with pytest.raises(ProbvisError, match=re.escape(message)):
+            experiment(exp, tmp_path / "rep", **kwargs)
     assert not (tmp_path / "rep").exists()
 
 
@@ -317,3 +320,19 @@ def test_the_libraries_environment_is_taken_in_stride(tmp_path, monkeypatch):
     monkeypatch.setenv("HOME", str(tmp_path))
     monkeypatch.setenv("PROBVIS_CACHE_DIR", "~/pc")
     assert cache_dir("plans") == tmp_path / "pc" / "plans"
+
+
+def test_a_report_whose_writing_fails_leaves_no_file_of_it(tmp_path, monkeypatch):
+    """A write that fails half-way (a full disk, ulimit -f) left the images, plots and data of a report without
+    its index.html: the report's files are renamed together at the end, all or none."""
+    from probvis.experiments import experiment
+    from probvis.experiments.report import Report
+
+    def full(self):
+        raise OSError(28, "No space left on device", str(self.folder / "results.md"))
+
+    monkeypatch.setattr(Report, "_markdown", full)
+    rep = tmp_path / "rep"
+    with pytest.raises(ProbvisError, match="No space left on device"):
+        experiment(parse_experiment(doc(spp=1, resolution=[8, 8], shadow_rays=[1])), rep, progress=False)
+    assert not [p for p in rep.rglob("*") if p.is_file() and "cache" not in p.relative_to(rep).parts]

@@ -250,3 +250,33 @@ def test_a_damaged_cache_archive_is_rebuilt(tmp_path, monkeypatch, damage):
         data[at] ^= 0xFF
     path.write_bytes(bytes(data))
     assert structure(scene).n_components == components(scene)[2]
+
+
+def test_a_cache_entry_changed_since_it_was_stored_is_rebuilt(tmp_path, monkeypatch):
+    """An entry of the right names, shapes and types but other values (a huge n_components was 'out of memory',
+    a shells grid of zeros a wrong image) no longer matches the digest stored with it, and is rebuilt; a write
+    that fails leaves no temporary file behind."""
+    from probvis import disk_cache
+    from probvis.visibility.occlusion_map.components import components, structure
+
+    monkeypatch.setenv("PROBVIS_CACHE_DIR", str(tmp_path))
+    scene = probvis.load_scene("cornell-box", res=8)
+    structure(scene)
+    (path,) = (tmp_path / "structure").glob("*.npz")
+    with np.load(path) as f:
+        entry = {k: f[k] for k in f.files}
+    entry["n_components"] = np.array(10 ** 12)
+    np.savez(path.with_suffix(""), **entry)
+    assert structure(scene).n_components == components(scene)[2]
+    assert disk_cache.load("structure", path.stem) is not None  # rebuilt and stored again, with its digest
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(disk_cache.np, "savez", full)
+    with pytest.warns(UserWarning, match="cannot cache in .*No space left on device"):
+        disk_cache.store("structure", "k", {"x": np.arange(3)})
+    assert sorted(p.name for p in (tmp_path / "structure").iterdir()) == [path.name]
+    monkeypatch.setenv("PROBVIS_CACHE_DIR", "")
+    monkeypatch.setenv("HOME", "")
+    assert disk_cache.cache_dir("plans").is_absolute() and str(disk_cache.cache_dir("plans")) != "/.cache/probvis/plans"

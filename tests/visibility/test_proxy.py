@@ -363,6 +363,14 @@ def test_a_damaged_or_foreign_decision_is_decided_again(cache):
     foreign = run()  # a mesh the scene does not have
     assert not foreign.stats["estimator"]["pilot"]["cached"] and foreign.stats["estimator"]["proxies"]
     assert run().stats["estimator"]["pilot"]["cached"] and first.image.shape == (24, 24, 3)
+    from probvis import disk_cache
+
+    record = disk_cache.load("plans", path.stem)
+    for name, value in (("q", 0.0), ("q", -1.0), ("weight", -1.0)):  # values no pilot makes, with a valid digest
+        disk_cache.store("plans", path.stem, dict(record, **{name: np.full_like(record[name], value)}))
+        assert not run().stats["estimator"]["pilot"]["cached"]
+    disk_cache.store("plans", path.stem, dict(record, q=record["q"].astype(np.float16)))  # read as float64
+    assert run().stats["estimator"]["pilot"]["cached"]
 
 
 def test_a_segments_q_follows_its_weight():

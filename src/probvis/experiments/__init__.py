@@ -23,6 +23,10 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     exp = recheck(exp) if isinstance(exp, Experiment) else load_experiment(exp)
     if not isinstance(progress, bool):
         raise ProbvisError(f"progress must be True or False, got {progress!r}")
+    if not isinstance(command, str):
+        raise ProbvisError(f"command must be the command line shown in the report (a string), got {command!r}")
+    if log is not None and not callable(log):
+        raise ProbvisError(f"log must be a function taking a line (or None), got {log!r}")
     if not isinstance(out, (str, Path)):
         raise ProbvisError(f"out must be the report's folder (a path), got {type(out).__name__}")
     if cache is not None and not isinstance(cache, (str, Path)):

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ProbvisError
-from ..io.atomic import atomic_path
+from ..io.atomic import atomic_path, staged_writes
 from ..io.image import tonemap_srgb, write_png
 from .results import UNSTEADY
 
@@ -526,7 +526,8 @@ def write_report(exp, run, results, folder, command=""):
             warnings.filterwarnings("ignore", message="Data has no positive values")
             warnings.filterwarnings("ignore", message="Glyph .* missing from font")  # the plots' own layout,
             warnings.filterwarnings("ignore", message="Tight layout not applied")  # nothing a user can act on
-            return Report(exp, run, results, folder, command).write()
+            with staged_writes():  # every file of the report or none of them (a full disk, ulimit -f)
+                return Report(exp, run, results, folder, command).write()
     except OSError as exc:
         where = exc.filename or folder
         raise ProbvisError(f"cannot write the report to '{folder}' ('{where}'): {exc.strerror or exc}") from None

@@ -237,7 +237,7 @@ def _open_client(workers, scheduler):
             warnings.filterwarnings("ignore", message="Port .* is already in use")
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                    silence_logs=logging.CRITICAL)
-    except (RuntimeError, OSError) as exc:  # Dask wraps the cause ("Cluster failed to start: ...")
+    except Exception as exc:  # Dask wraps the cause ("Cluster failed to start: ..."); its settings' own errors
         files, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
         hint = (f" (this process may open only {files} files, ulimit -n: raise it to a few thousand)"
                 if files != resource.RLIM_INFINITY and files < MIN_OPEN_FILES else "")

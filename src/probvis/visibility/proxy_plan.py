@@ -102,6 +102,10 @@ class Decision:
                    "counts": ((2,), "i")}
         if not disk_cache.fits(a, planned) or len(a["costs"]) not in (0, 2) or len(a["camera_cost"]) > 1:
             return None
+        a = {k: v.astype(np.float64) if v.dtype.kind == "f" else v for k, v in a.items()}
+        if not (np.all((a["q"] > 0) & (a["q"] <= 1)) and np.all(a["weight"] >= 0) and np.all(a["costs"] > 0)
+                and np.all(a["camera_cost"] >= 0) and a["counts"].min() >= 0):
+            return None  # values no pilot makes: q = 0 would leave the proxy's error uncorrected
         segments, dropped = (int(x) for x in a["counts"])
         plan = Plan(a["exact"], a["q"], np.where(a["gain"] < 0, np.nan, a["gain"]), None, bool(dropped), a["weight"],
                     tuple(map(float, a["costs"])) or None,
