@@ -267,6 +267,12 @@ def _raise(*args, **kwargs):
     ({"memory_bytes": lambda self: {"x": "lots"}}, "memory_bytes\\(\\) must return a dict of byte counts"),
     ({"prepare": lambda self, *a: open("no-such-weights.dat")}, "raised FileNotFoundError in the render"),
     ({"prepare": _scales_triangles}, "changed the arrays of the scene, its emitters or its BVH"),
+    ({"memory_estimate": lambda self, *a: {"film": 0, "scene": 0}}, "memory_estimate\\(\\) names film, scene, which"),
+    ({"render_path": lambda self: probvis.visibility.RenderPath.OWN_KERNEL,
+      "shade": lambda self, b: self.integrator.shade_exact(b)._replace(radiance=np.full((len(b.keys), 3), np.nan))},
+     "shade\\(\\) returned radiance of shape"),
+    ({"render_path": lambda self: probvis.visibility.RenderPath.OWN_KERNEL,
+      "shade": lambda self, b: tuple(self.integrator.shade_exact(b))}, "shade\\(\\) returned tuple, not a ShadedBatch"),
 ])
 def test_a_plugin_s_every_method_is_checked(methods, message):
     cls = type("Faulty", (_Exact,), methods)
@@ -431,3 +437,15 @@ def test_a_plugin_that_swallows_the_interrupt_still_stops_the_render(tmp_path):
     _, err = proc.communicate(timeout=600)
     assert proc.returncode == 130 and err.strip().splitlines()[-1] == "probvis: interrupted, nothing written", err
     assert not list(out.iterdir())
+
+
+def test_renders_from_two_threads_load_their_estimators_one_at_a_time(tmp_path):
+    """Two threads' first renders with occlusion-map and probvis (which imports it) raced in the imports: a
+    'circular import' error in one thread and an ImportError in the other."""
+    code = ("import threading, probvis\nerrors = []\n"
+            "def run(v):\n    try:\n        probvis.render('quad-shadow', spp=1, shadow_rays=1, threads=1, "
+            "defines={'res': 8}, visibility=v)\n    except Exception as exc:\n        errors.append(repr(exc))\n"
+            "ts = [threading.Thread(target=run, args=(v,)) for v in ('occlusion-map', 'probvis')]\n"
+            "[t.start() for t in ts]\n[t.join() for t in ts]\nprint(errors)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=600)
+    assert r.returncode == 0 and r.stdout.strip() == "[]", r.stdout + r.stderr

@@ -33,7 +33,8 @@ from .film import Film, splat_chunk, splat_filter
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
-from .plugin_checks import arrays_digest, check_unchanged, checked_cases, checked_result, checked_stats, plugin_errors
+from .plugin_checks import (arrays_digest, check_unchanged, checked_cases, checked_result, checked_shaded,
+                            checked_stats, plugin_errors)
 from .render_stats import render_stats
 from .scene import Scene, load_scene
 from .segments import SegmentBuffers, compact, sample_emitters, sample_radiance
@@ -135,7 +136,9 @@ def make_path(integrator, estimator, path, n_slots):
     if path == RenderPath.FUSED_EXACT:
         return integrator.shade_exact
     if path == RenderPath.OWN_KERNEL:
-        return estimator.shade
+        if type(estimator).__module__.split(".")[0] == "probvis":
+            return estimator.shade
+        return lambda batch: checked_shaded(estimator, estimator.shade(batch), batch)
     if path == RenderPath.STAGED:
         return StagedPath(integrator, estimator, n_slots)
     raise ProbvisError(f"visibility '{estimator.name}': render_path() returned {path!r}, not a RenderPath")

@@ -45,6 +45,14 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_estimate() must "
                            f"return a dict of byte counts (whole numbers from 0 to 2**63: no machine holds more), "
                            f"got {own!r:.200}")
+    clash = sorted(set(own) & (set(parts) | {"kernels"}))
+    if clash:
+        from .errors import ProbvisError
+
+        cls = type(estimator)
+        raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_estimate() names "
+                           f"{', '.join(clash)}, which probvis counts itself (film, batch, scene, splat, process, "
+                           "kernels): name the estimator's own parts")
     parts.update(own)
     return parts
 

@@ -13,6 +13,7 @@ import xxhash
 from .cases import CASE_VERIFIED, N_CASES
 from .errors import ProbvisError
 from .memory import is_byte_counts
+from .shading import N_COUNTS, ShadedBatch
 from .visibility import VisibilityResult
 
 MAX_VISIBILITY = 1e12  # a segment's |estimate| beyond this is a plug-in's mistake (1/q weights stay far below)
@@ -56,6 +57,30 @@ def checked_result(estimator, res, n):
         return dataclasses.replace(res, value=value,
                                    aovs={k: np.asarray(a, np.float64) for k, a in aovs.items()})
     return res
+
+
+def checked_shaded(estimator, shaded, batch):
+    """A plug-in's `shade` result (a `ShadedBatch` for `batch`) as the film takes it, or an error naming the
+    plug-in: finite radiance per camera sample, whole non-negative counts and segments per pixel, finite AOVs."""
+    cls = type(estimator)
+    where = f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): shade()"
+    n_pix, m = len(batch.pixel), len(batch.pixel) * batch.spp
+    if not isinstance(shaded, ShadedBatch):
+        raise ProbvisError(f"{where} returned {type(shaded).__name__}, not a ShadedBatch")
+    radiance, counts, segments = (np.asarray(x) for x in shaded[:3])
+    if radiance.shape != (m, 3) or radiance.dtype.kind != "f" or not np.all(np.isfinite(radiance)):
+        raise ProbvisError(f"{where} returned radiance of shape {radiance.shape} ({radiance.dtype}): it needs "
+                           f"finite (m, 3) floats, one row per camera sample ({m})")
+    for name, arr, shape in (("counts", counts, (n_pix, N_COUNTS)), ("segments", segments, (n_pix,))):
+        if arr.shape != shape or arr.dtype.kind not in "iu" or np.any(arr < 0) or np.any(arr > MAX_TESTS * m):
+            raise ProbvisError(f"{where} returned {name} of shape {arr.shape} ({arr.dtype}): it needs whole "
+                               f"numbers >= 0 per pixel ({n_pix})")
+    aovs = shaded.aovs or {}
+    for name, arr in aovs.items():
+        arr = np.asarray(arr)
+        if arr.shape != (n_pix,) or arr.dtype.kind not in "biuf" or not np.all(np.isfinite(arr)):
+            raise ProbvisError(f"{where} returned AOV '{name}' of shape {arr.shape}: one finite number per pixel")
+    return shaded
 
 
 @contextmanager

@@ -336,3 +336,27 @@ def test_a_report_whose_writing_fails_leaves_no_file_of_it(tmp_path, monkeypatch
     with pytest.raises(ProbvisError, match="No space left on device"):
         experiment(parse_experiment(doc(spp=1, resolution=[8, 8], shadow_rays=[1])), rep, progress=False)
     assert not [p for p in rep.rglob("*") if p.is_file() and "cache" not in p.relative_to(rep).parts]
+
+
+def test_a_reference_that_would_share_a_cell_s_samples_or_a_target_beyond_reach_is_refused(tmp_path):
+    """A rendered reference with a cell's seed made that cell's relMSE 0 (a NaN in the report's JSON, a
+    traceback after every render); a target relMSE of 1e300 overflowed in the time-to-target fit."""
+    with pytest.raises(ProbvisError, match=r"reference.seed: 0 is one of the cells' seeds"):
+        parse_experiment(doc(seeds=[0], reference={"seed": 0}))
+    from probvis.io import write_exr
+
+    write_exr(tmp_path / "r.exr", np.full((8, 8, 3), 0.5, np.float32))  # a reference file: no rendered one
+    parse_experiment(doc(seeds=[0], reference={"seed": 0},
+                         scenes=[{"name": "q", "source": "quad-shadow", "reference": str(tmp_path / "r.exr")}]))
+    with pytest.raises(ProbvisError, match="target_relmse: expected a positive number up to 1e"):
+        parse_experiment(doc(target_relmse=1e300))
+
+
+def test_the_bias_ratio_of_an_image_smaller_than_a_block():
+    """A 4x4 study image (two seeds) was 'cannot reshape array of size 0' after every render."""
+    from probvis.experiments.metrics import block_bias_ratio
+
+    rng = np.random.default_rng(0)
+    ref = np.full((4, 4, 3), 0.5)
+    a, b = ref + rng.normal(0, 0.01, ref.shape), ref + rng.normal(0, 0.01, ref.shape)
+    assert np.isfinite(block_bias_ratio(a, b, ref))

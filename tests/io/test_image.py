@@ -168,3 +168,20 @@ def test_readers_refuse_what_is_no_regular_file(tmp_path):
     for read, name in ((read_pfm, "f.pfm"), (read_exr, "f.exr"), (read_exr, "d.exr")):
         with pytest.raises(ProbvisError, match="not a regular file"):
             read(tmp_path / name)
+
+
+def test_pillow_s_decompression_bomb_note_is_not_shown(tmp_path, monkeypatch):
+    """probvis's own pixel limit applies before decoding; Pillow's DecompressionBombWarning (its lower limit)
+    repeated it as a library's note on stderr."""
+    import warnings
+
+    from PIL import Image
+
+    from probvis.io import write_png
+    from probvis.io.image import read_linear_rgb
+
+    write_png(tmp_path / "t.png", np.full((4, 4, 3), 0.5))
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 10)  # 16 pixels: above it, below twice it (an error)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_linear_rgb(tmp_path / "t.png").shape == (4, 4, 3)

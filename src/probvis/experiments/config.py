@@ -272,6 +272,10 @@ def parse_experiment(data, base=Path("."), source=""):
     if not reference_estimator.unbiased:
         _fail("reference.visibility", f"'{reference.visibility}' is biased (it converges only as its samples grow "
                                       "without bound): a reference must expect the true image; use exact")
+    rendered = any(spec.reference is None for spec in scene_specs)
+    if rendered and reference.seed in _int_list("seeds", data.get("seeds", [0]), 0):
+        _fail("reference.seed", f"{reference.seed} is one of the cells' seeds: a rendered reference must be "
+                                "independent of the renders it judges (a cell with its samples would measure no error)")
     resolution = data.get("resolution")
     if resolution is not None:
         resolution = _int_list("resolution", resolution, distinct=False, highest=MAX_RESOLUTION)
@@ -282,8 +286,8 @@ def parse_experiment(data, base=Path("."), source=""):
     shadow_rays = _int_list("shadow_rays", data.get("shadow_rays", [1, 4, 16, 64, 256]), highest=MAX_SHADOW_RAYS)
     target = data.get("target_relmse")
     if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float))
-                               or not 0 < target < float("inf")):
-        _fail("target_relmse", f"expected a positive number, got {target!r}")
+                               or not 0 < target <= MAX_TARGET):
+        _fail("target_relmse", f"expected a positive number up to {MAX_TARGET:g}, got {target!r}")
     if not isinstance(data.get("description", ""), str):
         _fail("description", f"expected a string, got {data['description']!r}")
     spp = _int("spp", data.get("spp", 4), 1, MAX_SPP)
@@ -338,6 +342,7 @@ def recheck(exp):
 
 
 MAX_DEPTH = 16  # lists and tables: an experiment nests three levels
+MAX_TARGET = 1e6  # a target relMSE: beyond, every render reaches it (and its time extrapolates past float's range)
 MAX_CELLS = 100_000  # renders of one study: its report lists every cell, its cache holds a file per render
 MAX_NAME = 100  # characters: report files add a suffix, and file systems allow 255 bytes
 

@@ -57,6 +57,7 @@ def block_bias_ratio(image_a, image_b, reference, block=8, trim=0.05, reference_
     (1-2.5: heavy-tailed pixels) for an unbiased method, far more for a biased one. The `trim` share of blocks
     with the largest seed-to-seed difference is left out; `reference_noise` is the reference's own per-pixel
     relMSE, which matters where a method is noise-free (analytically lit regions)."""
+    block = min(block, *np.shape(reference)[:2])  # an image smaller than a block is one block
     a, b, r = block_means(image_a, block), block_means(image_b, block), block_means(reference, block)
     weight = 1.0 / (r * r + EPSILON)
     err = ((a - r) ** 2 * weight).mean(axis=-1).ravel()

@@ -8,6 +8,7 @@ import errno
 import os
 import re
 import tempfile
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -223,7 +224,9 @@ def read_linear_rgb(path, raw=False):
             raise ProbvisError(f"{path}: image is {w}x{h} ({w * h / 1e6:.0f} Mpixel), above the "
                                f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads (scale it down)")
         try:
-            data = iio.imread(path, plugin="pillow", mode=_PILLOW_MODES.get(mode))
+            with warnings.catch_warnings():  # probvis's own limit applies, above: Pillow's "decompression bomb" note
+                warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # would repeat it in other words
+                data = iio.imread(path, plugin="pillow", mode=_PILLOW_MODES.get(mode))
         except MemoryError:
             raise
         except Exception as exc:

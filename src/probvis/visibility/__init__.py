@@ -6,6 +6,7 @@ import importlib.util
 import inspect
 import re
 import sys
+import threading
 import unicodedata
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -26,8 +27,16 @@ BUILTIN = {
 }
 
 
+_IMPORTING = threading.RLock()  # renders started from several threads import their estimators one at a time
+
+
 def _load(spec, what):
     """The class named by `module:Class` or `file.py:Class`."""
+    with _IMPORTING:
+        return _load_unlocked(spec, what)
+
+
+def _load_unlocked(spec, what):
     module_name, _, class_name = spec.rpartition(":")
     if not module_name or not class_name:
         raise ProbvisError(f"{what}: expected a name ({', '.join(available_names())}) or module:Class, got '{spec}'")
