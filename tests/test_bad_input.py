@@ -534,3 +534,27 @@ def test_the_command_s_warnings_stay_warnings_and_jit_may_be_off(tmp_path):
         assert not args or r.stderr.strip() == (f"probvis: warning: {path}: -D foo: the scene declares no such "
                                                 "parameter (its parameters: none)"), r.stderr
         (tmp_path / "o.exr").unlink()
+
+
+def test_a_scene_changed_beyond_what_the_reader_accepts_is_refused(tmp_path):
+    """Finite values the scene reader bounds, set through the API: a point light at 1e300 rendered NaN pixels,
+    a zero spot axis black, triangles scaled by 1e200 NumPy warnings and a black image, a Gaussian filter of
+    1e-300 a ZeroDivisionError."""
+    import dataclasses
+
+    import probvis
+    from probvis import ProbvisError
+
+    path = write_scene(tmp_path / "s.xml", sensor(w=8, h=8) + """<emitter type="spot"><transform name="to_world">
+        <lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/></transform><rgb name="intensity" value="5"/>
+        </emitter><shape type="rectangle"/>""")
+    for change, message in ((lambda s: s.emitter_position.__setitem__(0, 1e300), "scene.emitter_position must lie"),
+                            (lambda s: s.emitter_axis.__setitem__(0, 0.0), "scene.emitter_axis must not be zero"),
+                            (lambda s: setattr(s, "triangles", s.triangles * 1e200), "scene.triangles must lie"),
+                            (lambda s: setattr(s, "camera", dataclasses.replace(s.camera, rfilter="gaussian",
+                                                                                filter_stddev=1e-300)),
+                             "camera.rfilter must be box, tent or gaussian")):
+        scene = probvis.load_scene(path)
+        change(scene)
+        with pytest.raises(ProbvisError, match=message):
+            probvis.render(scene, spp=1, shadow_rays=1)

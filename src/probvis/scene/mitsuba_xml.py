@@ -19,7 +19,7 @@ from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import MAX_COORDINATE, MAX_EMISSION, SceneBuilder
-from .sensor import MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV, Camera, camera_problem
+from .sensor import MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV, MIN_FILTER_REACH, Camera, camera_problem
 from .serialized import load_serialized
 from .spectrum import spectrum_to_rgb
 
@@ -36,7 +36,6 @@ _CONDUCTORS = {"a-C", "Ag", "Al", "AlAs", "AlAs_palik", "AlSb", "AlSb_palik", "A
                "Se_palik", "SiC", "SiC_palik", "SnTe", "SnTe_palik", "Ta", "Ta_palik", "Te", "Te_palik", "ThF4",
                "ThF4_palik", "TiC", "TiC_palik", "TiN", "TiN_palik", "TiO2", "TiO2_palik", "VC", "VC_palik", "V_palik",
                "VN", "VN_palik", "W", "W_palik", "none"}
-MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarters of the samples out
 MAX_NESTING = 64  # elements deep: real scenes nest a handful
 MAX_TRANSFORM = 1e100  # a composed transform's entries: beyond, its products and inverse overflow
 MIN_CUTOFF = 1e-3  # degrees: a spot's narrowest cone

@@ -8,8 +8,8 @@ import numpy as np
 from ..errors import ProbvisError
 from ..settings import RenderSettings
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
-from .scene import (EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, EMITTER_SPOT, MAX_EMISSION,
-                    Environment, ShapeInfo)
+from .scene import (EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, EMITTER_SPOT,
+                    MAX_COORDINATE, MAX_EMISSION, Environment, ShapeInfo)
 from .sensor import Camera
 
 MAX_UV = 1e9  # a corner's uv: beyond, a texture's coordinates lose all precision
@@ -66,6 +66,13 @@ def check_scene(scene):
                  "emitter_cone"):
         if not np.all(np.isfinite(getattr(scene, name))):
             raise ProbvisError(f"scene.{name} must be finite (it holds NaN or infinite values)")
+    for name in ("triangles", "emitter_position"):  # as the scene reader bounds them: beyond, products overflow
+        if not np.all(np.abs(getattr(scene, name)) <= MAX_COORDINATE):
+            raise ProbvisError(f"scene.{name} must lie within ±{MAX_COORDINATE:g}: rescale the scene")
+    aimed = np.isin(scene.emitter_kind, (EMITTER_SPOT, EMITTER_DIRECTIONAL))
+    if not np.all(np.abs(scene.emitter_axis[aimed]).max(axis=-1, initial=0.0) > 0.0):
+        raise ProbvisError("scene.emitter_axis must not be zero for a spot or directional light (it is the "
+                           "direction the light points to)")
     kinds = (EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT)
     if not (np.all(np.isin(scene.emitter_kind, kinds)) and scene.material_texture.min(initial=-1) >= -1
             and scene.material_texture.max(initial=-1) < len(scene.textures)):

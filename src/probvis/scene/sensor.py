@@ -8,6 +8,7 @@ import numpy as np
 
 MAX_FILM_SIDE = 1 << 15  # pixels along a film's side
 MAX_FILTER_RADIUS = 32.0  # pixels a film's reconstruction filter may reach (splatting cost grows with its square)
+MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarters of the samples out
 MAX_PRINCIPAL_OFFSET = 1e3  # film sizes: beyond, the view's axis is within a thousandth of a radian of the film plane
 MAX_FOV = 179.5  # degrees across the film: wider, a perspective image shrinks the scene to a few pixels at its centre
 MAX_APERTURE_RATIO = 1e3  # lens radius per focus distance: beyond, every ray leaves the lens nearly along its plane
@@ -66,10 +67,11 @@ def camera_problem(c):
             return f"camera.{f.name} must be a {'whole number' if whole else 'number'}, got {value!r}"
         if not np.isfinite(value):
             return f"camera.{f.name} must be finite, got {value!r}"
-    if c.rfilter not in ("box", "tent", "gaussian") or not (0 < c.filter_radius <= MAX_FILTER_RADIUS
-                                                            and 0 < 4 * c.filter_stddev <= MAX_FILTER_RADIUS):
-        return (f"camera.rfilter must be box, tent or gaussian, with a filter_radius and 4 filter_stddev above 0 "
-                f"and at most {MAX_FILTER_RADIUS:g} pixels")
+    if c.rfilter not in ("box", "tent", "gaussian") or not (
+            MIN_FILTER_REACH <= c.filter_radius <= MAX_FILTER_RADIUS
+            and MIN_FILTER_REACH <= 4 * c.filter_stddev <= MAX_FILTER_RADIUS):
+        return (f"camera.rfilter must be box, tent or gaussian, with a filter_radius and 4 filter_stddev from "
+                f"{MIN_FILTER_REACH:g} to {MAX_FILTER_RADIUS:g} pixels")
     m = c.to_world
     if not isinstance(m, np.ndarray) or m.shape != (4, 4) or m.dtype.kind not in "fiu" \
             or not np.all(np.isfinite(m)) or not np.all(m[3] == (0, 0, 0, 1)) \
