@@ -272,10 +272,6 @@ def parse_experiment(data, base=Path("."), source=""):
     if not reference_estimator.unbiased:
         _fail("reference.visibility", f"'{reference.visibility}' is biased (it converges only as its samples grow "
                                       "without bound): a reference must expect the true image; use exact")
-    rendered = any(spec.reference is None for spec in scene_specs)
-    if rendered and reference.seed in _int_list("seeds", data.get("seeds", [0]), 0):
-        _fail("reference.seed", f"{reference.seed} is one of the cells' seeds: a rendered reference must be "
-                                "independent of the renders it judges (a cell with its samples would measure no error)")
     resolution = data.get("resolution")
     if resolution is not None:
         resolution = _int_list("resolution", resolution, distinct=False, highest=MAX_RESOLUTION)
@@ -301,6 +297,10 @@ def parse_experiment(data, base=Path("."), source=""):
     if cells > MAX_CELLS:
         _fail(where, f"{cells:,} cells (scenes x methods x shadow_rays x seeds) is more than a study runs (at most "
                      f"{MAX_CELLS:,}): split it into several experiments")
+    rendered = any(spec.reference is None for spec in scene_specs)
+    if rendered and reference.seed in seeds:
+        _fail("reference.seed", f"{reference.seed} is one of the cells' seeds: a rendered reference must be "
+                                "independent of the renders it judges (a cell with its samples would measure no error)")
     table_rays = data.get("table_shadow_rays", 16 if 16 in shadow_rays else max(shadow_rays))
     if _int("table_shadow_rays", table_rays) not in shadow_rays:
         _fail("table_shadow_rays", f"{table_rays} is not one of shadow_rays {list(shadow_rays)}")
