@@ -245,6 +245,13 @@ def _scales_triangles(self, scene, bvh, emitters, settings, integrator):
     integrator.scene_arrays.triangles[:] *= 5.0  # the kernels' arrays, which are the caller's
 
 
+def _nested(depth):
+    out = {}
+    for _ in range(depth):
+        out = {"a": out}
+    return out
+
+
 def _raise(*args, **kwargs):
     raise RuntimeError("inner")
 
@@ -268,6 +275,11 @@ def _raise(*args, **kwargs):
     ({"prepare": lambda self, *a: open("no-such-weights.dat")}, "raised FileNotFoundError in the render"),
     ({"prepare": _scales_triangles}, "changed the arrays of the scene, its emitters or its BVH"),
     ({"memory_estimate": lambda self, *a: {"film": 0, "scene": 0}}, "memory_estimate\\(\\) names film, scene, which"),
+    ({"stats": lambda self: {**_Exact.stats(self), "tests": {"proxy": {"node": "many"}}}},
+     "stats\\(\\)\\['tests'\\] must map a geometry to its counts"),
+    ({"stats": lambda self: {**_Exact.stats(self), "seconds": {"x": -1.0}}}, "stats\\(\\)\\['seconds'\\] must map"),
+    ({"stats": lambda self: {**_Exact.stats(self), "biased": "no"}}, "stats\\(\\)\\['biased'\\] must be True or"),
+    ({"stats": lambda self: _nested(3000)}, "stats\\(\\) returned a value JSON cannot hold \\(RecursionError"),
     ({"render_path": lambda self: probvis.visibility.RenderPath.OWN_KERNEL,
       "shade": lambda self, b: self.integrator.shade_exact(b)._replace(radiance=np.full((len(b.keys), 3), np.nan))},
      "shade\\(\\) returned radiance of shape"),

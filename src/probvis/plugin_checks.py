@@ -152,10 +152,33 @@ def checked_stats(cls, stats):
                            f"got {memory!r}")
     try:
         json.dumps(stats, allow_nan=False)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, RecursionError) as exc:
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): stats() returned a value "
-                           f"JSON cannot hold ({exc}); return numbers, strings, lists and dicts") from None
+                           f"JSON cannot hold ({type(exc).__name__}: {str(exc)[:200]}); return numbers, strings, "
+                           "lists and dicts") from None
+    if cls.__module__.split(".")[0] != "probvis":
+        _check_read_keys(cls, stats)
     return stats
+
+
+def _whole(x):
+    return isinstance(x, int) and not isinstance(x, bool) and x >= 0
+
+
+def _check_read_keys(cls, stats):
+    """The keys of a plug-in's stats that studies read (`experiments.results`): of the types they read, or an
+    error now rather than a traceback after every render."""
+    where = f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): stats()"
+    tests, seconds = stats.get("tests", {}), stats.get("seconds", {})
+    if not (isinstance(tests, dict) and all(isinstance(v, dict) and all(_whole(c) for c in v.values())
+                                            for v in tests.values())):
+        raise ProbvisError(f"{where}['tests'] must map a geometry to its counts (whole numbers >= 0), got "
+                           f"{tests!r:.200}")
+    if not (isinstance(seconds, dict) and all(isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0
+                                              for v in seconds.values())):
+        raise ProbvisError(f"{where}['seconds'] must map a phase to its seconds (numbers >= 0), got {seconds!r:.200}")
+    if not isinstance(stats.get("biased", False), bool):
+        raise ProbvisError(f"{where}['biased'] must be True or False, got {stats['biased']!r:.100}")
 
 
 def arrays_digest(integrator):
