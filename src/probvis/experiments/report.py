@@ -169,7 +169,8 @@ class Report:
         return self.folder / "index.html"
 
     # --- files -------------------------------------------------------------------------------------------
-    def _image_path(self, scene, method=None, rays=None):
+    @staticmethod
+    def _image_path(scene, method=None, rays=None):
         name = "reference" if method is None else f"{_slug(method)}-{rays}"
         return f"images/{_slug(scene)}/{name}.png"
 
@@ -505,11 +506,11 @@ def report_problem(exp, folder):
     slugs = [_slug(spec.name) for spec in exp.scenes]
     folders = ["images", "plots", "data"] + [f"images/{slug}" for slug in slugs]
     files = [*STATIC, "results.csv", "results.json", "results.md", "index.html"]
-    for slug in slugs:
-        files += [f"data/{slug}.js", f"images/{slug}/reference.png"]
+    for spec, slug in zip(exp.scenes, slugs):
+        files += [f"data/{slug}.js", Report._image_path(spec.name)]
         files += [f"plots/{slug}-{kind}.png" for kind in ("convergence", "cost", "strip")]
         files += [f"plots/{slug}-tests-{sr}.png" for sr in exp.shadow_rays]
-        files += [f"images/{slug}/{_slug(m.name)}-{sr}.png" for m in exp.methods for sr in exp.shadow_rays]
+        files += [Report._image_path(spec.name, m.name, sr) for m in exp.methods for sr in exp.shadow_rays]
     for name in folders:
         if (folder / name).exists() and not (folder / name).is_dir():
             return f"cannot write the report: '{folder / name}' is a file, where the report keeps a folder"
