@@ -167,3 +167,71 @@ def test_parallel_build_gives_the_single_threaded_tree():
                  (one.prim_ids, many.prim_ids), (one.packed, many.packed)):
         np.testing.assert_array_equal(a, b)
     assert one.max_depth == many.max_depth
+
+
+def _chained_decision(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz, tmin, tmax):
+    """The watertight test as Woop, Benthin and Wald write it, branch after branch, and the any-hit decision
+    callers took from it (a finite distance): the reference of the branch-free `sheared_blocks`."""
+    ax, ay, bx, by, cx, cy = ax - sx * az, ay - sy * az, bx - sx * bz, by - sy * bz, cx - sx * cz, cy - sy * cz
+    u, v, w = cx * by - cy * bx, ax * cy - ay * cx, bx * ay - by * ax
+    if (u < 0.0 or v < 0.0 or w < 0.0) and (u > 0.0 or v > 0.0 or w > 0.0):
+        return False
+    det = u + v + w
+    if det == 0.0:
+        return False
+    tt = u * (sz * az) + v * (sz * bz) + w * (sz * cz)
+    if det < 0.0:
+        if tt >= tmin * det or tt <= tmax * det:
+            return False
+    elif tt <= tmin * det or tt >= tmax * det:
+        return False
+    return tt / det < np.inf
+
+
+def test_the_branch_free_decision_is_the_chained_tests():
+    """On vertices shared exactly (edge functions of 0), degenerate triangles (det 0), distances at tmin and
+    tmax, either winding, NaN and infinite coordinates: `sheared_blocks` decides as the chained test and as
+    `sheared_hit`."""
+    from probvis.accel.traversal import sheared_blocks, sheared_hit
+    rng = np.random.default_rng(7)
+    grid = np.array([-1.0, -0.5, 0.0, 0.5, 1.0])  # coordinates on a coarse grid: exact zeros and ties
+    rows = [rng.choice(grid, 12) for _ in range(4000)] + [rng.normal(size=12) for _ in range(4000)]
+    rows += [np.r_[rng.choice(grid, 9), [0.0, 0.0, 1.0]] for _ in range(2000)]  # no shear: exact edge hits
+    special = [np.nan, np.inf, -np.inf]
+    for _ in range(500):
+        r = rng.normal(size=12)
+        r[rng.integers(12)] = special[rng.integers(3)]
+        rows.append(r)
+    decided = 0
+    for r in rows:
+        for tmin, tmax in ((0.0, 1.0), (0.0, 0.5), (0.5, 1.0), (0.0, np.inf)):
+            with np.errstate(all="ignore"):
+                expected = _chained_decision(*r, tmin, tmax)
+            assert sheared_blocks(*r, tmin, tmax) == expected, (r, tmin, tmax)
+            assert (sheared_hit(*r, tmin, tmax)[0] < np.inf) == expected, (r, tmin, tmax)
+            decided += expected
+    assert 1000 < decided < 0.9 * 4 * len(rows)  # both outcomes well represented
+
+
+def test_any_hit_segments_through_shared_edges_never_leak():
+    """The any-hit tests (`triangle_blocks`, `sheared_blocks`) of the BVH's packets and of candidate lists on the
+    fan of triangles, hit exactly on its shared edges and at the centre: every segment that reaches the fan is
+    blocked, none that stops short."""
+    from probvis.accel import occluded_segments, visibility_from_lists
+    k = 12
+    ang = np.linspace(0, 2 * np.pi, k, endpoint=False)
+    ring = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(k)])
+    tris = np.stack([np.zeros((k, 3)), ring, np.roll(ring, -1, axis=0)], axis=1)
+    bvh = build_bvh(tris)
+    targets = np.vstack([[0.0, 0.0, 0.0], ring * 0.5, ring * 0.999])
+    n = len(targets)
+    org = targets + np.array([0.3, -0.2, 1.0])
+    dirs = 2.0 * (targets - org)
+    lo, hi, cand = np.zeros(n, np.int64), np.full(n, k, np.int64), np.arange(k, dtype=np.int32)
+    for tmax, blocked in ((0.75, True), (0.4999, False)):
+        tm = np.full(n, tmax)
+        occ, _, _ = occluded_segments(bvh, org, dirs, tm, np.zeros(n, np.int64))
+        assert (occ == blocked).all()
+        vis, _, _ = visibility_from_lists(tris, np.zeros(k, np.int8), np.tile([0.0, 0.0, 1.0], (k, 1)), org, dirs, tm,
+                                          lo, hi, cand)
+        assert (vis == (0.0 if blocked else 1.0)).all()

@@ -10,7 +10,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from .traversal import hit_triangle, ray_setup, sheared_hit
+from .traversal import ray_setup, sheared_blocks, triangle_blocks
 
 GATHER = 16  # candidates gathered into contiguous memory at a time by `buffered_blocker`
 
@@ -42,7 +42,7 @@ def first_blocker(triangles, orientation, fnormal, o, d, rs, tmax, tris, lo, hi)
             n_cull += 1
             continue
         n_tri += 1
-        if hit_triangle(triangles, t, o, kx, ky, kz, sx, sy, sz, 0.0, tmax)[0] < np.inf:
+        if triangle_blocks(triangles, t, o, kx, ky, kz, sx, sy, sz, 0.0, tmax):
             return True, n_tri, n_cull
     return False, n_tri, n_cull
 
@@ -89,8 +89,8 @@ def buffered_blocker(cand, tris, lo, hi, buf, cull, row0, have, ox, oy, oz, o, d
             culls += 1
             continue
         tests += 1
-        if sheared_hit(buf[w, kx], buf[w, ky], buf[w, kz], buf[w, 3 + kx], buf[w, 3 + ky], buf[w, 3 + kz],
-                       buf[w, 6 + kx], buf[w, 6 + ky], buf[w, 6 + kz], sx, sy, sz, 0.0, tmax)[0] < np.inf:
+        if sheared_blocks(buf[w, kx], buf[w, ky], buf[w, kz], buf[w, 3 + kx], buf[w, 3 + ky], buf[w, 3 + kz],
+                          buf[w, 6 + kx], buf[w, 6 + ky], buf[w, 6 + kz], sx, sy, sz, 0.0, tmax):
             return True, tests, culls, have
     return False, tests, culls, have
 

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from ..parallel import over_threads, spread
-from .traversal import _BOX_SLACK, hit_triangle, ray_setup
+from .traversal import _BOX_SLACK, hit_triangle, ray_setup, triangle_blocks
 
 MAX_PACKET = 64  # rays per packet: one bit each in a uint64 mask
 # shadow segments of one shading point per packet: they fan out to the emitter, so beyond this a packet visits
@@ -153,12 +153,14 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
                     kx, ky, kz, sx, sy, sz = ray_setup(dirs[lo + r, 0], dirs[lo + r, 1], dirs[lo + r, 2])
                     for p in range(first, first + cnt):
                         n_tri[lo + r] += 1
-                        t, u, v = hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, rays[6, r], rays[7, r])
-                        if t < rays[7, r]:
-                            if not closest:
+                        if not closest:
+                            if triangle_blocks(tv, p, o, kx, ky, kz, sx, sy, sz, rays[6, r], rays[7, r]):
                                 occ[lo + r] = True
                                 alive &= ~bit
                                 break
+                            continue
+                        t, u, v = hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, rays[6, r], rays[7, r])
+                        if t < rays[7, r]:
                             rays[7, r] = t  # later boxes and triangles are culled against the nearer hit
                             hit[lo + r], hit_t[lo + r], hit_b1[lo + r], hit_b2[lo + r] = p, t, u, v
         if sp == 0 or alive == 0:

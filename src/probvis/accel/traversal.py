@@ -56,9 +56,20 @@ def hit_triangle(tv, p, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def sheared_hit(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz, tmin, tmax):
-    """The watertight test of a triangle whose vertices, minus the ray's origin, are given in the ray's permuted
-    axes (`ray_setup`'s kx, ky, kz): (t, b1, b2), t = inf on a miss."""
+def triangle_blocks(tv, p, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
+    """Whether triangle `p` of `tv` meets the ray in (tmin, tmax): `hit_triangle`'s decision, for any-hit tests."""
+    return sheared_blocks(tv[p, 0, kx] - o[kx], tv[p, 0, ky] - o[ky], tv[p, 0, kz] - o[kz],
+                          tv[p, 1, kx] - o[kx], tv[p, 1, ky] - o[ky], tv[p, 1, kz] - o[kz],
+                          tv[p, 2, kx] - o[kx], tv[p, 2, ky] - o[ky], tv[p, 2, kz] - o[kz], sx, sy, sz, tmin, tmax)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _sheared(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz, tmin, tmax):
+    """The watertight test's edge functions u, v, w, their sum det and the scaled distance tt of a triangle
+    whose vertices, minus the ray's origin, are given in the ray's permuted axes (`ray_setup`'s kx, ky, kz); and
+    whether the ray meets it in (tmin, tmax): u, v, w of one sign, det nonzero, tt / det inside. The decision is
+    a combination of comparisons, not a chain of branches: the tests a shadow segment makes against nearby
+    triangles take either side of each comparison unpredictably."""
     ax -= sx * az
     ay -= sy * az
     bx -= sx * bz
@@ -68,19 +79,29 @@ def sheared_hit(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz, tmin, tmax):
     u = cx * by - cy * bx
     v = ax * cy - ay * cx
     w = bx * ay - by * ax
-    if (u < 0.0 or v < 0.0 or w < 0.0) and (u > 0.0 or v > 0.0 or w > 0.0):
-        return np.inf, 0.0, 0.0
     det = u + v + w
-    if det == 0.0:
-        return np.inf, 0.0, 0.0
     tt = u * (sz * az) + v * (sz * bz) + w * (sz * cz)
-    if det < 0.0:
-        if tt >= tmin * det or tt <= tmax * det:
-            return np.inf, 0.0, 0.0
-    elif tt <= tmin * det or tt >= tmax * det:
+    lo, hi = tmin * det, tmax * det
+    inside = ((u >= 0.0) & (v >= 0.0) & (w >= 0.0)) | ((u <= 0.0) & (v <= 0.0) & (w <= 0.0))
+    between = ((det > 0.0) & (tt > lo) & (tt < hi)) | ((det < 0.0) & (tt < lo) & (tt > hi))
+    return inside & between, v, w, det, tt
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def sheared_hit(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz, tmin, tmax):
+    """The watertight test of a triangle whose vertices, minus the ray's origin, are given in the ray's permuted
+    axes (`ray_setup`'s kx, ky, kz): (t, b1, b2), t = inf on a miss."""
+    met, v, w, det, tt = _sheared(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz, tmin, tmax)
+    if not met:
         return np.inf, 0.0, 0.0
     inv = 1.0 / det
     return tt * inv, v * inv, w * inv
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def sheared_blocks(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz, tmin, tmax):
+    """`sheared_hit`'s decision alone: whether the ray meets the triangle in (tmin, tmax)."""
+    return _sheared(ax, ay, az, bx, by, bz, cx, cy, cz, sx, sy, sz, tmin, tmax)[0]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
