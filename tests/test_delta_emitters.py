@@ -90,3 +90,29 @@ def test_directional_light_matches_mitsuba_and_keeps_the_map_unbiased(tmp_path):
         assert abs(diff.mean()) < 4 * np.std(diff, ddof=1) / np.sqrt(len(diff)) + 1e-12, options
     r = probvis.render(scene, spp=2, shadow_rays=2, visibility="occlusion-map", visibility_options={"photons": 20000})
     assert r.stats["cases"]["lit"]["count"] > 0 and r.stats["cases"]["shadowed"]["count"] > 0
+
+
+def test_info_names_each_emitter_s_kind_and_quantity(tmp_path, capsys):
+    """`probvis info`: a point or spot light's intensity, a directional light's irradiance, an environment's
+    scale and map, and an area only for area lights (null in JSON)."""
+    import json
+
+    from probvis.cli import main
+    path = write_scene(tmp_path / "all.xml", sensor(origin="0, -3, 1", target="0, 0, 0", up="0, 0, 1", fov=45,
+                                                    spp="1", w=8, h=8, sr=1) + LIGHTS + """
+    <emitter type="directional"><vector name="direction" x="0.4" y="0.6" z="-1"/><rgb name="irradiance" value="2"/>
+    </emitter>
+    <emitter type="constant"><rgb name="radiance" value="0.1"/></emitter>
+    <shape type="rectangle"><transform name="to_world"><translate z="2"/></transform>
+        <emitter type="area"><rgb name="radiance" value="4"/></emitter></shape>""")
+    assert main(["info", str(path), "--json"]) == 0
+    emitters = json.loads(capsys.readouterr().out)["emitters"]
+    kinds = [(e["kind"], next(k for k in ("radiance", "intensity", "irradiance", "scale") if k in e), e["area"])
+             for e in emitters]
+    assert sorted(kinds, key=str) == sorted([("point", "intensity", None), ("point", "intensity", None),
+                                             ("spot", "intensity", None), ("directional", "irradiance", None),
+                                             ("environment", "scale", None), ("area", "radiance", 4.0)], key=str)
+    assert main(["info", str(path)]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("emitter")]
+    assert any("spot: intensity [6.0, 6.0, 6.0], power" in ln for ln in lines)
+    assert sum("area " in ln for ln in lines) == 1

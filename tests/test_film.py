@@ -159,3 +159,10 @@ def test_bad_filter_importance_is_refused(value):
 def test_filters_beyond_the_film_s_reach_are_refused(tmp_path, rfilter, message):
     with pytest.raises(ProbvisError, match=message):
         probvis.load_scene(film_scene(tmp_path, rfilter))
+
+
+def test_one_sample_per_pixel_has_no_noise_estimate():
+    """With one camera sample per pixel the per-pixel variance is unknown: noise_relmse is None, not 0."""
+    one = probvis.render("quad-shadow", resolution=(8, 8), spp=1, shadow_rays=1)
+    two = probvis.render("quad-shadow", resolution=(8, 8), spp=2, shadow_rays=1)
+    assert one.stats["noise_relmse"] is None and two.stats["noise_relmse"] > 0.0

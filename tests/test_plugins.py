@@ -461,3 +461,17 @@ def test_renders_from_two_threads_load_their_estimators_one_at_a_time(tmp_path):
             "[t.start() for t in ts]\n[t.join() for t in ts]\nprint(errors)\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=600)
     assert r.returncode == 0 and r.stdout.strip() == "[]", r.stdout + r.stderr
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda e: setattr(e.params, "photons", "many"), r"has settings its class refuses: .*photons"),
+    (lambda e: setattr(e.params, "photons", 0), r"has settings its class refuses: .*photons"),
+    (lambda e: setattr(e, "params", None), r"has no readable settings"),
+    (lambda e: delattr(e, "params"), r"has no readable settings"),
+])
+def test_an_instance_changed_after_it_was_made_is_checked_again(change, message):
+    """`render(visibility=instance)` checks the instance's settings as its class checks options."""
+    est = probvis.visibility.make_estimator("occlusion-map", photons=1000)
+    change(est)
+    with pytest.raises(ProbvisError, match=r"visibility: the OcclusionMapVisibility instance " + message):
+        probvis.render("quad-shadow", resolution=(8, 8), spp=1, shadow_rays=1, visibility=est)

@@ -417,9 +417,7 @@ def _cmd_info(args):
         "bounds": {"min": lo.tolist(), "max": hi.tolist()},
         "shapes": [{"name": s.name, "type": s.kind, "triangles": s.n_triangles, "emitter": s.emitter}
                    for s in scene.shapes],
-        "emitters": [{"radiance": scene.emitter_radiance[e].tolist(), "area": float(es.emitter_area[e]),
-                      "power": float(es.power[e]), "selection_probability": float(es.emitter_pmf[e])}
-                     for e in range(scene.n_emitters)],
+        "emitters": [_emitter_info(scene, es, e) for e in range(scene.n_emitters)],
         "camera": {"width": cam.width, "height": cam.height, "fov_x": cam.fov_x,
                    "origin": cam.to_world[:3, 3].tolist()},
         "spp": scene.defaults.spp,
@@ -436,7 +434,10 @@ def _cmd_info(args):
     _say(f"camera     {cam.width}x{cam.height}, fov_x {cam.fov_x:.4g} deg, {scene.defaults.spp} spp x "
          f"{scene.defaults.shadow_rays} shadow rays")
     for e, em in enumerate(info["emitters"]):
-        _say(f"emitter {e}  radiance {em['radiance']}, area {em['area']:.4g}, power {em['power']:.4g}, "
+        quantity = next(q for q in _EMITTER_QUANTITY.values() if q in em)
+        size = f", {em['map'][0]}x{em['map'][1]} map" if em.get("map") else ""
+        area = f", area {em['area']:.4g}" if em["area"] is not None else ""
+        _say(f"emitter {e}  {em['kind']}: {quantity} {em[quantity]}{size}{area}, power {em['power']:.4g}, "
              f"p {em['selection_probability']:.3f}")
     b = info["bvh"]
     _say(f"bvh        {b['nodes']:,} nodes, {b['leaves']:,} leaves, depth {b['max_depth']}, "
@@ -445,6 +446,26 @@ def _cmd_info(args):
         _say(f"shape      {s['name']:<16} {s['type']:<10} {s['triangles']:>8,} triangles"
              + ("  (emitter)" if s["emitter"] >= 0 else ""))
     return 0
+
+
+_EMITTER_QUANTITY = {"area": "radiance", "point": "intensity", "spot": "intensity", "directional": "irradiance",
+                     "environment": "scale"}
+
+
+def _emitter_info(scene, es, e):
+    """What `info` says of emitter e: its kind and its own quantity (an area light's radiance, a point or spot
+    light's intensity, a directional light's irradiance, an environment's scale and map size), the area only of
+    area lights."""
+    from .scene.scene import EMITTER_AREA, EMITTER_ENVIRONMENT
+
+    kind = ("area", "point", "spot", "directional", "environment")[int(scene.emitter_kind[e])]
+    out = {"kind": kind, _EMITTER_QUANTITY[kind]: scene.emitter_radiance[e].tolist(),
+           "area": float(es.emitter_area[e]) if scene.emitter_kind[e] == EMITTER_AREA else None}
+    env = scene.environment
+    if scene.emitter_kind[e] == EMITTER_ENVIRONMENT and env is not None:
+        out["map"] = None if env.constant else [int(env.image.shape[1]), int(env.image.shape[0])]
+    out.update(power=float(es.power[e]), selection_probability=float(es.emitter_pmf[e]))
+    return out
 
 
 def _cmd_scenes(args):

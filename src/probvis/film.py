@@ -252,7 +252,9 @@ class Film:
         """relMSE (weights 1 / (x^2 + 0.01), as ../shared/README.md defines it) of the image against its own
         expectation, estimated from the per-pixel variance of the camera samples' radiance: for a box,
         (m2 - mean²) / (spp - 1); splatting, Σ w²·σ² / (Σ w)², each sample's σ² that of its own pixel's samples
-        (a weighted mean of independent samples)."""
+        (a weighted mean of independent samples). None with one sample per pixel, whose variance is unknown."""
+        if self.spp < 2:
+            return None
         mean = self._mean()
         if self.rfilter is None:
             var = np.maximum(self.moment2 - mean * mean, 0.0) / max(self.spp - 1, 1)

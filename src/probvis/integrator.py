@@ -33,8 +33,8 @@ from .film import Film, splat_chunk, splat_filter
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
-from .plugin_checks import (arrays_digest, check_unchanged, checked_cases, checked_result, checked_shaded,
-                            checked_stats, plugin_errors)
+from .plugin_checks import (arrays_digest, check_unchanged, checked_cases, checked_result, checked_settings,
+                            checked_shaded, checked_stats, plugin_errors)
 from .render_stats import render_stats
 from .scene import Scene, load_scene
 from .segments import SegmentBuffers, compact, sample_emitters, sample_radiance
@@ -353,7 +353,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     if isinstance(visibility, VisibilityEstimator):
         if visibility_options:
             raise ProbvisError("visibility_options apply to an estimator name or class, not to an instance")
-        estimator, options = visibility, visibility.settings()
+        estimator, options = visibility, checked_settings(visibility)
     else:
         options = dict(visibility_options or {})
         cls = estimator_class(visibility)

@@ -20,6 +20,24 @@ MAX_VISIBILITY = 1e12  # a segment's |estimate| beyond this is a plug-in's mista
 MAX_TESTS = 1 << 31  # node or triangle tests one segment can report (the per-pixel sums are int64)
 
 
+def checked_settings(estimator):
+    """The settings of an estimator instance given to `render`, checked as its class checks options: the instance
+    may have been changed since it was made (`params` replaced or given values its options refuse)."""
+    cls = type(estimator)
+    what = f"visibility: the {cls.__qualname__} instance"
+    try:
+        options = estimator.settings()
+        if not isinstance(options, dict):
+            raise TypeError(f"settings() returned {type(options).__name__}, not a dict")
+        cls.parse_options(options)
+    except ProbvisError as e:
+        raise ProbvisError(f"{what} has settings its class refuses: {e}") from None
+    except (AttributeError, TypeError) as e:
+        raise ProbvisError(f"{what} has no readable settings ({e}); make it with its class or make_estimator, whose "
+                           f"__init__ (super().__init__(**options) in a subclass) sets them") from None
+    return options
+
+
 def checked_result(estimator, res, n):
     """`res` if it is a `VisibilityResult` of `n` segments with finite values; otherwise an error naming the
     estimator's class (a plug-in's mistake must not become NaN pixels)."""

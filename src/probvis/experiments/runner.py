@@ -352,7 +352,7 @@ def _run(exp, scenes, files, cache, workers, scheduler, progress, log):
         r = cache.load(t.key)
         out.reference_images[t.scene] = r.image.astype(np.float64)
         out.reference_stats[t.scene] = r.stats
-        out.reference_noise[t.scene] = r.stats.get("noise_relmse", 0.0)
+        out.reference_noise[t.scene] = r.stats.get("noise_relmse") or 0.0  # None: one sample, noise unknown
     for t in cells:
         out.renders[t.key] = cache.load(t.key)
     return out
