@@ -475,3 +475,35 @@ def test_an_instance_changed_after_it_was_made_is_checked_again(change, message)
     change(est)
     with pytest.raises(ProbvisError, match=r"visibility: the OcclusionMapVisibility instance " + message):
         probvis.render("quad-shadow", resolution=(8, 8), spp=1, shadow_rays=1, visibility=est)
+
+
+def test_installed_estimators_that_do_not_load_do_not_stop_other_renders(roulette, tmp_path, monkeypatch, capsys):
+    """Entry points whose module fails to import, calls sys.exit or names a module: each is an error only where it is
+    named; a render with another estimator loads none of them, and `probvis estimators` lists them as not loading.
+    An entry point to a nested class loads it."""
+    from probvis.cli import main
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "brokemod.py").write_text("import no_such_module_xyz\n")
+    (site / "exitmod.py").write_text("import sys\nsys.exit(3)\n")
+    (site / "goodmod.py").write_text("X = 5\n")
+    (site / "nestmod.py").write_text(example_source() + "\n\nclass Outer:\n    class P(RouletteVisibility):\n"
+                                     "        name = 'nested'\n")
+    dist = site / "plugs-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: plugs\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[probvis.visibility]\nbroke = brokemod:P\nexiter = exitmod:P\n"
+                                           "modep = goodmod\nnum = goodmod:X\nnested = nestmod:Outer.P\n")
+    monkeypatch.syspath_prepend(str(site))
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "-o", str(tmp_path / "o.exr"), "-q"]) == 0
+    assert estimator_class("nested").name == "nested"
+    for name, message in [("broke", "ModuleNotFoundError"), ("exiter", "SystemExit: 3"),
+                          ("modep", "'goodmod' is not a probvis.visibility.VisibilityEstimator subclass"),
+                          ("num", "'goodmod:X' is not a probvis.visibility.VisibilityEstimator subclass")]:
+        with pytest.raises(ProbvisError, match=f"cannot load installed estimator '{name}'|{re.escape(message)}"):
+            estimator_class(name)
+    capsys.readouterr()
+    assert main(["estimators"]) == 0
+    out = capsys.readouterr().out
+    assert "exact  —" in out and "nested  —" in out
+    assert all(f"{name}  —  cannot be loaded" in out for name in ("broke", "exiter", "modep", "num"))

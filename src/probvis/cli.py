@@ -377,12 +377,21 @@ def _describe(cls):
 def _cmd_estimators(args):
     from .visibility import available_names, estimator_class
 
-    classes = [estimator_class(args.name)] if args.name else [estimator_class(n) for n in available_names()]
-    described = [_describe(c) for c in classes]
+    described = []
+    for name in [args.name] if args.name else available_names():
+        try:
+            described.append(_describe(estimator_class(name)))
+        except ProbvisError as exc:  # listing all: an installed estimator that does not load is named, not fatal
+            if args.name:
+                raise
+            described.append({"name": name, "error": str(exc)})
     if args.json:
         _say(json.dumps(described, indent=1))
         return 0
     for d in described:
+        if "error" in d:
+            _say(f"{d['name']}  —  cannot be loaded: {d['error']}\n")
+            continue
         _say(f"{d['name']}  —  {d['summary']}")
         _say(f"    class {d['class']}; render path: {d['render_path']}")
         for o in d["options"]:
@@ -623,9 +632,16 @@ def _foreign_flags(argv, cls):
     from .visibility import available_names, estimator_class
 
     own = {o.flag for o in cls.options} | {"--no-" + o.flag[2:] for o in cls.options if o.type in (bool, Switch)}
+    known = set(_parser(cls)._option_string_actions) | own  # probvis's own flags need no estimator loaded
+    if all(a.split("=", 1)[0] in known for a in argv if a.startswith("--")):
+        return None
     owners = {}
     for name in available_names():
-        for o in estimator_class(name).options:
+        try:
+            other = estimator_class(name)
+        except ProbvisError:  # an installed estimator that does not load: `probvis estimators` names it
+            continue
+        for o in other.options:
             for flag in (o.flag, "--no-" + o.flag[2:]):
                 owners.setdefault(flag, []).append(name)
     for a in argv:

@@ -197,7 +197,30 @@ def test_clamping_negative_pixels_is_reported_as_a_bias():
     (dict(levels=0), "levels must be"),
     (dict(estimator="adaptive", levels=2), "adaptive estimator"),
     (dict(penumbra="bvh"), "visibility .probvis. has no option .penumbra."),
+    (dict(levels=8, cells=8), "levels 8 and cells 8: one segment's estimate could reach beyond a double's range"),
+    (dict(levels=5), r"could reach ±3.1e\+16 .*beyond 1e\+12; lower levels or cells"),
+    (dict(levels=2, cells=8), r"could reach ±1.7e\+13"),
 ])
 def test_bad_probvis_options(options, message):
     with pytest.raises(ProbvisError, match=message):
         make_estimator("probvis", **options)
+
+
+@pytest.mark.parametrize("estimator", ["standard", "shifted", "power"])
+def test_the_reach_of_recursive_estimates_is_their_largest_value(estimator):
+    """`Decomposition.reach` (what --levels and --cells are checked against) is the largest |estimate| of two
+    levels, found by enumerating every leaf configuration and every term drawn at each split."""
+    import itertools
+    d = make_estimator("probvis", estimator=estimator).decomposition
+    coef = d.coefficients()
+
+    def values(leaves):
+        if len(leaves) == 1:
+            return {float(leaves[0])}
+        half = len(leaves) // 2
+        return {a + b * x + c * y + e * x * y for a, b, c, e in coef for x in values(leaves[:half])
+                for y in values(leaves[half:])}
+
+    largest = max(abs(v) for leaves in itertools.product((0, 1), repeat=4) for v in values(leaves))
+    assert d.reach(2, 1) == pytest.approx(largest, rel=1e-12)
+    assert d.reach(2, 3) == pytest.approx(largest ** 3, rel=1e-12)

@@ -63,6 +63,11 @@ def _load_unlocked(spec, what):
     cls = getattr(module, class_name, None)
     if cls is None:
         raise ProbvisError(f"{what}: '{module_name}' defines no '{class_name}'")
+    return _estimator_subclass(cls, spec, what)
+
+
+def _estimator_subclass(cls, spec, what):
+    """`cls` if it is a named `VisibilityEstimator` subclass (`spec` says where it came from)."""
     if not (isinstance(cls, type) and issubclass(cls, VisibilityEstimator)):
         raise ProbvisError(f"{what}: '{spec}' is not a probvis.visibility.VisibilityEstimator subclass")
     if not cls.name:
@@ -184,11 +189,12 @@ def _estimator_class(name, what):
     eps = _entry_points()
     if name in eps:
         try:
-            cls = eps[name].load()
-        except Exception as exc:
+            with _IMPORTING:
+                cls = eps[name].load()
+        except (Exception, SystemExit) as exc:  # its import failed, or called sys.exit
             raise ProbvisError(f"{what}: cannot load installed estimator '{name}' ({eps[name].value}): "
                                f"{type(exc).__name__}: {exc}") from None
-        return _load(f"{cls.__module__}:{cls.__qualname__}", what)
+        return _estimator_subclass(cls, f"{eps[name].value}", what)
     if ":" in name:
         return _load(name, what)
     raise ProbvisError(f"unknown {what} '{name}' (available: {', '.join(available_names())}, or module:Class or "

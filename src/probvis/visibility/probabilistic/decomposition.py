@@ -45,6 +45,15 @@ class Decomposition:
             out[i] = g[0, 0], g[1, 0] - g[0, 0], g[0, 1] - g[0, 0], g[1, 1] - g[1, 0] - g[0, 1] + g[0, 0]
         return out
 
+    def reach(self, levels, cells):
+        """The largest |estimate| of `levels` recursive splits in each of `cells` multiplied cells: per level, the
+        bilinear terms at the corners of the range of their inputs (binary at the leaves); cells multiply."""
+        coef, lo, hi = self.coefficients(), 0.0, 1.0
+        for _ in range(levels):
+            v = [a + b * x + c * y + d * x * y for a, b, c, d in coef for x in (lo, hi) for y in (lo, hi)]
+            lo, hi = min(v), max(v)
+        return max(-lo, hi) ** cells
+
     def check(self):
         for va, vb in CONFIGS:
             if not np.isclose(self.f[:, va, vb].sum(), va * vb, atol=1e-12):

@@ -24,6 +24,7 @@ from .standard import standard as standard_decomposition
 
 GROUPINGS = {"solid-angle": GROUP_SOLID_ANGLE, "count": GROUP_COUNT, "random": GROUP_RANDOM}
 DECOMPOSITIONS = ("standard", "shifted", "power", "adaptive")
+MAX_REACH = 1e12  # the largest |estimate| of one segment allowed (as of a plug-in's): beyond, images overflow
 MAX_POWER = 64  # (V_A + V_B)^n / (2^n - 2): beyond this the terms lose all precision
 
 
@@ -77,6 +78,12 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
                 self.decomposition = None
         except (ValueError, TypeError) as exc:
             raise ProbvisError(str(exc)) from None
+        reach = self.decomposition.reach(p.levels, p.cells) if self.decomposition is not None else 1.0
+        if reach > MAX_REACH:
+            size = f"±{reach:.2g}" if np.isfinite(reach) else "beyond a double's range"
+            raise ProbvisError(f"levels {p.levels} and cells {p.cells}: one segment's estimate could reach {size} "
+                               f"(each level's 1/p weights multiply, and the cells' estimates), beyond {MAX_REACH:g}; "
+                               "lower levels or cells")
 
     def prepare(self, scene, bvh, emitters, settings, integrator):
         super().prepare(scene, bvh, emitters, settings, integrator)
