@@ -69,20 +69,23 @@ def test_strict_refuses_approximated_appearance(tmp_path, capsys):
 
 
 def write_serialized(path, meshes, version=4):
-    """A Mitsuba .serialized file of `meshes` [(vertices, faces, normals or None)], written from the format's
+    """A Mitsuba .serialized file of `meshes` [(vertices, faces, normals or None[, uv])], written from the format's
     description (little endian; a zlib stream per mesh after a 4-byte header; an offset table at the end)."""
     import struct
     import zlib
 
     out, offsets = bytearray(), []
-    for k, (v, f, n) in enumerate(meshes):
+    for k, (v, f, n, *uv) in enumerate(meshes):
+        uv = uv[0] if uv else None
         offsets.append(len(out))
-        body = struct.pack("<I", 0x2000 | (0x0001 if n is not None else 0))
+        body = struct.pack("<I", 0x2000 | (0x0001 if n is not None else 0) | (0x0002 if uv is not None else 0))
         if version == 4:
             body += f"mesh{k}".encode() + b"\0"
         body += struct.pack("<QQ", len(v), len(f)) + np.asarray(v, "<f8").tobytes()
         if n is not None:
             body += np.asarray(n, "<f8").tobytes()
+        if uv is not None:
+            body += np.asarray(uv, "<f8").tobytes()
         body += np.asarray(f, "<u4").tobytes()
         out += struct.pack("<HH", 0x041C, version) + zlib.compress(body)
     out += b"".join(struct.pack("<Q" if version == 4 else "<I", o) for o in offsets)
@@ -112,6 +115,27 @@ def test_serialized_meshes_by_shape_index(tmp_path, version):
     bad.write_bytes(b"\x1c\x04\x09\x00" + b"\0" * 16)
     with pytest.raises(ProbvisError, match="serialized format version 9 is not supported"):
         serialized.load_serialized(bad)
+
+
+def test_serialized_vertex_attributes_are_checked_as_obj_and_ply_ones(tmp_path):
+    """NaN or zero normals and NaN or huge uv in a serialized mesh (black or NaN images before) are refused, naming
+    the mesh and the vertex; an OBJ's huge vt names its line."""
+    from probvis.scene import serialized, shapes
+
+    v, f, _ = TETRA
+    good_n, good_uv = np.ones((4, 3)), np.zeros((4, 2))
+    assert serialized.load_serialized(write_serialized(tmp_path / "ok.serialized", [(v, f, good_n, good_uv)]))
+    for n, uv, message in ((np.where(np.eye(4, 3, 1) > 0, np.nan, 1.0), None, r"zero vertex normals \(vertex 0\)"),
+                           (np.zeros((4, 3)), None, r"zero vertex normals \(vertex 0\)"),
+                           (good_n, np.where(np.eye(4, 2, -2) > 0, np.nan, 0.0), r"huge texture coordinates .* \(vertex 2\)"),
+                           (good_n, np.where(np.eye(4, 2, -3) > 0, 1e300, 0.0), r"huge texture .* \(vertex 3\)")):
+        path = write_serialized(tmp_path / "m.serialized", [(v, f, n, uv)])
+        with pytest.raises(ProbvisError, match="mesh 0 of .*m.serialized has NaN, infinite or " + message):
+            serialized.load_serialized(path)
+    obj = tmp_path / "m.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1e300 1\nf 1/1 2/2 3/3\n")
+    with pytest.raises(ProbvisError, match=r"m.obj:6: mesh m.obj has NaN, infinite or huge texture coordinates"):
+        shapes.load_mesh(obj)
 
 
 def test_corrupt_serialized_tables_and_streams_are_named(tmp_path):

@@ -11,8 +11,8 @@ from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import (EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, EMITTER_SPOT,
                     MAX_COORDINATE, MAX_EMISSION, Environment, ShapeInfo)
 from .sensor import Camera
+from .shapes import MAX_UV
 
-MAX_UV = 1e9  # a corner's uv: beyond, a texture's coordinates lose all precision
 
 
 def check_scene(scene):

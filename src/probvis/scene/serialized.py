@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ProbvisError
-from .shapes import MAX_MESH_BYTES, MeshData
+from .shapes import MAX_MESH_BYTES, MeshData, vertex_problem
 
 SERIALIZED_MAGIC = 0x041C
 MAX_INFLATE_RATIO = 1032  # zlib's largest compression ratio
@@ -100,4 +100,7 @@ def load_serialized(path, shape_index=0):
     f = take(3 * n_f, np.uint64 if n_v > 0xFFFFFFFF else np.uint32).reshape(-1, 3).astype(np.int64)
     if len(f) == 0:
         raise ProbvisError(f"mesh {shape_index} of {path} contains no triangles")
+    bad = vertex_problem(v, n, uv)
+    if bad:
+        raise ProbvisError(f"mesh {shape_index} of {path} has {bad[0]} (vertex {bad[2]})")
     return MeshData(v, f, n, uv)

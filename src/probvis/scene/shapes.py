@@ -158,6 +158,7 @@ def _obj_checked(path, mesh):
 
 
 MAX_MESH_BYTES = 8 << 30  # a mesh file larger than this is refused before reading
+MAX_UV = 1e9  # a vertex's uv: beyond, a texture's coordinates lose all precision
 # OBJ statements that group faces or name materials, which Mitsuba's reader ignores; given them, trimesh splits
 # the mesh per material (a copy of every vertex per group), reorders faces by group and packs the uv into an atlas
 _OBJ_GROUPING = re.compile(rb"(?m)^[ \t]*(?:usemtl|mtllib|g|o)\b[^\r\n]*")
@@ -245,17 +246,27 @@ def load_mesh(path, flip_tex_coords=None, fmt=None):
     f = np.asarray(f, dtype=np.int64)
     n = None if n is None or np.shape(n) != v.shape else np.asarray(n, dtype=np.float64)  # else from the faces
     uv = np.asarray(uv, dtype=np.float64).copy() if uv is not None and len(uv) == len(v) else None
-    for what, values, statement, good in (
-            ("NaN or infinite vertex coordinates", v, b"v", np.isfinite(v).all(axis=1)),
-            ("NaN, infinite or zero vertex normals", n, b"vn",
-             None if n is None else np.isfinite(n).all(axis=1) & (np.einsum("ij,ij->i", n, n) > 0.0)),
-            ("NaN or infinite texture coordinates", uv, b"vt", None if uv is None else np.isfinite(uv).all(axis=1))):
-        if values is not None and not good.all():
-            where = _bad_row(path, obj, statement, int(np.argmin(good)), read is not None)
-            raise ProbvisError(f"{where}: mesh {path.name} has {what}")
+    bad = vertex_problem(v, n, uv)
+    if bad:
+        what, statement, row = bad
+        raise ProbvisError(f"{_bad_row(path, obj, statement, row, read is not None)}: mesh {path.name} has {what}")
     if uv is not None and (obj if flip_tex_coords is None else flip_tex_coords):
         uv[:, 1] = 1.0 - uv[:, 1]
     return MeshData(v, f, n, uv)
+
+
+def vertex_problem(v, n, uv):
+    """The first problem of a mesh's vertex attributes, as (what, the OBJ statement, vertex), or None: positions
+    and normals finite, normals nonzero, texture coordinates finite and within ±MAX_UV (as a `Scene` must hold)."""
+    for what, values, statement, good in (
+            ("NaN or infinite vertex coordinates", v, b"v", lambda: np.isfinite(v).all(axis=1)),
+            ("NaN, infinite or zero vertex normals", n, b"vn",
+             lambda: np.isfinite(n).all(axis=1) & (np.einsum("ij,ij->i", n, n) > 0.0)),
+            (f"NaN, infinite or huge texture coordinates (beyond ±{MAX_UV:g})", uv, b"vt",
+             lambda: (np.abs(uv) <= MAX_UV).all(axis=1))):
+        if values is not None and not (ok := good()).all():
+            return what, statement, int(np.argmin(ok))
+    return None
 
 
 def _bad_row(path, obj, statement, index, in_file_order):
@@ -268,7 +279,8 @@ def _bad_row(path, obj, statement, index, in_file_order):
                 row = np.array([float(x) for x in m.group(1).split()[:3]])
             except ValueError:
                 continue
-            if not (np.isfinite(row).all() and (statement != b"vn" or np.any(row != 0.0))):
+            if not (np.isfinite(row).all() and (statement != b"vn" or np.any(row != 0.0))
+                    and (statement != b"vt" or np.all(np.abs(row) <= MAX_UV))):
                 line = data.count(b"\n", 0, m.start()) + 1
                 return f"{path}:{line}"
         return f"{path} (vertex {index})"
