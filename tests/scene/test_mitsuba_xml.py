@@ -129,6 +129,10 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
     ("<default name='res'/>", "missing attribute 'value' of parameter 'res'"),
     ("<shape type='rectangle'><emitter type='area'><spectrum name='radiance' value='5000:1, 6000:1'/></emitter>"
      "</shape>", "wavelengths 5000-6000 nm lie outside 360-830 nm"),
+    ("<shape type='rectangle'><bsdf type='diffuse'><spectrum name='reflectance' value='0.4:0.5, 0.7:0.5'/></bsdf>"
+     "</shape>", "wavelengths 0.4-0.7 nm lie outside 360-830 nm: this reflectance would be black"),
+    ("<shape type='rectangle'><boolean name='flip_normals' value='$late'/></shape><default name='late' value='1'/>",
+     "parameter '$late' is declared on line"),
     ("<integrator type='path'><integer name='max_depth' value='1'/></integrator>",
      "max_depth 1 renders no direct illumination in Mitsuba"),
     ("<shape type='rectangle'><transform name='to_world'><matrix value='1 0 0 0 1 0 0 0 0 0 0 0 0 0 0 1'/>"
@@ -579,3 +583,9 @@ def test_a_parameter_name_with_other_characters_is_substituted_as_mitsuba_does(t
     path = write_scene(tmp_path / "t.xml", body.replace("$my-fov", "$fov2"), '<default name="my-fov" value="30"/>')
     with pytest.raises(ProbvisError, match=re.escape("undefined parameter '$fov2'")):
         probvis.load_scene(path)
+
+
+def test_an_empty_define_name_is_refused():
+    """An empty name joined the `$name` pattern and took over every parameter ('$res' read as '$' + 'res')."""
+    with pytest.raises(ProbvisError, match="defines: a parameter name is empty"):
+        probvis.load_scene("quad-shadow", **{"": "3"})

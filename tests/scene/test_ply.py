@@ -149,6 +149,8 @@ def test_an_ascii_ply_with_another_element_is_read():
 @pytest.mark.parametrize("edit, message", [
     (("property float x", "property half x"), "malformed PLY header: line 4: field type 'half' is not one of PLY's"),
     (("element face 1", "element face 2.5"), "malformed PLY header: element 'face' count '2.5' is not a whole number"),
+    (("format ascii 1.0\n", ""), "malformed PLY header: no 'format' line"),
+    (("format ascii 1.0", "format ascii 1.0 extra"), "the format line 'format ascii 1.0 extra' is not 'format <"),
 ])
 def test_a_malformed_header_is_named(tmp_path, edit, message):
     """A property type PLY does not have; an element count that is no whole number (reported as '0 faces')."""

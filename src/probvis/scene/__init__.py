@@ -19,6 +19,8 @@ def load_scene(path, strict=False, **defaults):
         raise ProbvisError(f"path must be a scene file path or a built-in name, got {type(path).__name__}")
     if not isinstance(strict, bool):
         raise ProbvisError(f"strict must be True or False, got {strict!r}")
+    if any(not (isinstance(k, str) and k.strip()) for k in defaults):
+        raise ProbvisError("defines: a parameter name is empty (each is name=value)")
     if not str(path).strip():
         raise ProbvisError(f"the scene name is empty: give a scene file or a built-in scene ({', '.join(BUILTINS)})")
     try:

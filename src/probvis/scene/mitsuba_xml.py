@@ -159,6 +159,7 @@ class _Reader:
         self.ids = {}
         self.referenced = set()  # ids a <ref> resolved
         self.images = {}  # decoded image files by (resolved path, raw)
+        self.root = None  # the document's tree, once parsed
 
     # --- errors and values -------------------------------------------------------------------
     def fail(self, node, msg):
@@ -185,6 +186,11 @@ class _Reader:
                 return self.overrides[name]
             if name in self.defaults:
                 return self.defaults[name]
+            later = next((ch.line for ch in getattr(self.root, "children", ()) if ch.tag == "default"
+                          and ch.attrs.get("name") == name), None)
+            if later is not None:
+                self.fail(node, f"parameter '${name}' is declared on line {later}, after this use: move its "
+                                "<default> above")
             self.fail(node, f"undefined parameter '${name}' (declare it with <default> or pass -D {name}=...)")
 
         return self._variables().sub(sub, raw)
@@ -281,9 +287,10 @@ class _Reader:
         if node.attrs.get("name") == "reflectance" and (np.any(v < 0) or np.any(v > 1)):
             self.fail(node, "reflectance must be within [0, 1] at every wavelength")
         rgb = spectrum_to_rgb(w, v, reflectance=not emission)
-        if emission and np.any(v > 0) and not np.any(rgb > 0):
-            self.fail(node, f"wavelengths {w.min():g}-{w.max():g} nm lie outside 360-830 nm: this emission would be "
-                            "black (give the spectrum in nanometres over the visible range)")
+        if np.any(v > 0) and not np.any(rgb > 0):
+            self.fail(node, f"wavelengths {w.min():g}-{w.max():g} nm lie outside 360-830 nm: this "
+                            f"{'emission' if emission else 'reflectance'} would be black (give the spectrum in "
+                            "nanometres over the visible range)")
         if emission and np.all(v >= 0) and np.any(rgb < 0):
             warnings.warn(f"{self.path}:{node.line}: this emission spectrum lies outside the sRGB gamut (RGB "
                           f"{', '.join(f'{c:.3g}' for c in rgb)}): its negative components are clamped to 0",
@@ -1027,7 +1034,7 @@ class _Reader:
         return path
 
     def read(self):
-        root = parse_tree(self.path)
+        self.root = root = parse_tree(self.path)
         if root.tag != "scene":
             self.fail(root, "the root element must be <scene>")
         self.check_attrs(root, ("version",))

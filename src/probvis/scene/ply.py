@@ -31,7 +31,10 @@ def _header(fh):
             continue
         if words[0] == b"end_header":
             return fmt, elements
-        if words[0] == b"format" and len(words) == 3:
+        if words[0] == b"format":
+            if len(words) != 3:
+                raise ValueError(f"the format line '{b' '.join(words).decode('ascii', 'replace')}' is not "
+                                 "'format <ascii|binary_little_endian|binary_big_endian> 1.0'")
             fmt = words[1].decode("ascii", "replace")
         elif words[0] == b"element" and len(words) == 3:
             if not words[2].isdigit():
@@ -55,6 +58,8 @@ def read_ply(path):
             raise ProbvisError(f"mesh {path}: malformed PLY header: {exc}") from None
     if header is None:
         return None
+    if header[0] is None:
+        raise ProbvisError(f"mesh {path}: malformed PLY header: no 'format' line")
     if header[0] not in FORMATS:
         raise ProbvisError(f"mesh {path}: PLY format '{header[0]}' is not one of {', '.join(FORMATS)}")
     elements = header[1]
