@@ -133,6 +133,14 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
      "</shape>", "wavelengths 0.4-0.7 nm lie outside 360-830 nm: this reflectance would be black"),
     ("<shape type='rectangle'><boolean name='flip_normals' value='$late'/></shape><default name='late' value='1'/>",
      "parameter '$late' is declared on line"),
+    ("<shape type='rectangle'><bsdf type='diffuse'><rgb name='reflectance' value='0.5'/>\n"
+     "<texture type='checkerboard' name='reflectance'/></bsdf></shape>", "parameter 'reflectance' is given twice"),
+    ("<shape type='rectangle'><bsdf type='diffuse'><texture type='checkerboard'/>\n<texture type='checkerboard'/>"
+     "</bsdf></shape>", "parameter 'reflectance' is given twice"),
+    ("<shape type='rectangle'><bsdf type='plastic'><rgb name='diffuse_reflectance' value='0.5'/>\n"
+     "<rgb name='diffuse_reflectance' value='0.1'/></bsdf></shape>", "parameter 'diffuse_reflectance' is given twice"),
+    ("<shape type='rectangle'><bsdf type='dielectric'><float name='int_ior' value='1.5'/>\n"
+     "<string name='int_ior' value='diamond'/></bsdf></shape>", "parameter 'int_ior' is given twice"),
     ("<integrator type='path'><integer name='max_depth' value='1'/></integrator>",
      "max_depth 1 renders no direct illumination in Mitsuba"),
     ("<shape type='rectangle'><transform name='to_world'><matrix value='1 0 0 0 1 0 0 0 0 0 0 0 0 0 0 1'/>"

@@ -348,21 +348,29 @@ class _Reader:
             return np.reshape(vals, (4, 4))
         self.fail(op, "unsupported transform operation (use translate, scale, rotate, lookat or matrix)")
 
-    def params(self, node, allowed_props, allowed_objects=()):
-        """Split children into a {name: value} dict and a list of nested objects, rejecting anything else."""
+    def once(self, ch, name, lines):
+        """Refuse a parameter `name` given a second time (a property or a nested object, as Mitsuba does)."""
+        if name in lines:
+            self.fail(ch, f"parameter '{name}' is given twice (first on line {lines[name]})")
+        lines[name] = ch.line
+
+    def params(self, node, allowed_props, allowed_objects=(), unnamed=None):
+        """Split children into a {name: value} dict and a list of nested objects, rejecting anything else and any
+        name given twice (a nested object without a name counts as `unnamed`, the one it stands for)."""
         props, objects, lines = {}, [], {}
         for ch in node.children:
             if ch.tag in _PROPERTY_TAGS:
                 name = self.attr(ch, "name")
-                if name in lines:
-                    self.fail(ch, f"parameter '{name}' is given twice (first on line {lines[name]})")
-                lines[name] = ch.line
+                self.once(ch, name, lines)
                 if name not in allowed_props:
                     self.fail(ch, f"unsupported parameter '{name}' for {node.tag} '{node.attrs.get('type', '')}'")
                 props[name] = self.transform(ch) if ch.tag == "transform" else self.value(ch)
                 if allowed_props[name] is not None and ch.tag not in allowed_props[name]:
                     self.fail(ch, f"parameter '{name}' must be given as <{'/'.join(allowed_props[name])}>")
             elif ch.tag in allowed_objects:
+                name = self.attr(ch, "name", unnamed, required=False)
+                if name is not None:
+                    self.once(ch, name, lines)
                 objects.append(ch)
             else:
                 self.fail(ch, f"unsupported element inside <{node.tag}>")
@@ -376,7 +384,8 @@ class _Reader:
         self.check_attrs(node, ("type", "id", "name"))
         kind = self.attr(node, "type")
         if kind == "diffuse":
-            props, objs = self.params(node, {"reflectance": ("rgb", "spectrum", "float")}, ("texture", "ref"))
+            props, objs = self.params(node, {"reflectance": ("rgb", "spectrum", "float")}, ("texture", "ref"),
+                                      unnamed="reflectance")
             refl = props.get("reflectance", np.full(3, 0.5)) * np.ones(3)
             texture = None
             for ch in objs:
@@ -427,16 +436,19 @@ class _Reader:
 
     def loose_params(self, node):
         """The simple properties of a plugin probvis approximates (any names), and its nested objects."""
-        props, objects = {}, []
+        props, objects, lines = {}, [], {}
         for ch in node.children:
             if ch.tag in ("rgb", "spectrum", "float", "integer", "boolean", "string"):
                 name = self.attr(ch, "name")
+                self.once(ch, name, lines)
                 raw = self.attr(ch, "value")
                 if ch.tag == "spectrum" and ":" not in raw and len(raw.replace(",", " ").split()) != 1:
                     props[name] = np.full(3, 0.5)  # not a spectrum Mitsuba would read: its colour is not modelled
                 else:
                     props[name] = self.value(ch)
             elif ch.tag in ("bsdf", "ref", "texture"):
+                if "name" in ch.attrs:
+                    self.once(ch, self.attr(ch, "name"), lines)
                 objects.append(ch)
         return props, objects
 
