@@ -1,5 +1,7 @@
 """Environment emitters (`envmap`, `constant`) against Mitsuba 3 (scalar_rgb): radiance per direction, renders,
 image files; and the occlusion map and probabilistic visibility staying unbiased under them."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -170,3 +172,21 @@ def test_bad_environment_names_file_and_line(tmp_path, emitter, message):
     with pytest.raises(ProbvisError, match=message) as err:
         probvis.load_scene(path)
     assert "bad.xml:" in str(err.value)
+
+
+def test_an_environment_map_s_memory_is_estimated_before_it_is_read_or_built(scenes, tmp_path, monkeypatch):
+    """An image too large to decode is refused from its header, naming it; an environment map's sampling tables
+    are a part of the render's estimate (a 10000x10000 map ran out of memory after 20 s)."""
+    from PIL import Image
+
+    from probvis import memory
+    big = tmp_path / "big.png"
+    Image.fromarray(np.full((600, 800), 128, np.uint8)).save(big)
+    monkeypatch.setattr(memory, "available", lambda: 600 * 800 * 50)  # below a grey image's 56 bytes a pixel
+    with pytest.raises(ProbvisError, match=r"big.png: a 800x600 image needs about .* GiB to read as linear RGB"):
+        read_linear_rgb(big)
+    monkeypatch.setattr(memory, "available", lambda: 5 << 20)
+    scene = probvis.load_scene(scenes["envmap"])
+    scene = dataclasses.replace(scene, environment=dataclasses.replace(scene.environment, image=np.ones((400, 800, 3))))
+    with pytest.raises(ProbvisError, match=r"needs about .*environment .* lower the environment map's size"):
+        probvis.render(scene, spp=1, shadow_rays=1, resolution=(8, 8))

@@ -46,7 +46,8 @@ TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keep
 TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
 COMPILE_TIME = "about half a minute"  # a first run's compilation on 2 cores (17-26 s exact, 33-36 s probvis)
 MEMORY_HINTS = {"film": "the resolution (-D res, resolution=)", "photons": "--photons",
-                "lookups": "--neighbours or --shadow-rays", "batch": "--spp or --shadow-rays"}
+                "lookups": "--neighbours or --shadow-rays", "batch": "--spp or --shadow-rays",
+                "environment": "the environment map's size"}
 
 
 def batch_pixels(scene, settings, staged=True):

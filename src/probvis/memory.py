@@ -12,6 +12,7 @@ import psutil
 from .cases import N_CASES
 
 GIB = float(1 << 30)
+ENV_PIXEL_BYTES = 170  # an environment map's sampling tables as they are built, per pixel (tracemalloc's peak)
 KERNEL_BYTES = 80 << 20  # the machine code of every kernel, loaded by a process's first render
 SLOT_BYTES = 3 * 3 * 8 + 4 + 1  # per shadow-ray slot: origin, direction, contribution, emitter, active
 SEGMENT_BYTES = 2 * 3 * 8 + 8 + 4 + 8 + 8 + 8 + 4 + 4  # per segment: the query, the estimate and its counts
@@ -34,6 +35,7 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=
                          + (SPLAT_BYTES if splat_bytes else 0)),
         "batch": per_batch * (SAMPLE_BYTES + settings.shadow_rays * (SLOT_BYTES + SEGMENT_BYTES if staged else 0)),
         "scene": scene.n_triangles * TRIANGLE_BYTES,
+        "environment": 0 if scene.environment is None else scene.environment.image[..., 0].size * ENV_PIXEL_BYTES,
         "splat": splat_bytes,
         "process": psutil.Process().memory_info().rss,  # what is already resident: Python, Numba, the scene
     }
@@ -51,8 +53,8 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=
 
         cls = type(estimator)
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_estimate() names "
-                           f"{', '.join(clash)}, which probvis counts itself (film, batch, scene, splat, process, "
-                           "kernels): name the estimator's own parts")
+                           f"{', '.join(clash)}, which probvis counts itself (film, batch, scene, environment, "
+                           "splat, process, kernels): name the estimator's own parts")
     parts.update(own)
     return parts
 

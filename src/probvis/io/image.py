@@ -195,6 +195,7 @@ def read_linear_rgb(path, raw=False):
         if w * h > MAX_IMAGE_PIXELS:
             raise ProbvisError(f"{path}: image is {w}x{h} ({w * h / 1e6:.0f} Mpixel), above the "
                                f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads (scale it down)")
+        _check_decode_memory(path, w, h, 3)
         with library_output() as said:  # OpenCV logs a failed read on lines of its own
             try:
                 img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -215,14 +216,15 @@ def read_linear_rgb(path, raw=False):
         try:
             with Image.open(path) as im:  # the header only: refuse a size no texture needs before decoding it
                 w, h = im.size
-                mode = im.mode
+                mode, bands = im.mode, len(im.getbands())
         except Exception:
-            w = h = 0
+            w = h = bands = 0
         finally:
             Image.MAX_IMAGE_PIXELS = limit
         if w * h > MAX_IMAGE_PIXELS:
             raise ProbvisError(f"{path}: image is {w}x{h} ({w * h / 1e6:.0f} Mpixel), above the "
                                f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads (scale it down)")
+        _check_decode_memory(path, w, h, bands)
         try:
             with warnings.catch_warnings():  # probvis's own limit applies, above: Pillow's "decompression bomb" note
                 warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # would repeat it in other words
@@ -248,6 +250,18 @@ def read_linear_rgb(path, raw=False):
     if not np.all(np.isfinite(img)):
         raise ProbvisError(f"{path}: the image has NaN or infinite pixels")
     return np.ascontiguousarray(img)
+
+
+def _check_decode_memory(path, w, h, bands):
+    """Refuse an image whose decoding would not fit in the memory available (the machine's or the process's
+    limit), from its header: its `bands` channels as float64 through the conversion's temporaries (about four),
+    then the linear RGB result (measured: 103 bytes a pixel for an RGB PNG)."""
+    from ..memory import GIB, available
+
+    need, have = w * h * (bands * 8 * 4 + 24), available()
+    if need > have:
+        raise ProbvisError(f"{path}: a {w}x{h} image needs about {need / GIB:.1f} GiB to read as linear RGB but "
+                           f"{have / GIB:.1f} GiB are available (the machine's or the process's limit): scale it down")
 
 
 def write_pfm(path, image):
