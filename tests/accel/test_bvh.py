@@ -108,14 +108,18 @@ def test_identical_triangles_do_not_break_the_build():
     assert occ[0] and n_tri[0] == 1  # early exit on the first hit
 
 
-def test_rays_through_shared_edges_and_vertices_never_leak():
-    """A fan of triangles around a vertex, hit exactly on its shared edges and at the centre."""
-    k = 12
+def fan(k=12):
+    """A fan of k triangles around the origin in the z = 0 plane, and points on its shared edges and centre."""
     ang = np.linspace(0, 2 * np.pi, k, endpoint=False)
     ring = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(k)])
     tris = np.stack([np.zeros((k, 3)), ring, np.roll(ring, -1, axis=0)], axis=1)
+    return tris, np.vstack([[0.0, 0.0, 0.0], ring * 0.5, ring * 0.999])
+
+
+def test_rays_through_shared_edges_and_vertices_never_leak():
+    """A fan of triangles around a vertex, hit exactly on its shared edges and at the centre."""
+    tris, targets = fan()
     bvh = build_bvh(tris)
-    targets = np.vstack([[0.0, 0.0, 0.0], ring * 0.5, ring * 0.999])
     org = targets + np.array([0.3, -0.2, 1.0])
     dirs = targets - org
     prim, t, _, _, _, _ = closest_hit(bvh.arrays, org, dirs, np.zeros(len(org)), np.full(len(org), np.inf))
@@ -218,13 +222,9 @@ def test_any_hit_segments_through_shared_edges_never_leak():
     fan of triangles, hit exactly on its shared edges and at the centre: every segment that reaches the fan is
     blocked, none that stops short."""
     from probvis.accel import occluded_segments, visibility_from_lists
-    k = 12
-    ang = np.linspace(0, 2 * np.pi, k, endpoint=False)
-    ring = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(k)])
-    tris = np.stack([np.zeros((k, 3)), ring, np.roll(ring, -1, axis=0)], axis=1)
+    tris, targets = fan()
     bvh = build_bvh(tris)
-    targets = np.vstack([[0.0, 0.0, 0.0], ring * 0.5, ring * 0.999])
-    n = len(targets)
+    k, n = len(tris), len(targets)
     org = targets + np.array([0.3, -0.2, 1.0])
     dirs = 2.0 * (targets - org)
     lo, hi, cand = np.zeros(n, np.int64), np.full(n, k, np.int64), np.arange(k, dtype=np.int32)

@@ -127,7 +127,8 @@ def test_serialized_vertex_attributes_are_checked_as_obj_and_ply_ones(tmp_path):
     assert serialized.load_serialized(write_serialized(tmp_path / "ok.serialized", [(v, f, good_n, good_uv)]))
     for n, uv, message in ((np.where(np.eye(4, 3, 1) > 0, np.nan, 1.0), None, r"zero vertex normals \(vertex 0\)"),
                            (np.zeros((4, 3)), None, r"zero vertex normals \(vertex 0\)"),
-                           (good_n, np.where(np.eye(4, 2, -2) > 0, np.nan, 0.0), r"huge texture coordinates .* \(vertex 2\)"),
+                           (good_n, np.where(np.eye(4, 2, -2) > 0, np.nan, 0.0),
+                            r"huge texture coordinates .* \(vertex 2\)"),
                            (good_n, np.where(np.eye(4, 2, -3) > 0, 1e300, 0.0), r"huge texture .* \(vertex 3\)")):
         path = write_serialized(tmp_path / "m.serialized", [(v, f, n, uv)])
         with pytest.raises(ProbvisError, match="mesh 0 of .*m.serialized has NaN, infinite or " + message):
