@@ -293,3 +293,21 @@ def test_a_one_emitter_case_image_ignores_per_emitter_names(tmp_path, monkeypatc
     assert main(["render", "quad-shadow", "-D", "res=8", "--visibility", "occlusion-map", "--photons", "1000",
                  "--spp", "1", "--shadow-rays", "1", "-q", "--case-image", "c.png", "-o", "o.exr"]) == 0
     assert (tmp_path / "c.png").is_file() and (tmp_path / "c-e0.png").is_dir()
+
+
+def test_output_names_of_any_bytes_and_length_the_file_system_takes(tmp_path, capsys):
+    """A name of 250 bytes is written (the temporary file beside it has a short name of its own); a name that is
+    not UTF-8 is written as PNG, and refused before the render as EXR, whose writer takes UTF-8 only."""
+    import os
+
+    long_name = tmp_path / ("a" * 246 + ".png")
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "-o", str(long_name), "-q"]) == 0
+    assert long_name.is_file()
+    odd = os.fsdecode(bytes(tmp_path) + b"/\xff\xfe")
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "-o", odd + ".png", "--stats",
+                 odd + ".json", "-q"]) == 0
+    assert os.path.isfile(odd + ".png") and os.path.isfile(odd + ".json")
+    capsys.readouterr()
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "-o", odd + ".exr", "-q"]) == 2
+    assert "OpenEXR's writer takes only file and folder names in UTF-8" in capsys.readouterr().err
+    assert not os.path.exists(odd + ".exr") and not list(tmp_path.glob(".*"))

@@ -516,8 +516,10 @@ def _cmd_tables(args):
 def _cmd_experiment(args):
     from .experiments import experiment, load_experiment, quick_experiment
 
-    if args.quick == bool(args.file):
-        raise ProbvisError("give an experiment file or --quick (not both)")
+    if args.quick and args.file:
+        raise ProbvisError("give an experiment file or --quick, not both")
+    if not (args.quick or args.file):
+        raise ProbvisError("give an experiment file (e.g. experiments/paper.toml) or --quick")
     if args.scheduler and args.workers != 1:
         raise ProbvisError("--workers applies to the embedded LocalCluster, not to --scheduler")
     if args.scheduler and args.scheduler.startswith("inproc://"):

@@ -115,7 +115,7 @@ def test_command_line_mistakes_exit_2_with_one_line(tmp_path, capsys):
     assert main(["experiment", "--quick", "--workers", "100000"]) == 2
     assert main(["experiment", "--quick", "--scheduler", "not a url"]) == 2
     err = capsys.readouterr().err.splitlines()
-    assert err == ["probvis: error: give an experiment file or --quick (not both)",
+    assert err == ["probvis: error: give an experiment file (e.g. experiments/paper.toml) or --quick",
                    f"probvis: error: experiment file not found: {tmp_path / 'missing.toml'}",
                    "probvis: error: --workers applies to the embedded LocalCluster, not to --scheduler",
                    f"probvis: error: argument --workers: must be at most {4 * (os.cpu_count() or 1)}, got 100000",

@@ -327,3 +327,20 @@ def test_timing_seconds_stop_the_repeats_once_the_renders_took_that_long(tmp_pat
     results, _, run = experiment(parse_experiment(study), tmp_path, progress=False, log=lambda m: None)
     assert all(len(r["seconds_repeats"]) == 1 for r in results.cells)
     assert "up to 3 repeats (fewer once they took 1e-06 s together)" in (tmp_path / "results.md").read_text()
+
+
+def test_a_reference_equal_to_a_render_gives_a_report(tmp_path):
+    """A reference file holding a cell's own image: relMSE 0, efficiency infinite and its ratio to the baseline's
+    undefined; shown as such, and results.json holds null there (a NaN crashed the report after the renders)."""
+    from probvis.cli import main
+
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "--shadow-rays", "1", "--threads", "1",
+                 "-o", str(tmp_path / "r.exr"), "-q"]) == 0
+    study = tmp_path / "same.toml"
+    study.write_text('spp = 1\nshadow_rays = [1]\nseeds = [0]\nresolution = [8, 8]\n'
+                     '[[scenes]]\nname = "q"\nsource = "quad-shadow"\nreference = "r.exr"\n'
+                     '[[methods]]\nname = "exact"\nvisibility = "exact"\n')
+    assert main(["experiment", str(study), "-o", str(tmp_path / "rep"), "-q"]) == 0
+    doc = json.loads((tmp_path / "rep" / "results.json").read_text())
+    assert "| q | exact |" in (tmp_path / "rep" / "results.md").read_text()
+    assert json.dumps(doc, allow_nan=False)

@@ -200,10 +200,15 @@ def test_clamping_negative_pixels_is_reported_as_a_bias():
     (dict(levels=8, cells=8), "levels 8 and cells 8: one segment's estimate could reach beyond a double's range"),
     (dict(levels=5), r"could reach ±3.1e\+16 .*beyond 1e\+12; lower levels or cells"),
     (dict(levels=2, cells=8), r"could reach ±1.7e\+13"),
+    (dict(probabilities=(1e-6, 0.5, 0.5), levels=5, cells=5), "beyond a double's range"),
 ])
 def test_bad_probvis_options(options, message):
-    with pytest.raises(ProbvisError, match=message):
-        make_estimator("probvis", **options)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # one error, no warning before it (the reach overflowing a double warned)
+        with pytest.raises(ProbvisError, match=message):
+            make_estimator("probvis", **options)
 
 
 @pytest.mark.parametrize("estimator", ["standard", "shifted", "power"])

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import ProbvisError
 from ..io.atomic import atomic_path, staged_writes
-from ..io.image import tonemap_srgb, write_png
+from ..io.image import tonemap_srgb, utf8_path, write_png
 from .results import UNSTEADY
 
 STATIC = ("viewer.js", "report.css")
@@ -41,12 +41,12 @@ def _slug(text):
 
 
 def _write_text(path, text):
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(text)
+    with atomic_path(path) as tmp:  # a name of other bytes than UTF-8 (the command's file) shows as \xff escapes
+        Path(tmp).write_text(text, encoding="utf-8", errors="backslashreplace")
 
 
 def _fmt(x, digits=3):
-    if x is None:
+    if x is None or (isinstance(x, float) and math.isnan(x)):
         return "–"
     if isinstance(x, float) and math.isinf(x):
         return "∞"
@@ -60,12 +60,13 @@ def _change(x):
 
 
 def _finite(obj):
-    """`obj` with infinities (efficiency at zero error) replaced by None: JSON has no infinity."""
+    """`obj` with infinities (efficiency at zero error) and NaN (a ratio of two of them: a reference equal to a
+    render) replaced by None: JSON has neither."""
     if isinstance(obj, dict):
         return {k: _finite(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [_finite(v) for v in obj]
-    return None if isinstance(obj, float) and math.isinf(obj) else obj
+    return None if isinstance(obj, float) and not math.isfinite(obj) else obj
 
 
 def _pyplot():
@@ -503,6 +504,9 @@ def report_problem(exp, folder):
     """What would stop the report's writing in `folder` half-way, as an error message (None: nothing): a file
     where the report makes a folder, or a folder where it writes a file. Checked before any render."""
     folder = Path(folder)
+    if not utf8_path(folder):
+        return (f"cannot write the report in '{folder}': OpenEXR's writer (its images and the render cache) takes "
+                "only folder names in UTF-8; give another folder")
     slugs = [_slug(spec.name) for spec in exp.scenes]
     folders = ["images", "plots", "data"] + [f"images/{slug}" for slug in slugs]
     files = [*STATIC, "results.csv", "results.json", "results.md", "index.html"]

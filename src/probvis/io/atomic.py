@@ -61,6 +61,12 @@ def _commit(staged):
             os.unlink(previous)
 
 
+def temp_beside(folder, suffix):
+    """A new hidden temporary file in `folder`, (fd, path): a short name (.pv- and 8 characters), so that any
+    output name the file system takes can be written through it."""
+    return tempfile.mkstemp(prefix=".pv-", suffix=suffix, dir=folder)
+
+
 @contextmanager
 def atomic_path(path):
     """Yield a temporary path beside `path` (beside its target, for a symbolic link: the link is written
@@ -70,7 +76,7 @@ def atomic_path(path):
         raise ProbvisError(f"an output path must be a file name (str or Path), got {path!r}")
     shown, path = path, Path(os.path.realpath(path))
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent or ".")
+        fd, tmp = temp_beside(path.parent or ".", path.suffix)
     except OSError as exc:
         missing = isinstance(exc, FileNotFoundError) or not path.parent.is_dir()
         raise ProbvisError(f"cannot write '{shown}': " + (f"folder '{Path(shown).parent}' does not exist" if missing

@@ -7,19 +7,28 @@ interrupted or failed write never leaves a partial file under the requested name
 import errno
 import os
 import re
-import tempfile
 import warnings
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ProbvisError
-from .atomic import atomic_path
+from .atomic import atomic_path, temp_beside
 from .library_output import library_output
 
 FORMATS = (".exr", ".pfm", ".png")
 MAX_EXPOSURE = 64.0  # stops: 2^64 scales any radiance out of range
 MAX_IMAGE_BYTES = 4 << 30  # an image file larger than this is refused before reading
+
+
+def utf8_path(path):
+    """Whether the full path (its folders too, links resolved) is UTF-8: a name of other bytes reaches Python as
+    surrogate escapes, which OpenEXR's writer refuses."""
+    try:
+        os.path.realpath(path).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def check_writable(path, formats=FORMATS, role="an image"):
@@ -32,6 +41,9 @@ def check_writable(path, formats=FORMATS, role="an image"):
     path = Path(path)
     if path.suffix.lower() not in formats:
         raise ProbvisError(f"cannot write '{path}': {role} must be a {', '.join(formats)} file")
+    if path.suffix.lower() == ".exr" and not utf8_path(path):
+        raise ProbvisError(f"cannot write '{path}': OpenEXR's writer takes only file and folder names in UTF-8; "
+                           "give another name")
     try:
         if path.is_symlink():
             try:
@@ -52,11 +64,11 @@ def check_writable(path, formats=FORMATS, role="an image"):
         if path.exists() and not path.resolve().is_file():
             raise ProbvisError(f"cannot write '{path}': it is not a regular file (a pipe, socket or device); "
                                "give a file name")
-        # what the atomic write will do: a temporary file named after the output, in its folder, renamed
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=parent)
+        # what the atomic write will do: a temporary file in the output's folder, renamed
+        fd, tmp = temp_beside(parent, path.suffix)
         os.close(fd)
         os.unlink(tmp)
-        if len(path.name.encode()) > os.pathconf(parent, "PC_NAME_MAX"):
+        if len(os.fsencode(path.name)) > os.pathconf(parent, "PC_NAME_MAX"):
             raise OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG))
     except OSError as exc:
         link = f" (a link to '{os.path.realpath(path)}')" if os.path.islink(path) else ""

@@ -49,10 +49,12 @@ class Decomposition:
         """The largest |estimate| of `levels` recursive splits in each of `cells` multiplied cells: per level, the
         bilinear terms at the corners of the range of their inputs (binary at the leaves); cells multiply."""
         coef, lo, hi = self.coefficients(), 0.0, 1.0
-        for _ in range(levels):
-            v = [a + b * x + c * y + d * x * y for a, b, c, d in coef for x in (lo, hi) for y in (lo, hi)]
-            lo, hi = min(v), max(v)
-        return max(-lo, hi) ** cells
+        with np.errstate(over="ignore", invalid="ignore"):  # beyond a double: inf (or NaN), which callers refuse
+            for _ in range(levels):
+                v = [a + b * x + c * y + d * x * y for a, b, c, d in coef for x in (lo, hi) for y in (lo, hi)]
+                lo, hi = min(v), max(v)
+            reach = float(np.float64(max(-lo, hi)) ** cells)
+        return reach if reach == reach else np.inf
 
     def check(self):
         for va, vb in CONFIGS:
