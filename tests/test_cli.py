@@ -311,3 +311,11 @@ def test_output_names_of_any_bytes_and_length_the_file_system_takes(tmp_path, ca
     assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "-o", odd + ".exr", "-q"]) == 2
     assert "OpenEXR's writer takes only file and folder names in UTF-8" in capsys.readouterr().err
     assert not os.path.exists(odd + ".exr") and not list(tmp_path.glob(".*"))
+
+
+def test_a_long_case_image_name_of_a_one_emitter_scene_is_written(tmp_path):
+    """With one emitter the case image is written under the name given (a check of NAME-e99 refused it)."""
+    name = tmp_path / ("c" * 250 + ".exr")
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "--visibility", "occlusion-map", "--photons",
+                 "2000", "-o", str(tmp_path / "o.exr"), "--case-image", str(name), "-q"]) == 0
+    assert name.is_file()

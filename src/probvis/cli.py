@@ -267,8 +267,8 @@ def _plan_outputs(outputs, args):
         if key in seen:
             raise ProbvisError(f"{flag} {path}: the same file as {seen[key]}; give each output its own name")
         seen[key] = f"{flag} {path}"
-    if args.case_image:  # with several emitters it writes NAME-e0.ext, NAME-e1.ext, ... instead: a long name's
-        # length is checked now, every one once the scene's emitters are known (`_plan_case_images`)
+    if args.case_image:  # with several emitters it writes NAME-e0.ext, NAME-e1.ext, ... instead: each of those
+        # is checked once the scene's emitters are known (`_plan_case_images`)
         given = Path(args.case_image)
         case = given.resolve()
         per_emitter = re.compile(re.escape(case.stem) + r"-e\d+" + re.escape(case.suffix))
@@ -276,7 +276,7 @@ def _plan_outputs(outputs, args):
             if key.parent == case.parent and per_emitter.fullmatch(key.name):
                 raise ProbvisError(f"--case-image {args.case_image}: with several emitters it writes {key.name}, the "
                                    f"same file as {owner}; give each output its own name")
-        check_writable(given.with_name(f"{given.stem}-e99{given.suffix}"), FORMATS, "--case-image's output")
+        check_writable(given, FORMATS, "--case-image's output")  # as given: a scene with one emitter writes it
     return seen
 
 
