@@ -133,6 +133,9 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
      "</shape>", "wavelengths 0.4-0.7 nm lie outside 360-830 nm: this reflectance would be black"),
     ("<shape type='rectangle'><boolean name='flip_normals' value='$late'/></shape><default name='late' value='1'/>",
      "parameter '$late' is declared on line"),
+    ("<default name='a' value='$a'/>", "parameter '$a' refers to itself"),
+    ("<default name='a' value='$b'/><default name='b' value='1'/>", "parameter '$b' is declared on line"),
+    ("<default name='' value='3'/>", "a <default> needs a parameter name (it is empty)"),
     ("<shape type='rectangle'><bsdf type='diffuse'><rgb name='reflectance' value='0.5'/>\n"
      "<texture type='checkerboard' name='reflectance'/></bsdf></shape>", "parameter 'reflectance' is given twice"),
     ("<shape type='rectangle'><bsdf type='diffuse'><texture type='checkerboard'/>\n<texture type='checkerboard'/>"
@@ -597,3 +600,11 @@ def test_an_empty_define_name_is_refused():
     """An empty name joined the `$name` pattern and took over every parameter ('$res' read as '$' + 'res')."""
     with pytest.raises(ProbvisError, match="defines: a parameter name is empty"):
         probvis.load_scene("quad-shadow", **{"": "3"})
+
+
+def test_a_default_may_refer_to_one_declared_before_it(tmp_path):
+    """`<default name="res" value="$b"/>` after b's: substituted there, with -D b=... too."""
+    path = write_scene(tmp_path / "s.xml", sensor(w="$res", h="$res") + LIGHT,
+                       '<default name="b" value="6"/><default name="res" value="$b"/>')
+    assert probvis.load_scene(path).camera.width == 6
+    assert probvis.load_scene(path, b=4).camera.width == 4

@@ -186,10 +186,12 @@ class _Reader:
                 return self.overrides[name]
             if name in self.defaults:
                 return self.defaults[name]
-            later = next((ch.line for ch in getattr(self.root, "children", ()) if ch.tag == "default"
+            later = next((ch for ch in getattr(self.root, "children", ()) if ch.tag == "default"
                           and ch.attrs.get("name") == name), None)
+            if later is node:
+                self.fail(node, f"parameter '${name}' refers to itself")
             if later is not None:
-                self.fail(node, f"parameter '${name}' is declared on line {later}, after this use: move its "
+                self.fail(node, f"parameter '${name}' is declared on line {later.line}, after this use: move its "
                                 "<default> above")
             self.fail(node, f"undefined parameter '${name}' (declare it with <default> or pass -D {name}=...)")
 
@@ -1060,6 +1062,8 @@ class _Reader:
             if ch.tag == "default":
                 self.check_attrs(ch, ("name", "value"))
                 name = self.attr(ch, "name")
+                if not name.strip():
+                    self.fail(ch, "a <default> needs a parameter name (it is empty)")
                 if "value" not in ch.attrs:
                     self.fail(ch, f"missing attribute 'value' of parameter '{name}'")
                 if name in self.default_lines:  # Mitsuba keeps the first
@@ -1067,7 +1071,7 @@ class _Reader:
                                   f"{self.default_lines[name]}, whose value is kept)", stacklevel=2)
                     continue
                 self.default_lines[name] = ch.line
-                self.defaults[name] = ch.attrs["value"]
+                self.defaults[name] = self.attr(ch, "value")  # `$b` in a default: the parameters known so far
             elif ch.tag == "integrator":
                 if integrator_line is not None:
                     self.fail(ch, f"only one integrator per scene (the first on line {integrator_line})")
