@@ -139,3 +139,13 @@ def test_a_byte_order_mark_does_not_hide_the_first_line():
 
     v, f, _, _ = read_obj(b"\xef\xbb\xbfv 5 5 5\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     assert v.tolist()[0] == [5, 5, 5] and len(v) == 4 and f.tolist() == [[0, 1, 2]]
+
+
+def test_a_bare_face_statement_among_faces_is_named(tmp_path):
+    """An `f` with no corners was skipped where other faces followed (refused where it was the only one)."""
+    from probvis.errors import ProbvisError
+
+    path = tmp_path / "m.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf\nf 1 2 3\n")
+    with pytest.raises(ProbvisError, match=r"m.obj:4: a face needs at least 3 vertices: 'f'"):
+        shapes.load_mesh(path)

@@ -162,3 +162,25 @@ def test_a_malformed_header_is_named(tmp_path, edit, message):
                      "3 0 1 2\n").replace(*edit))
     with pytest.raises(ProbvisError, match=re.escape(message)):
         shapes.load_mesh(path)
+
+
+@pytest.mark.parametrize("faces, header_vertices, message", [
+    ("0\n3 0 1 2\n", 3, "face 0 has 0 vertices; a face needs at least 3"),
+    ("3 0 1 2\n2 0 1\n", 3, "face 1 has 2 vertices; a face needs at least 3"),
+    ("3 0 1 2\n", 10 ** 9, "its header declares 1,000,000,000 vertices and 2 faces, more than its"),
+])
+def test_short_faces_and_counts_the_file_cannot_hold_are_named(tmp_path, faces, header_vertices, message):
+    """A face of fewer than 3 vertices (a vague 'truncated' and NumPy's loadtxt warning before); an ASCII header
+    declaring more rows than the file's bytes can hold, refused before anything is allocated (out of memory)."""
+    import warnings
+
+    from probvis.errors import ProbvisError
+
+    path = tmp_path / "m.ply"
+    path.write_text(f"ply\nformat ascii 1.0\nelement vertex {header_vertices}\nproperty float x\nproperty float y\n"
+                    "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+                    "0 0 0\n1 0 0\n0 1 0\n" + faces)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ProbvisError, match=re.escape(message)):
+            shapes.load_mesh(path)

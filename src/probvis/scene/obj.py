@@ -10,6 +10,7 @@ import re
 
 import numpy as np
 
+_BARE = re.compile(rb"(?m)^[ \t]*(?:v|vt|vn|f)[ \t]*(?:#[^\r\n]*)?\r?$")  # a statement without numbers: named
 _STATEMENT = {kind: re.compile(rb"(?m)^[ \t]*" + kind + rb"[ \t]+([^\r\n#]*)") for kind in (b"v", b"vt", b"vn", b"f")}
 _WHITESPACE = np.zeros(256, bool)
 _WHITESPACE[[9, 10, 13, 32]] = True
@@ -126,7 +127,7 @@ def read_obj(data):
     v = _numbers(bodies["v"], np.float64, 3)
     vt = _numbers(bodies["vt"], np.float64, 2, minimum=1)
     vn = _numbers(bodies["vn"], np.float64, 3)
-    if v is None or vt is None or vn is None or not bodies["f"]:
+    if v is None or vt is None or vn is None or not bodies["f"] or _BARE.search(data):
         return None
     read = _uniform_corners(bodies["f"])
     if read is None or read[0].min() < 0:

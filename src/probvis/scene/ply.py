@@ -7,6 +7,7 @@ does. Anything else (other list properties, a file shorter than its header says)
 falls back to the general reader, which also names what is wrong.
 """
 import io
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -24,13 +25,13 @@ def _header(fh):
     """(format, {element: [(property, is_list)]}) of a PLY header, or None if it is not one this reader takes."""
     if fh.readline(16).strip() != b"ply":
         return None
-    fmt, elements, current = None, {}, None
+    fmt, elements, counts, current = None, {}, {}, None
     for _ in range(HEADER_LINES):
         words = fh.readline(1024).split()
         if not words or words[0] in (b"comment", b"obj_info"):
             continue
         if words[0] == b"end_header":
-            return fmt, elements
+            return fmt, elements, counts
         if words[0] == b"format":
             if len(words) != 3:
                 raise ValueError(f"the format line '{b' '.join(words).decode('ascii', 'replace')}' is not "
@@ -41,6 +42,7 @@ def _header(fh):
                 raise ValueError(f"element '{words[1].decode('ascii', 'replace')}' count "
                                  f"'{words[2].decode('ascii', 'replace')}' is not a whole number")
             current = elements.setdefault(words[1].decode("ascii", "replace"), [])
+            counts[words[1].decode("ascii", "replace")] = int(words[2])
         elif words[0] == b"property" and current is not None:
             current.append((words[-1].decode("ascii", "replace"), words[1] == b"list"))
     return None
@@ -62,7 +64,13 @@ def read_ply(path):
         raise ProbvisError(f"mesh {path}: malformed PLY header: no 'format' line")
     if header[0] not in FORMATS:
         raise ProbvisError(f"mesh {path}: PLY format '{header[0]}' is not one of {', '.join(FORMATS)}")
-    elements = header[1]
+    elements, counts = header[1], header[2]
+    if header[0] == "ascii":  # each row holds at least one number and a separator per property: refuse before
+        least = sum(2 * max(len(elements[e]), 1) * n for e, n in counts.items())  # a count the file cannot hold
+        if least > Path(path).stat().st_size:  # is allocated
+            raise ProbvisError(f"mesh {path}: truncated or malformed PLY (its header declares "
+                               f"{counts.get('vertex', 0):,} vertices and {counts.get('face', 0):,} faces, more "
+                               f"than its {Path(path).stat().st_size:,} bytes can hold)")
     vertex, face = elements.get("vertex", []), elements.get("face", [])
     missing = [c for c in "xyz" if c not in {name for name, _ in vertex}]
     if "vertex" in elements and missing:
@@ -76,7 +84,8 @@ def read_ply(path):
         # plyfile reads ASCII through a text wrapper it leaves open: over bytes in memory nothing is left open
         # an ASCII float beyond float32 becomes inf with NumPy's warning; the non-finite vertex is named later
         with (io.BytesIO(Path(path).read_bytes()) if header[0] == "ascii" else open(path, "rb")) as fh, \
-                np.errstate(over="ignore", invalid="ignore"):
+                np.errstate(over="ignore", invalid="ignore"), warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="loadtxt: input contained no data")  # an empty face, named below
             try:  # the faces' other lists (per-face texture coordinates, say) have no known length
                 ply = PlyData.read(fh, known_list_len={"face": {index: 3}} if len(lists) == 1 else {})
             except OverflowError as exc:  # an ASCII value beyond its property's type (300 for a uchar)
@@ -95,10 +104,11 @@ def read_ply(path):
                 raise ProbvisError(f"mesh {path}: the faces' '{index}' are {np.asarray(values).dtype} numbers; "
                                    "vertex indices are integers (a PLY list of int, uint, ...)")
             if rows.dtype == object:  # polygons, or any ASCII file: a row per face, split into fans here
-                counts = np.array([len(r) for r in rows], dtype=np.int64)
-                if counts.min() < 3:
-                    return None
-                f = np.concatenate(rows).astype(np.int64)[fans(counts)]
+                sizes = np.array([len(r) for r in rows], dtype=np.int64)
+                if sizes.min() < 3:
+                    k = int(np.argmin(sizes))
+                    raise ProbvisError(f"mesh {path}: face {k} has {sizes[k]} vertices; a face needs at least 3")
+                f = np.concatenate(rows).astype(np.int64)[fans(sizes)]
             else:
                 f = np.asarray(rows, dtype=np.int64)
             vert = ply["vertex"].data
