@@ -44,3 +44,10 @@ def test_numbers_are_read_in_c_syntax_only(text):
 @pytest.mark.parametrize("text, value", [("0.5", 0.5), ("-.5e-3", -0.5e-3), ("5.", 5.0), ("1E+2", 100.0)])
 def test_numbers_in_c_syntax_are_read(text, value):
     assert parse_float(text) == value
+
+
+def test_replace_names_a_setting_it_does_not_have():
+    """`replace` is the settings' own validated copy: an unknown name is refused naming it and the settings
+    (dataclasses.replace's TypeError came from deep inside)."""
+    with pytest.raises(ProbvisError, match=r"RenderSettings has no setting 'sp' \(its settings: spp, shadow_rays"):
+        RenderSettings().replace(sp=3)

@@ -55,6 +55,11 @@ class RenderSettings:
 
     def replace(self, **changes):
         """A copy with the given settings replaced; None leaves a setting as it is. Validated."""
+        names = [f.name for f in dataclasses.fields(self)]
+        unknown = sorted(set(changes) - set(names))
+        if unknown:
+            raise ProbvisError(f"RenderSettings has no setting {', '.join(map(repr, unknown))} (its settings: "
+                               f"{', '.join(names)})")
         out = dataclasses.replace(self, **{k: v for k, v in changes.items() if v is not None})
         out.validate()
         return out
