@@ -22,7 +22,8 @@ HEADER_LINES = 1000  # a header longer than this is left to the general reader
 
 
 def _header(fh):
-    """(format, {element: [(property, is_list)]}) of a PLY header, or None if it is not one this reader takes."""
+    """(format, {element: [(property, is_list)]}, {element: count}) of a PLY header, or None if it is not one
+    this reader takes."""
     if fh.readline(16).strip() != b"ply":
         return None
     fmt, elements, counts, current = None, {}, {}, None
