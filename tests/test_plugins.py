@@ -487,15 +487,18 @@ def test_installed_estimators_that_do_not_load_do_not_stop_other_renders(roulett
     (site / "brokemod.py").write_text("import no_such_module_xyz\n")
     (site / "exitmod.py").write_text("import sys\nsys.exit(3)\n")
     (site / "goodmod.py").write_text("X = 5\n")
+    (site / "spymod.py").write_text(f"open({str(tmp_path / 'imported')!r}, 'w').close()\n")
     (site / "nestmod.py").write_text(example_source() + "\n\nclass Outer:\n    class P(RouletteVisibility):\n"
                                      "        name = 'nested'\n")
     dist = site / "plugs-0.1.dist-info"
     dist.mkdir()
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: plugs\nVersion: 0.1\n")
     (dist / "entry_points.txt").write_text("[probvis.visibility]\nbroke = brokemod:P\nexiter = exitmod:P\n"
-                                           "modep = goodmod\nnum = goodmod:X\nnested = nestmod:Outer.P\n")
+                                           "modep = goodmod\nnum = goodmod:X\nnested = nestmod:Outer.P\nspy = spymod:P\n")
     monkeypatch.syspath_prepend(str(site))
-    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "-o", str(tmp_path / "o.exr"), "-q"]) == 0
+    assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "--shadow-rays", "1", "-o",
+                 str(tmp_path / "o.exr"), "-q"]) == 0
+    assert not (tmp_path / "imported").exists()  # probvis's own flags load no other estimator
     assert estimator_class("nested").name == "nested"
     for name, message in [("broke", "ModuleNotFoundError"), ("exiter", "SystemExit: 3"),
                           ("modep", "'goodmod' is not a probvis.visibility.VisibilityEstimator subclass"),
@@ -506,4 +509,4 @@ def test_installed_estimators_that_do_not_load_do_not_stop_other_renders(roulett
     assert main(["estimators"]) == 0
     out = capsys.readouterr().out
     assert "exact  —" in out and "nested  —" in out
-    assert all(f"{name}  —  cannot be loaded" in out for name in ("broke", "exiter", "modep", "num"))
+    assert all(f"{name}  —  cannot be loaded" in out for name in ("broke", "exiter", "modep", "num", "spy"))

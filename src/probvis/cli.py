@@ -247,6 +247,7 @@ def _parser(estimator=None):
                    help=f"LocalCluster worker processes (default 1, at most {MAX_WORKERS}: four per core)")
     e.add_argument("--scheduler", metavar="ADDRESS", help="use the Dask scheduler at ADDRESS (tcp://host:port)")
     e.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.render_flags = set(r._option_string_actions)  # `render`'s own flags and the estimator's
     return p
 
 
@@ -629,12 +630,12 @@ def _drop_stdout():
         pass
 
 
-def _foreign_flags(argv, cls):
-    """Estimator flags in `argv` that `cls` does not declare: (flag, names of the estimators that do)."""
+def _foreign_flags(argv, cls, known):
+    """Estimator flags in `argv` that `cls` does not declare: (flag, names of the estimators that do). `known`
+    are `render`'s flags with `cls`'s: only an unknown flag makes the other estimators load."""
     from .visibility import available_names, estimator_class
 
     own = {o.flag for o in cls.options} | {"--no-" + o.flag[2:] for o in cls.options if o.type in (bool, Switch)}
-    known = set(_parser(cls)._option_string_actions) | own  # probvis's own flags need no estimator loaded
     if all(a.split("=", 1)[0] in known for a in argv if a.startswith("--")):
         return None
     owners = {}
@@ -684,7 +685,9 @@ def _parse(argv):
         from .visibility import estimator_class
 
         cls = estimator_class(_visibility_arg(argv), what="--visibility")
-        foreign = _foreign_flags(argv, cls)
+    parser = _parser(cls)
+    if cls is not None:
+        foreign = _foreign_flags(argv, cls, parser.render_flags)
         if foreign:
             flag, owners = foreign
             raise ProbvisError(f"{flag} does not apply to --visibility {cls.name} (it is an option of "
@@ -692,7 +695,6 @@ def _parse(argv):
         repeated = _repeated_option(argv, cls)
         if repeated:
             raise ProbvisError(f"{' and '.join(repeated)} set the same option: give it once")
-    parser = _parser(cls)
     parser.argv = argv  # for its error lines: whether the command has a '--'
     args = parser.parse_args(argv)
     args.estimator_class = cls
