@@ -608,3 +608,5 @@ def test_a_default_may_refer_to_one_declared_before_it(tmp_path):
                        '<default name="b" value="6"/><default name="res" value="$b"/>')
     assert probvis.load_scene(path).camera.width == 6
     assert probvis.load_scene(path, b=4).camera.width == 4
+    late = write_scene(tmp_path / "late.xml", sensor(w="$res", h="$res") + LIGHT, '<default name="res" value="$b"/>')
+    assert probvis.load_scene(late, res=5).camera.width == 5  # given with -D: its default's value is not read

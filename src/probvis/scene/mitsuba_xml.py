@@ -1071,7 +1071,8 @@ class _Reader:
                                   f"{self.default_lines[name]}, whose value is kept)", stacklevel=2)
                     continue
                 self.default_lines[name] = ch.line
-                self.defaults[name] = self.attr(ch, "value")  # `$b` in a default: the parameters known so far
+                # `$b` in a default: the parameters known so far (none needed where -D gives the parameter)
+                self.defaults[name] = ch.attrs["value"] if name in self.overrides else self.attr(ch, "value")
             elif ch.tag == "integrator":
                 if integrator_line is not None:
                     self.fail(ch, f"only one integrator per scene (the first on line {integrator_line})")
