@@ -122,6 +122,30 @@ def test_solid_angle_grouping_balances_the_accumulated_solid_angle():
     assert kb[0, 0] == 0 and 0 < kb[0, 1] < 30 and kbal[0].sum() > 0
 
 
+def greedy_split(w):
+    """The definition: units by descending solid angle (ties in list order), each to the lighter side so far."""
+    side, sums = np.empty(len(w), int), [0.0, 0.0]
+    for u in np.argsort(-w, kind="stable"):
+        side[u] = 0 if sums[0] <= sums[1] else 1
+        sums[side[u]] += w[u]
+    return side
+
+
+@pytest.mark.parametrize("n", [7, 64, 65, 200])  # ranked by comparisons up to 64 units, sorted beyond
+def test_solid_angle_split_is_the_greedy_definition_with_ties(n):
+    """Duplicated triangles tie in solid angle: the split equals the stable greedy definition, list order kept."""
+    rng = np.random.default_rng(n)
+    base = rng.normal(size=(n // 2 + 1, 1, 3)) * 0.1 + rng.normal(size=(n // 2 + 1, 3, 3)) * 0.03 + [0, 0, 1]
+    tris = base[rng.integers(0, len(base), n)]  # about half the units tie with another
+    ids = rng.permutation(n).astype(np.int32)
+    grouped, bounds, _ = group_lists(tris, np.zeros((1, 3)), np.array([0, n]), ids, np.arange(n, dtype=np.int32),
+                                     1, GROUP_SOLID_ANGLE, 1, 1, 0)
+    w = np.array([solid_angle(tris, t, 0.0, 0.0, 0.0) for t in ids])
+    side = greedy_split(w)
+    assert grouped[:bounds[0, 1]].tolist() == ids[side == 0].tolist()
+    assert grouped[bounds[0, 1]:].tolist() == ids[side == 1].tolist()
+
+
 def test_blocker_groups_go_to_one_side_whole():
     """Candidates of one blocker group (a run of the list, here 20 groups of 3) land in the same group, A or B,
     keeping their order; the solid angle still balances to within the largest blocker group."""

@@ -33,24 +33,42 @@ def solid_angle(triangles, t, px, py, pz):
     return 2.0 * abs(math.atan2(num, den))
 
 
-@njit(cache=True, error_model="numpy")
-def _split(order, weight, leaf, lo, hi, method, key, level):
-    """Split units order[lo:hi] of one group in two: leaf id bit 0 for A, 1 for B."""
+SMALL_SORT = 64  # units of one group ranked by comparisons below this many (no allocation), by mergesort above
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _split(order, weight, leaf, lo, hi, method, key, level, srt, rank_key):
+    """Split units order[lo:hi] of one group in two: leaf id bit 0 for A, 1 for B. `srt` and `rank_key` are
+    scratch."""
     n = hi - lo
     if method == GROUP_SOLID_ANGLE:  # largest first, each to the group with less solid angle so far
-        w = np.empty(n)
-        for a in range(n):
-            w[a] = -weight[order[lo + a]]
-        srt = np.argsort(w, kind="mergesort")
+        if n <= SMALL_SORT:
+            # each unit's place in a stable descending order (NaN last, as NumPy sorts -weight): the units that
+            # come before it, counted without branches (a sort's comparisons mispredict on random weights)
+            for a in range(n):
+                w = weight[order[lo + a]]
+                rank_key[a] = w if w == w else -1.0
+            for a in range(n):
+                ka = rank_key[a]
+                r = 0
+                for b in range(n):
+                    r += (rank_key[b] > ka) | ((rank_key[b] == ka) & (b < a))
+                srt[r] = order[lo + a]
+        else:
+            w = np.empty(n)
+            for a in range(n):
+                w[a] = -weight[order[lo + a]]
+            by_weight = np.argsort(w, kind="mergesort")
+            for a in range(n):
+                srt[a] = order[lo + by_weight[a]]
         sa, sb = 0.0, 0.0
-        for a in range(n):
-            e = order[lo + srt[a]]
-            if sa <= sb:
-                leaf[e] = leaf[e] * 2
-                sa += weight[e]
-            else:
-                leaf[e] = leaf[e] * 2 + 1
-                sb += weight[e]
+        for a in range(n):  # selects, not branches: which group a unit joins is a coin toss to the predictor
+            e = srt[a]
+            w = weight[e]
+            to_b = not sa <= sb
+            leaf[e] = leaf[e] * 2 + to_b
+            sa = sa if to_b else sa + w
+            sb = sb + w if to_b else sb
     elif method == GROUP_COUNT:  # alternate in list (frequency) order
         for a in range(n):
             e = order[lo + a]
@@ -85,12 +103,24 @@ def group_lists(triangles, pos, offsets, tris, unit, n_rep, method, levels, cell
 @njit(cache=True, nogil=True, error_model="numpy")
 def _group_pairs(triangles, pos, lists, config, begin, stop, result):
     """Pairs spread(begin..stop-1) of `group_lists`, into `result` (its reordered ids, bounds and balance);
-    `lists` are its (offsets, tris, unit, skip), `config` its (n_rep, method, levels, cells, seed)."""
+    `lists` are its (offsets, tris, unit, skip), `config` its (n_rep, method, levels, cells, seed). Scratch is
+    allocated once for the longest list."""
     offsets, tris, unit, skip = lists
     n_rep, method, levels, cells, seed = config
     out, bounds, balance = result
     n_pairs = offsets.shape[0] - 1
     n_leaves = cells * (1 << levels)
+    n_max = 0
+    for it in range(begin, stop):
+        pr = spread(it, n_pairs)
+        n_max = max(n_max, offsets[pr + 1] - offsets[pr])
+    first = np.empty(n_max + 1, np.int64)  # runs of one blocker group: units lo + first[u] .. lo + first[u + 1]
+    weight = np.empty(n_max)
+    leaf = np.empty(n_max, np.int64)
+    order = np.empty(n_max, np.int64)
+    srt = np.empty(n_max, np.int64)
+    rank_key = np.empty(min(n_max, SMALL_SORT))
+    counts = np.empty(n_leaves + 1, np.int64)
     for it in range(begin, stop):
         pr = spread(it, n_pairs)
         lo, hi = offsets[pr], offsets[pr + 1]
@@ -104,18 +134,16 @@ def _group_pairs(triangles, pos, lists, config, begin, stop, result):
             continue
         i = pr % n_rep
         px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
-        first = np.empty(n + 1, np.int64)  # runs of one blocker group: units lo + first[u] .. lo + first[u + 1]
         n_units = 0
         for a in range(n):
-            if a == 0 or unit[tris[lo + a]] != unit[tris[lo + a - 1]]:
+            t = tris[lo + a]
+            if a == 0 or unit[t] != unit[tris[lo + a - 1]]:
                 first[n_units] = a
+                weight[n_units] = 0.0
+                leaf[n_units] = 0
                 n_units += 1
+            weight[n_units - 1] += solid_angle(triangles, t, px, py, pz)
         first[n_units] = n
-        weight = np.zeros(n_units)
-        for u in range(n_units):
-            for a in range(first[u], first[u + 1]):
-                weight[u] += solid_angle(triangles, tris[lo + a], px, py, pz)
-        leaf = np.zeros(n_units, np.int64)
         if cells > 1:  # cells: equal counts of units by distance from the point (their first triangle's centroid)
             dist = np.empty(n_units)
             for u in range(n_units):
@@ -129,20 +157,28 @@ def _group_pairs(triangles, pos, lists, config, begin, stop, result):
                 leaf[by_dist[u]] = (u * cells) // max(n_units, 1)
         key = mix64(np.uint64(seed) + np.uint64(pr) * np.uint64(0x9E3779B97F4A7C15))
         for level in range(levels):
-            # units grouped by leaf, list order inside each (one leaf, in list order, at the top of one cell)
-            order = np.arange(n_units) if level == 0 and cells == 1 else np.argsort(leaf, kind="mergesort")
+            # units grouped by leaf, list order inside each (a stable counting sort; at the top of one cell,
+            # one leaf in list order)
+            counts[:] = 0
+            for u in range(n_units):
+                counts[leaf[u] + 1] += 1
+            for g in range(n_leaves):
+                counts[g + 1] += counts[g]
+            for u in range(n_units):
+                order[counts[leaf[u]]] = u
+                counts[leaf[u]] += 1
             a = 0
             while a < n_units:
                 b = a
                 while b < n_units and leaf[order[b]] == leaf[order[a]]:
                     b += 1
-                _split(order, weight, leaf, a, b, method, key, level)
+                _split(order, weight, leaf, a, b, method, key, level, srt, rank_key)
                 a = b
             if level == 0:
                 for u in range(n_units):
                     balance[pr, leaf[u] % 2] += weight[u]
         # leaves in order, the frequency order kept inside each leaf (a stable sort by leaf)
-        counts = np.zeros(n_leaves + 1, np.int64)
+        counts[:] = 0
         for u in range(n_units):
             counts[leaf[u] + 1] += first[u + 1] - first[u]
         for g in range(n_leaves):
