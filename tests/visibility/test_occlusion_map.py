@@ -280,3 +280,42 @@ def test_a_cache_entry_changed_since_it_was_stored_is_rebuilt(tmp_path, monkeypa
     monkeypatch.setenv("PROBVIS_CACHE_DIR", "")
     monkeypatch.setenv("HOME", "")
     assert disk_cache.cache_dir("plans").is_absolute() and str(disk_cache.cache_dir("plans")) != "/.cache/probvis/plans"
+
+
+@pytest.mark.parametrize("n_groups", [5, 60, 300])  # up to 64 distinct groups ordered by comparisons, more sorted
+def test_candidate_lists_hold_the_neighbours_groups_most_often_recorded_first(n_groups):
+    """Each penumbra point's list: its agreeing shadow photons' blocker groups, by descending count, ties by
+    lower group id (the definition, by NumPy), each group's triangles in its order; the Good-Turing share."""
+    from probvis.visibility.occlusion_map.components import BlockerGroups
+    from probvis.visibility.occlusion_map.lookup import classify_points
+    from probvis.visibility.occlusion_map.photons import PhotonArrays
+    rng = np.random.default_rng(n_groups)
+    n_photons, k, max_hits = 400, 32, 16
+    n_blockers = np.where(rng.random(n_photons) < 0.3, 0, rng.integers(1, max_hits + 1, n_photons)).astype(np.int32)
+    start = np.concatenate([[0], np.cumsum(n_blockers)[:-1]]).astype(np.int64)
+    n_tris = 2 * n_groups
+    ray_tris = rng.integers(0, n_tris, int(n_blockers.sum())).astype(np.int32)
+    group = (np.arange(n_tris) // 2).astype(np.int32)  # triangles 2g and 2g + 1 stand for group g, listed reversed
+    groups = BlockerGroups(group, np.arange(0, n_tris + 1, 2, dtype=np.int64),
+                           np.arange(n_tris, dtype=np.int32).reshape(-1, 2)[:, ::-1].ravel().copy())
+    normal = np.tile([0.0, 0.0, 1.0], (n_photons, 1))
+    normal[rng.random(n_photons) < 0.1] = [1.0, 0.0, 0.0]  # photons whose normals disagree do not count
+    nbr = rng.integers(-1, n_photons, (50, k))
+    nrm = np.tile([0.0, 0.0, 1.0], (50, 1))
+    case, offsets, tris, counts, unseen = classify_points(nbr, nrm, PhotonArrays(normal, n_blockers, start, ray_tris),
+                                                          groups, 0.7, 4, max_hits, True)
+    n_pen = 0
+    for i in range(50):
+        agree = [j for j in nbr[i] if j >= 0 and normal[j, 2] > 0.7]
+        shadow = [j for j in agree if n_blockers[j]]
+        assert counts[i].tolist() == [len(agree) - len(shadow), len(shadow)]
+        if case[i] != CASE_PENUMBRA:
+            assert offsets[i + 1] == offsets[i]
+            continue
+        n_pen += 1
+        recorded = group[np.concatenate([ray_tris[start[j]:start[j] + n_blockers[j]] for j in shadow])]
+        ids, freq = np.unique(recorded, return_counts=True)
+        expected = ids[np.argsort(-freq, kind="stable")]
+        assert tris[offsets[i]:offsets[i + 1]].tolist() == groups.tris.reshape(-1, 2)[expected].ravel().tolist()
+        assert unseen[i] == pytest.approx((freq == 1).sum() / len(recorded))
+    assert n_pen > 10

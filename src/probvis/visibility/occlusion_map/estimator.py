@@ -102,8 +102,10 @@ class OcclusionMapVisibility(VisibilityEstimator):
         return {
             # per ray: its MAX_HITS blocker slots; per photon (about 4 a ray): position, normal, ids, kd-tree
             "photons": int(rays * (MAX_HITS * 4 + 4 * (64 + 48))),
-            # per camera sample and emitter: the k neighbours and their distances, then the candidate lists
-            "lookups": int(batch_samples * scene.n_emitters * (k * 16 + (k * MAX_HITS * 4 if self.with_lists else 0))),
+            # per camera sample and emitter: the k neighbours and their distances, then the candidate lists (and
+            # per thread a table of counts by blocker group)
+            "lookups": int(batch_samples * scene.n_emitters * (k * 16 + (k * MAX_HITS * 4 if self.with_lists else 0))
+                           + (4 * scene.n_triangles * numba.get_num_threads() if self.with_lists else 0)),
         }
 
     @property

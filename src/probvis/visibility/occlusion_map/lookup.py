@@ -33,22 +33,42 @@ def _gather(nbr, i, pn, nb, start, ray_tris, group, nx, ny, nz, normal_cos, buf)
     return n_light, n_shadow, m
 
 
+RANKED = 64  # lists of up to this many blocker groups are ordered by branch-free comparisons, longer ones sorted
+
+
 @njit(cache=True, error_model="numpy", inline="always")
-def _unique_by_frequency(buf, m):
-    """Distinct values of buf[:m] and how often each occurs, most frequent first (ties: lower id first)."""
-    s = np.sort(buf[:m])
-    uniq = np.empty(m, np.int32)
-    cnt = np.empty(m, np.int32)
+def _by_frequency(buf, m, seen, scratch, out):
+    """Distinct values of buf[:m] into out[:u], most frequent first (ties: lower id first); returns u and how
+    many occur once. `seen` is a table of zeros indexed by value (left zero), `scratch` (ids, counts) of m
+    entries or more."""
+    ids, cnt = scratch
     u = 0
     for a in range(m):
-        if a == 0 or s[a] != s[a - 1]:
-            uniq[u] = s[a]
-            cnt[u] = 1
+        v = buf[a]
+        if seen[v] == 0:
+            ids[u] = v
             u += 1
-        else:
-            cnt[u - 1] += 1
-    order = np.argsort(-cnt[:u], kind="mergesort")
-    return uniq[:u][order], cnt[:u][order]
+        seen[v] += 1
+    singles = 0
+    for a in range(u):
+        cnt[a] = seen[ids[a]]
+        seen[ids[a]] = 0
+        singles += cnt[a] == 1
+    if u <= RANKED:  # each one's place: the values before it, counted (a sort's comparisons mispredict)
+        for a in range(u):
+            ca, ia = cnt[a], ids[a]
+            r = 0
+            for b in range(u):
+                r += (cnt[b] > ca) | ((cnt[b] == ca) & (ids[b] < ia))
+            out[r] = ia
+    else:
+        key = np.empty(u, np.int64)
+        for a in range(u):
+            key[a] = (np.int64(m) - cnt[a]) * np.int64(1 << 31) + ids[a]
+        order = np.argsort(key)
+        for a in range(u):
+            out[a] = ids[order[a]]
+    return u, singles
 
 
 def classify_points(nbr, nrm, photons, groups, normal_cos, min_photons, max_hits, with_lists):
@@ -90,6 +110,8 @@ def _classify_chunks(nbr, nrm, photons, group, group_off, normal_cos, min_photon
     pn, nb, start, ray_tris = photons.normal, photons.n_blockers, photons.start, photons.ray_tris
     case, counts, unseen, length, found, n_found = out
     m = nbr.shape[0]
+    scratch = (np.empty(buf.shape[0], np.int32), np.empty(buf.shape[0], np.int32))
+    seen = np.zeros(group_off.shape[0] - 1 if with_lists else 0, np.int32)
     for c in range(first, end):
         for i in range(c * 64, min(m, c * 64 + 64)):
             nx, ny, nz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
@@ -107,14 +129,11 @@ def _classify_chunks(nbr, nrm, photons, group, group_off, normal_cos, min_photon
                 case[i] = CASE_PENUMBRA
                 if not with_lists:
                     continue
-                uniq, freq = _unique_by_frequency(buf, g)
-                n_found[i] = len(uniq)
-                singles = 0
-                for a in range(len(uniq)):
-                    gr = uniq[a]
-                    found[i, a] = gr
+                u, singles = _by_frequency(buf, g, seen, scratch, found[i])
+                n_found[i] = u
+                for a in range(u):
+                    gr = found[i, a]
                     length[i + 1] += group_off[gr + 1] - group_off[gr]
-                    singles += freq[a] == 1
                 unseen[i] = singles / max(g, 1)
 
 
