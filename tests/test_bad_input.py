@@ -389,7 +389,9 @@ def test_integrator_messages_name_the_parameter(tmp_path, capsys):
     for integrator, message in (('<integrator type="direct"><integer name="shading_samples" value="-3"/>'
                                  '</integrator>', "<integer>: shading_samples must be from 1 to 65536, got -3"),
                                 ('<integrator type="path"><integer name="max_depth" value="-7"/></integrator>',
-                                 "max_depth must be -1")):
+                                 "max_depth must be -1"),
+                                ('<integrator type="path"><integer name="rr_depth" value="0"/></integrator>',
+                                 "rr_depth must be positive, got 0")):
         assert main(["render", str(_integrator_scene(tmp_path, integrator)), "-o", str(tmp_path / "o.exr")]) == 2
         assert message in capsys.readouterr().err
 

@@ -1,5 +1,20 @@
 """User-facing errors: reported by the CLI as one line, without a traceback."""
+import errno
+import os
 
 
 class ProbvisError(Exception):
     """A mistake in the user's input (scene file, option, output path)."""
+
+
+def missing_file(path, what):
+    """Why input file `path` cannot be opened, for a one-line error: a symbolic link that loops (on Python before
+    3.13 `Path.resolve` raises a RuntimeError for those) or points to nothing, else "`what` not found"."""
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return f"{path}: a symbolic link that loops (it or a folder on its way leads back to itself)"
+        if os.path.islink(path):
+            return f"{path}: a symbolic link that points to nothing"
+    return f"{what} not found: {path}"

@@ -360,3 +360,12 @@ def test_the_bias_ratio_of_an_image_smaller_than_a_block():
     ref = np.full((4, 4, 3), 0.5)
     a, b = ref + rng.normal(0, 0.01, ref.shape), ref + rng.normal(0, 0.01, ref.shape)
     assert np.isfinite(block_bias_ratio(a, b, ref))
+
+
+@pytest.mark.parametrize("key", ["source", "reference"])
+def test_a_scene_or_reference_that_loops_is_named(tmp_path, key):
+    """A symbolic link loop as a scene's source or reference was a RuntimeError traceback from Path.resolve."""
+    (tmp_path / "loop.xml").symlink_to("loop.xml")
+    scene = {"name": "q", "source": "quad-shadow", key: "loop.xml"}
+    with pytest.raises(ProbvisError, match=rf"scenes\[0\]\.{key}: .*loop.xml: a symbolic link that loops"):
+        parse_experiment(doc(scenes=[scene]), tmp_path)

@@ -367,6 +367,12 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
      "<emitter>: radiance 1e-300 is out of range (non-zero values must be at least 1e-30"),
     ("<shape type='cylinder'><point name='p1' x='0' y='0' z='1e-15'/></shape>",
      "<shape>: a cylinder of radius 1 from p0 to p1 1e-15 apart is too flat"),
+    ("<shape type='cylinder'><point name='p1' x='0' y='1e200' z='0'/></shape>",  # 'inf apart: move them apart'
+     "<shape>: a cylinder's p1 (0, 1e+200, 0) lies beyond ±1e+30: rescale the scene"),
+    ("<shape type='rectangle'><bsdf type='plastic'><rgb name='diffuse_reflectance' value='-0.5'/></bsdf></shape>",
+     "<rgb>: 'diffuse_reflectance' of a plastic bsdf must not be negative, got -0.5, -0.5, -0.5"),
+    ("<shape type='rectangle'><bsdf type='blendbsdf'><float name='weight' value='2'/><bsdf type='diffuse'/>"
+     "<bsdf type='diffuse'/></bsdf></shape>", "<float>: a blendbsdf's weight is between 0 and 1, got 2, 2, 2"),
     ("<emitter type='spot'><float name='cutoff_angle' value='1e-9'/></emitter>",
      "<emitter>: cutoff_angle must be in [0.001, 90] degrees, got 1e-09"),
     ("<shape type='rectangle'><transform name='to_world'><rotate x='1e300' y='1e300' angle='90'/></transform>"
@@ -498,9 +504,23 @@ def test_a_sensor_s_spectral_response_is_approximated_or_refused(tmp_path):
         probvis.load_scene(write_scene(tmp_path / "n.xml", body.replace("'0.5'", "'-1'") + LIGHT))
 
 
+@pytest.mark.parametrize("ior, reflectance", [(("1e308", "1e-308"), 1.0), (("1e-308", "1e308"), 1.0),
+                                              (("1.5", "1"), 0.04), (("1e200", "1e200"), 0.0)])
+def test_a_dielectric_approximated_at_any_contrast_is_finite(tmp_path, ior, reflectance):
+    """The Fresnel reflectance at normal incidence of an extreme index ratio was inf / inf: NaN pixels, exit 0."""
+    body = sensor() + LIGHT + (f"<shape type='rectangle'><bsdf type='dielectric'><float name='int_ior' value='{ior[0]}'/>"
+                               f"<float name='ext_ior' value='{ior[1]}'/></bsdf></shape>")
+    with pytest.warns(UserWarning, match="rendered as diffuse"):
+        scene = probvis.load_scene(write_scene(tmp_path / "d.xml", body))
+    assert np.allclose(scene.reflectance[-1], reflectance)
+
+
 @pytest.mark.parametrize("camera, message", [
     ("<float name='fov' value='179.9999999'/>", "fov 179.9999999 makes the view 179.9999999 degrees wide"),
     ("<string name='focal_length' value='1e-7mm'/>", "focal_length 1e-7mm makes the view 179.9999993 degrees wide"),
+    # the ratio overflowed: NumPy's warning, then 'fov must be between 0 and 180 degrees, got 180' (no fov given)
+    ("<float name='focal_length' value='1e-320'/>", "focal_length 1e-320 makes the view 180 degrees wide"),
+    ("<string name='focal_length' value='1e-320mm'/>", "focal_length 1e-320mm makes the view 180 degrees wide"),
 ])
 def test_a_view_so_wide_the_scene_shrinks_to_a_dot_is_refused(tmp_path, camera, message):
     """A perspective camera near 180 degrees rendered an all-black image without a word."""
@@ -581,8 +601,28 @@ def test_a_scene_path_that_loops_is_named_as_such(tmp_path):
     """A symbolic link loop was 'scene file not found'."""
     (tmp_path / "a.xml").symlink_to(tmp_path / "b.xml")
     (tmp_path / "b.xml").symlink_to(tmp_path / "a.xml")
-    with pytest.raises(ProbvisError, match="a.xml: a symbolic link that loops or points to nothing"):
+    with pytest.raises(ProbvisError, match="a.xml: a symbolic link that loops"):
         probvis.load_scene(tmp_path / "a.xml")
+    (tmp_path / "gone.xml").symlink_to(tmp_path / "nothing.xml")
+    with pytest.raises(ProbvisError, match="gone.xml: a symbolic link that points to nothing"):
+        probvis.load_scene(tmp_path / "gone.xml")
+
+
+@pytest.mark.parametrize("link", ["t.png", "d/t.png"])
+@pytest.mark.parametrize("shape", [
+    "<shape type='rectangle'><bsdf type='diffuse'><texture type='bitmap' name='reflectance'>"
+    "<string name='filename' value='{link}'/></texture></bsdf></shape>",
+    "<emitter type='envmap'><string name='filename' value='{link}'/></emitter>",
+    "<shape type='obj'><string name='filename' value='{link}'/></shape>",
+    "<shape type='serialized'><string name='filename' value='{link}'/></shape>"])
+def test_inputs_that_loop_are_named_at_their_line(tmp_path, shape, link):
+    """A texture, environment map or mesh that is a loop of symbolic links (or sits in a folder that is one) was
+    a RuntimeError from Path.resolve, or 'mesh file not found'."""
+    (tmp_path / "t.png").symlink_to("t.png")
+    (tmp_path / "d").symlink_to("d")
+    body = sensor() + LIGHT + shape.format(link=link)
+    with pytest.raises(ProbvisError, match=r"s.xml:\d+: .*t.png: a symbolic link that loops"):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", body))
 
 
 def test_a_parameter_name_with_other_characters_is_substituted_as_mitsuba_does(tmp_path):

@@ -184,3 +184,21 @@ def test_short_faces_and_counts_the_file_cannot_hold_are_named(tmp_path, faces, 
         warnings.simplefilter("error")
         with pytest.raises(ProbvisError, match=re.escape(message)):
             shapes.load_mesh(path)
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+@pytest.mark.parametrize("sizes, message", [((0, 3), "face 0 has 0 vertices"), ((3, 2), "face 1 has 2 vertices"),
+                                            ((3, 1), "face 1 has 1 vertices")])
+def test_short_faces_of_a_binary_ply_are_named(tmp_path, order, sizes, message):
+    """The binary reader's fixed face length broke on a short face, which then read as 'truncated or malformed'."""
+    from probvis.errors import ProbvisError
+
+    fmt = "binary_little_endian" if order == "<" else "binary_big_endian"
+    body = np.array([0, 0, 0, 1, 0, 0, 0, 1, 0], f"{order}f4").tobytes()
+    for n in sizes:
+        body += bytes([n]) + np.arange(n, dtype=f"{order}i4").tobytes()
+    path = tmp_path / "m.ply"
+    path.write_bytes(f"ply\nformat {fmt} 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                     f"element face 2\nproperty list uchar int vertex_indices\nend_header\n".encode() + body)
+    with pytest.raises(ProbvisError, match=re.escape(f"{message}; a face needs at least 3")):
+        shapes.load_mesh(path)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ProbvisError
+from ..errors import ProbvisError, missing_file
 from ..scene import BUILTINS
 from ..settings import MAX_SEED, MAX_SEGMENTS_PER_PIXEL, MAX_SHADOW_RAYS, MAX_SPP
 from ..visibility import estimator_class
@@ -150,8 +150,10 @@ def _scene(where, table, base):
             _fail(where, f"missing key '{key}'")
     name, source = _str(f"{where}.name", table["name"]), _str(f"{where}.source", table["source"])
     if source not in BUILTINS:
-        path = (base / source).resolve()
+        path = Path(os.path.realpath(base / source))
         if not path.is_file():
+            if not path.exists() and os.path.lexists(base / source):
+                _fail(f"{where}.source", missing_file(base / source, "scene file"))
             _fail(f"{where}.source", f"'{source}' is neither a built-in scene ({', '.join(BUILTINS)}) nor a file "
                                      f"(looked for {path})")
         source = str(path)
@@ -163,9 +165,10 @@ def _scene(where, table, base):
             _fail(f"{where}.defines.{key}", f"expected a number, string or boolean, got {value!r}")
     reference = table.get("reference")
     if reference is not None:
-        ref = (base / _str(f"{where}.reference", reference)).resolve()
+        given = base / _str(f"{where}.reference", reference)
+        ref = Path(os.path.realpath(given))
         if not ref.is_file():
-            _fail(f"{where}.reference", f"{ref} is not a regular file" if ref.exists() else f"image not found: {ref}")
+            _fail(f"{where}.reference", f"{ref} is not a regular file" if ref.exists() else missing_file(given, "image"))
         if ref.suffix.lower() != ".exr":
             _fail(f"{where}.reference", f"{ref.name} is not an EXR image (a reference holds linear radiance: .exr)")
         reference = str(ref)
@@ -182,7 +185,7 @@ def _visibility(vis, base):
     """An estimator name as the workers will load it: a `file.py:Class` made absolute against `base`."""
     module, _, cls = vis.rpartition(":")
     if module.endswith(".py"):
-        return f"{(base / module).resolve()}:{cls}"
+        return f"{os.path.realpath(base / module)}:{cls}"
     return vis
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ProbvisError
+from ..errors import ProbvisError, missing_file
 from .atomic import atomic_path, temp_beside
 from .library_output import library_output
 
@@ -124,7 +124,7 @@ def read_exr(path, channel=None):
     no image needs is refused before its pixels are allocated."""
     path = Path(path)
     if not path.is_file():
-        raise ProbvisError(f"image {path} is not a regular file" if path.exists() else f"image not found: {path}")
+        raise ProbvisError(f"image {path} is not a regular file" if path.exists() else missing_file(path, "image"))
     with library_output() as said:  # the library reports a failed read (a truncated file) as a line of its own
         try:
             return _exr_pixels(path, channel, said)
@@ -186,7 +186,7 @@ def read_linear_rgb(path, raw=False):
     Raises `ProbvisError` naming the file when it is missing or unreadable."""
     path = Path(path)
     if not path.exists():
-        raise ProbvisError(f"image not found: {path}")
+        raise ProbvisError(missing_file(path, "image"))
     if not path.is_file():
         raise ProbvisError(f"image {path} is not a regular file")
     size = path.stat().st_size

@@ -2,6 +2,7 @@
 
 Anything outside the subset raises `ProbvisError` naming the element, the file and the line.
 """
+import os
 import re
 import warnings
 import xml.sax
@@ -11,7 +12,7 @@ from pathlib import Path
 import defusedxml.sax
 import numpy as np
 
-from ..errors import ProbvisError
+from ..errors import ProbvisError, missing_file
 from ..io.image import read_linear_rgb
 from ..settings import (MAX_SEED, MAX_SHADOW_RAYS, MAX_SPP, RenderSettings, parse_float as _float,
                         parse_int as _int)
@@ -79,9 +80,7 @@ _DEFUSED = {"EntitiesForbidden": "an entity declaration (<!ENTITY>)",
 def parse_tree(path):
     path = Path(path)
     if not path.exists():
-        if path.is_symlink():
-            raise ProbvisError(f"{path}: a symbolic link that loops or points to nothing")
-        raise ProbvisError(f"scene file not found: {path}")
+        raise ProbvisError(missing_file(path, "scene file"))
     if not path.is_file():
         raise ProbvisError(f"{path}: not a regular file (a scene is an XML file)")
     if path.stat().st_size > MAX_SCENE_BYTES:
@@ -494,7 +493,7 @@ class _Reader:
     def image(self, node, path, raw=False):
         """The linear RGB of image file `path` (`input_file`), decoded once per file however many shapes name it
         (read-only: textures share it)."""
-        key = (path.resolve(), raw)
+        key = (os.path.realpath(path), raw)  # realpath: a loop of links is named by the reader, not raised here
         if key not in self.images:
             try:
                 self.images[key] = read_linear_rgb(path, raw=raw)
@@ -529,7 +528,14 @@ class _Reader:
             if isinstance(value, (str, bool)):
                 self.fail(lines[name], f"'{name}' of a {kind} bsdf is a colour: give it as <rgb>, <spectrum>, "
                                        "<float> or a nested <texture>")
-            return np.clip(np.ones(3) * value, 0.0, 1.0)
+            value = np.ones(3) * value
+            if not np.all(value >= 0.0):
+                self.fail(lines[name], f"'{name}' of a {kind} bsdf must not be negative, got "
+                                       f"{', '.join(f'{v:g}' for v in value)}")
+            if name == "weight" and not np.all(value <= 1.0):
+                self.fail(lines[name], f"a blendbsdf's weight is between 0 and 1, got "
+                                       f"{', '.join(f'{v:g}' for v in value)}")
+            return np.minimum(value, 1.0)
 
         if kind in ("plastic", "roughplastic"):
             return colour("diffuse_reflectance", 0.5)
@@ -548,8 +554,10 @@ class _Reader:
                                for key, default in (("int_ior", "bk7"), ("ext_ior", "air")))
             if not (0.0 < ior_in < np.inf and 0.0 < ior_out < np.inf):
                 self.fail(node, f"int_ior and ext_ior must be positive (got {ior_in:g} and {ior_out:g})")
-            eta = ior_in / ior_out
-            return np.full(3, ((eta - 1.0) / (eta + 1.0)) ** 2)  # Fresnel reflectance at normal incidence
+            # Fresnel reflectance at normal incidence, ((n1 - n2) / (n1 + n2))^2, scaled by the larger index so
+            # that no ratio overflows: 1 in the limit of a huge contrast
+            a, b = ior_in / max(ior_in, ior_out), ior_out / max(ior_in, ior_out)
+            return np.full(3, ((a - b) / (a + b)) ** 2)
         if kind == "blendbsdf" and len(nested) == 2:
             w = float(np.mean(colour("weight", 0.5)))
             return (1.0 - w) * self.bsdf(nested[0])[0] + w * self.bsdf(nested[1])[0]
@@ -763,7 +771,7 @@ class _Reader:
                 self.fail(node, "missing 'filename'")
             mesh_path = self.input_file(node, fname)
             if not mesh_path.exists():
-                self.fail(node, f"mesh file not found: {mesh_path}")
+                self.fail(node, missing_file(mesh_path, "mesh file"))
             if not mesh_path.is_file():
                 self.fail(node, f"mesh {mesh_path} is not a regular file (a mesh is an OBJ, PLY or serialized file)")
             try:
@@ -816,6 +824,12 @@ class _Reader:
         axis along p1 - p0, x and y as Mitsuba's frame of that axis)."""
         p0, p1 = props.get("p0", np.zeros(3)), props.get("p1", np.array([0.0, 0.0, 1.0]))
         r = props.get("radius", 1.0)
+        for name, p in (("p0", p0), ("p1", p1)):
+            if not np.all(np.abs(p) <= MAX_COORDINATE):
+                self.fail(node, f"a cylinder's {name} ({', '.join(f'{v:g}' for v in p)}) lies beyond "
+                                f"±{MAX_COORDINATE:g}: rescale the scene")
+        if not r <= MAX_COORDINATE:
+            self.fail(node, f"a cylinder's radius must be at most {MAX_COORDINATE:g}, got {r:g}: rescale the scene")
         axis = np.asarray(p1, float) - np.asarray(p0, float)
         length = float(np.linalg.norm(axis))
         if not (r > 0 and length > 0):
@@ -919,9 +933,15 @@ class _Reader:
                 self.fail(node, f"focal_length must be of the form <x>mm, got '{text}'")
             if not f > 0 or not np.isfinite(f):
                 self.fail(node, f"focal_length must be positive, got '{text}'")
-            fov, axis = float(np.degrees(2.0 * np.arctan(np.hypot(36.0, 24.0) / (2.0 * f)))), "diagonal"
+            with np.errstate(over="ignore"):  # a tiny focal length: an infinite ratio, a view 180 degrees wide
+                fov = float(np.degrees(2.0 * np.arctan(np.hypot(36.0, 24.0) / (2.0 * np.float64(f)))))
+            axis = "diagonal"
         if not 0.0 < fov < 180.0:
-            self.fail(node, f"fov must be between 0 and 180 degrees, got {fov:g}")
+            if "fov" in props:
+                self.fail(node, f"fov must be between 0 and 180 degrees, got {fov:g}")
+            self.fail(node, f"focal_length {props['focal_length']} makes the view {fov:.10g} degrees wide (at most "
+                            f"{MAX_FOV:g}: wider, a perspective image shrinks the whole scene to a few pixels at its "
+                            "centre)")
         if axis == "smaller":
             axis = "y" if aspect > 1 else "x"
         elif axis == "larger":
@@ -1010,6 +1030,8 @@ class _Reader:
             depth = props.get("max_depth", -1)
             if depth < -1:
                 self.fail(node, f"max_depth must be -1 (no limit) or at least 2 here, got {depth}")
+            if props.get("rr_depth", 5) <= 0:  # unused by direct illumination, refused as Mitsuba does
+                self.fail(node, f"rr_depth must be positive, got {props['rr_depth']}")
             if depth in (0, 1):  # Mitsuba: 0 renders nothing, 1 only the emitters seen directly
                 lost = "no light" if depth == 0 else "no direct illumination"
                 self.fail(node, f"max_depth {depth} renders {lost} in Mitsuba; probvis renders direct illumination "
@@ -1102,7 +1124,7 @@ class _Reader:
         if unused:
             warnings.warn(f"{self.path}: -D {', '.join(unused)}: the scene declares no such parameter "
                           f"(its parameters: {', '.join(sorted(self.defaults)) or 'none'})", stacklevel=2)
-        builder.inputs = tuple(dict.fromkeys(p.resolve() for p in self.inputs))
+        builder.inputs = tuple(dict.fromkeys(Path(os.path.realpath(p)) for p in self.inputs))
         try:
             return builder.build(camera, RenderSettings(spp, shadow_rays, seed))
         except ProbvisError as exc:

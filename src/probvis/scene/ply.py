@@ -93,10 +93,11 @@ def read_ply(path):
                 raise ProbvisError(f"mesh {path}: malformed ASCII PLY: a value does not fit its property's declared "
                                    f"type ({exc})") from None
             except PlyElementParseError as exc:
-                if "unexpected list length" not in str(exc):  # a binary file's polygon breaks the fixed length
-                    if header[0] == "ascii" and "end-of-file" not in str(exc):
-                        raise ProbvisError(f"mesh {path}: malformed ASCII PLY: {exc}") from None
-                    return None
+                # a face that is not a triangle (a polygon, or one of fewer than 3 vertices, named below) breaks
+                # the fixed length: read again, each row as long as it says (a truncated file fails again)
+                if (header[0] == "ascii" and "unexpected list length" not in str(exc)
+                        and "end-of-file" not in str(exc)):
+                    raise ProbvisError(f"mesh {path}: malformed ASCII PLY: {exc}") from None
                 fh.seek(0)
                 ply = PlyData.read(fh)
             rows = ply["face"].data[index]

@@ -6,7 +6,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..errors import ProbvisError
+from ..errors import ProbvisError, missing_file
 from .obj import read_obj
 from .ply import read_ply
 
@@ -228,7 +228,7 @@ def load_mesh(path, flip_tex_coords=None, fmt=None):
     if fmt not in ("obj", "ply"):
         raise ProbvisError(f"mesh {path}: not an .obj or .ply file (a scene's shape type names the format)")
     if not path.exists():
-        raise ProbvisError(f"mesh file not found: {path}")
+        raise ProbvisError(missing_file(path, "mesh file"))
     if not path.is_file():
         raise ProbvisError(f"mesh {path} is not a regular file")
     if path.stat().st_size > MAX_MESH_BYTES:
