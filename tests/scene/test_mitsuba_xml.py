@@ -642,6 +642,14 @@ def test_an_empty_define_name_is_refused():
         probvis.load_scene("quad-shadow", **{"": "3"})
 
 
+def test_a_parameter_value_that_is_no_string_or_number_is_refused():
+    """`defines={"res": 8}` was one parameter named 'defines', with a warning worded for the command line."""
+    with pytest.raises(ProbvisError, match=r"parameter defines=\{'res': 8\}: a scene parameter's value is a string "
+                                           r"or a number; give each as a keyword argument"):
+        probvis.load_scene("quad-shadow", defines={"res": 8})
+    assert probvis.load_scene("quad-shadow", res=np.int64(8)).camera.width == 8
+
+
 def test_a_default_may_refer_to_one_declared_before_it(tmp_path):
     """`<default name="res" value="$b"/>` after b's: substituted there, with -D b=... too."""
     path = write_scene(tmp_path / "s.xml", sensor(w="$res", h="$res") + LIGHT,

@@ -1,4 +1,5 @@
 """Scenes: Mitsuba XML files or built-in procedural scenes, loaded into flat triangle arrays."""
+import numbers
 import warnings
 from pathlib import Path
 
@@ -21,6 +22,10 @@ def load_scene(path, strict=False, **defaults):
         raise ProbvisError(f"strict must be True or False, got {strict!r}")
     if any(not (isinstance(k, str) and k.strip()) for k in defaults):
         raise ProbvisError("defines: a parameter name is empty (each is name=value)")
+    for name, value in defaults.items():  # `defines={...}` would be one parameter named "defines"
+        if not isinstance(value, (str, numbers.Real)):
+            raise ProbvisError(f"parameter {name}={value!r}: a scene parameter's value is a string or a number; "
+                               "give each as a keyword argument: load_scene(path, name=value, ...)")
     if not str(path).strip():
         raise ProbvisError(f"the scene name is empty: give a scene file or a built-in scene ({', '.join(BUILTINS)})")
     try:
