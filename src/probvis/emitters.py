@@ -119,7 +119,7 @@ def sample_on_emitter(e, es, triangles, u1, u2, u3):
     return t, x, y, z
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def triangle_irradiance(triangles, t, px, py, pz, nx, ny, nz):
     """Cosine-weighted solid angle (the integral of max(0, n.w) dw) of triangle `t` seen from p with normal n,
     counting only its front side and only the part above p's horizon (Lambert's polygon formula after
