@@ -332,6 +332,45 @@ def test_a_non_ascii_name_under_an_ascii_locale_is_escaped(tmp_path):
     assert r.returncode == 0 and b"sortie-\\xe9.exr" in r.stdout, r.stderr
 
 
+def _c_locale():
+    """The environment of a C locale with Python's UTF-8 mode off: file names are ASCII to Python."""
+    return {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONIOENCODING": "ascii"}
+
+
+def test_names_under_a_locale_that_cannot_encode_them(tmp_path):
+    """Under the C locale a UTF-8 EXR name was refused as 'not UTF-8' (PNG and PFM were written), and a
+    non-ASCII name inside a scene file was a UnicodeEncodeError traceback."""
+    name = "sortie-\u00e9.exr"
+    r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-D", "res=8", "--spp", "1",
+                        "-o", os.fsencode(name)], capture_output=True, cwd=tmp_path, timeout=TIME_LIMIT,
+                       env=_c_locale())
+    assert r.returncode == 0 and (tmp_path / name).stat().st_size > 0, r.stderr
+    scene = write_scene(tmp_path / "s.xml", sensor() + '<emitter type="envmap"><string name="filename" '
+                        'value="\u00e9nv.exr"/></emitter>')
+    r = subprocess.run([sys.executable, "-m", "probvis", "render", str(scene), "-o", "o.exr"], capture_output=True,
+                       text=True, cwd=tmp_path, timeout=TIME_LIMIT, env=_c_locale(), errors="replace")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "the file system's encoding here (ascii, from the locale) cannot represent this name" in r.stderr
+
+
+def test_a_closed_standard_error_does_not_stop_a_render(tmp_path):
+    """With `2>&-` a render exited 1 without a word and wrote nothing (sys.stderr was None)."""
+    r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-D", "res=8", "--spp", "1",
+                        "-o", "o.exr"], stdout=subprocess.PIPE, cwd=tmp_path, timeout=TIME_LIMIT,
+                       preexec_fn=lambda: os.close(2))
+    assert r.returncode == 0 and (tmp_path / "o.exr").stat().st_size > 0
+
+
+@pytest.mark.parametrize("flag", ["--help", "--version"])
+def test_help_on_a_full_standard_output_is_one_line(flag):
+    """`probvis --help > /dev/full` exited 0 with the text lost."""
+    with open("/dev/full", "w") as full:
+        r = subprocess.run([sys.executable, "-m", "probvis", flag], stdout=full, stderr=subprocess.PIPE, text=True,
+                           timeout=TIME_LIMIT)
+    assert r.returncode == 1
+    assert r.stderr == "probvis: error: cannot write to the standard output: No space left on device\n"
+
+
 @pytest.mark.parametrize("name, value, message", [
     ("NUMBA_NUM_THREADS", "0", "is not a thread count"), ("NUMBA_NUM_THREADS", "abc", "is not a thread count"),
     ("NUMBA_NUM_THREADS", "99999", "is not a thread count from 1 to 1024"),

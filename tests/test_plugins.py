@@ -190,6 +190,8 @@ class _Broken(probvis.visibility.VisibilityEstimator):
             raise MemoryError
         if self.mode == "generator exit":
             raise GeneratorExit
+        if self.mode == "unprintable":
+            raise _Unprintable()
         if self.mode == "undeclared phase":
             with self.timed("nope"):
                 pass
@@ -217,11 +219,18 @@ def test_misbehaving_estimators_are_named_not_rendered(mode, message):
     ("undeclared phase", r"times phase 'nope', which it does not declare in `phases`"),
     ("out of memory", r"ran out of memory in the render \(.*\): an allocation of its own"),
     ("generator exit", r"raised GeneratorExit in the render"),
+    # an exception whose own __str__ raises was a traceback from formatting the error line
+    ("unprintable", r"raised _Unprintable in the render \(.*\): <its message could not be read"),
 ])
 def test_an_estimator_that_raises_is_named(mode, message):
     cls = type(f"Broken_{mode.replace(' ', '_')}", (_Broken,), {"mode": mode})
     with pytest.raises(ProbvisError, match=rf"visibility 'broken' \(.*{cls.__name__}\).*{message}"):
         probvis.render("quad-shadow", spp=1, visibility=cls)
+
+
+class _Unprintable(Exception):
+    def __str__(self):
+        raise ValueError("str")
 
 
 class _Exact(probvis.visibility.VisibilityEstimator):

@@ -125,6 +125,8 @@ def _openmp_complaint():
 
 
 def main():
+    if sys.stderr is None:  # closed (`2>&-`): the command goes on, its messages go nowhere (a closed standard
+        sys.stderr = open(os.devnull, "w")  # output is the command's to report, on stderr)
     problem = _bad_environment()
     if problem:
         print(problem, file=sys.stderr)

@@ -118,6 +118,14 @@ class _Parser(argparse.ArgumentParser):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, allow_abbrev=False, **kwargs)
 
+    def _print_message(self, message, file=None):
+        """--help and --version on the standard output as every command prints there: a failing one is said
+        (argparse passes over the write's OSError)."""
+        if message and (file or sys.stderr) is sys.stdout:
+            _stdout_call(sys.stdout.write, message)
+        else:
+            super()._print_message(message, file)
+
     def error(self, message):
         if message.startswith("unrecognized arguments:") and not message.split(":", 1)[1].strip():
             message = "unrecognized argument '' (an empty string: check the command's quoting)"
@@ -412,9 +420,9 @@ def _cmd_info(args):
 
     from .accel import build_bvh
     from .emitters import build_emitter_sampler
-    from .scene import load_scene
+    from .scene import open_scene
 
-    scene = load_scene(args.scene, **_defines(args.defines))
+    scene = open_scene(args.scene, _defines(args.defines))
     bvh = build_bvh(scene.triangles)
     es = build_emitter_sampler(scene)
     lo, hi = scene.bounds()
@@ -723,7 +731,12 @@ def main(argv=None):
         except FileNotFoundError:
             raise ProbvisError("the current folder no longer exists (it was deleted): cd to an existing folder") \
                 from None
-        args = _parse(argv)
+        try:
+            args = _parse(argv)
+        except SystemExit as done:  # --help or --version printed: a failing standard output is said, not lost
+            if done.code == 0:
+                _flush_stdout()
+            raise
         args.argv = argv
         status = {"render": _cmd_render, "info": _cmd_info, "scenes": _cmd_scenes, "estimators": _cmd_estimators,
                   "tables": _cmd_tables, "experiment": _cmd_experiment}[args.command](args)
@@ -750,6 +763,14 @@ def main(argv=None):
         if exc.filename is None:
             raise
         print(f"probvis: error: {_one_line(exc.filename)}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except UnicodeEncodeError as exc:  # a name in a scene or study file under a locale that cannot encode it
+        if exc.encoding != sys.getfilesystemencoding():
+            raise
+        name = exc.object if isinstance(exc.object, str) else repr(exc.object)
+        print(f"probvis: error: '{_one_line(name)}': the file system's encoding here ({exc.encoding}, from the "
+              "locale) cannot represent this name: run with a UTF-8 locale (LANG=C.UTF-8) or PYTHONUTF8=1",
+              file=sys.stderr)
         return 2
     except Exception as exc:  # Ctrl-C or SIGTERM while compiled code returned (a SystemError chains it as a
         # cause) or inside Numba's compiler, where a callback swallows it and the compile fails on its own terms

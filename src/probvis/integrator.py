@@ -36,7 +36,7 @@ from .interrupts import deferred_interrupts
 from .plugin_checks import (arrays_digest, check_unchanged, checked_cases, checked_result, checked_settings,
                             checked_shaded, checked_stats, plugin_errors)
 from .render_stats import render_stats
-from .scene import Scene, load_scene
+from .scene import Scene, open_scene
 from .segments import SegmentBuffers, compact, sample_emitters, sample_radiance
 from .settings import RenderSettings
 from .shading import ShadedBatch, ShadingBatch
@@ -335,7 +335,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     if early is not None and 1 <= early <= numba.config.NUMBA_NUM_THREADS:  # loading keeps to the budget too
         numba.set_num_threads(early)
     if not isinstance(scene, Scene):
-        scene = load_scene(scene, strict, **(defines or {}))
+        scene = open_scene(scene, defines or {}, strict)
     elif defines:
         raise ProbvisError(f"scene parameters {sorted(defines)} apply only when loading a scene from a file")
     else:

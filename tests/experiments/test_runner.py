@@ -82,6 +82,34 @@ def test_resume_recomputes_nothing_then_only_what_is_missing(tiny_run, tmp_path)
     assert numbers(again) == numbers(results)
 
 
+@pytest.mark.parametrize("damage", ["nan-image", "empty-json", "other-size", "loop"])
+def test_a_damaged_cache_entry_is_rendered_again(tiny_run, tmp_path, damage):
+    """An edited entry was trusted (NaN pixels: relmse nan, exit 0) or failed late (a KeyError, a broadcasting
+    ValueError, 'folder does not exist' for a link that loops): each now reads as absent and is rendered again."""
+    import shutil
+
+    from probvis.io import write_exr
+
+    out, results, _, run = tiny_run
+    cache = tmp_path / "cache"
+    shutil.copytree(out / "cache", cache)
+    victim = next(t for t in run.tasks if t.method.name == "shifted" and t.shadow_rays == 4)
+    meta, img = cache / f"{victim.key}.json", cache / f"{victim.key}.exr"
+    if damage == "nan-image":
+        write_exr(img, np.full((12, 12, 3), np.nan))
+    elif damage == "empty-json":
+        meta.write_text("{}")
+    elif damage == "other-size":
+        write_exr(img, np.ones((5, 7, 3)))
+    else:
+        img.unlink()
+        img.symlink_to(img.name)
+    again, _, run2 = experiment(parse_experiment(TINY), tmp_path / "r", cache=cache, progress=False,
+                                log=lambda m: None)
+    assert run2.computed == 1
+    assert numbers(again) == numbers(results)
+
+
 def test_two_workers_give_the_same_numbers(tiny_run, tmp_path):
     _, results, _, _ = tiny_run
     two, _, run = experiment(parse_experiment(TINY), tmp_path, workers=2, progress=False, log=lambda m: None)
@@ -215,6 +243,20 @@ def test_an_estimator_s_bug_is_named_not_blamed_on_the_cluster(tmp_path):
         experiment(parse_experiment(doc), tmp_path / "r", progress=False, log=lambda m: None)
     text = str(exc.value)
     assert "ZeroDivisionError" in text and "rerunning will not help" in text and "Dask" not in text
+
+
+def test_report_names_no_file_system_holds_are_refused_before_rendering(tmp_path):
+    """A 300-character scene name rendered every cell, then failed with 'File name too long', leaving an
+    unfinished report; an `images` folder that is a link looping to itself was 'File exists'."""
+    doc = dict(TINY, scenes=[{"name": "q" * 300, "source": "quad-shadow"}])
+    with pytest.raises(ProbvisError, match="makes its file name 'qqq.*' 300 bytes long, more than file systems hold"):
+        experiment(parse_experiment(doc), tmp_path / "r", progress=False, log=lambda m: None)
+    assert not (tmp_path / "r").exists()
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "images").symlink_to("images")
+    with pytest.raises(ProbvisError, match="images', where the report keeps a folder, is a symbolic link that loops"):
+        experiment(parse_experiment(TINY), tmp_path / "s", progress=False, log=lambda m: None)
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["images"]
 
 
 def test_report_file_names_are_unique_per_scene():

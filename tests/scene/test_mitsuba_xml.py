@@ -658,3 +658,24 @@ def test_a_default_may_refer_to_one_declared_before_it(tmp_path):
     assert probvis.load_scene(path, b=4).camera.width == 4
     late = write_scene(tmp_path / "late.xml", sensor(w="$res", h="$res") + LIGHT, '<default name="res" value="$b"/>')
     assert probvis.load_scene(late, res=5).camera.width == 5  # given with -D: its default's value is not read
+
+
+def test_parameters_named_path_or_strict_are_parameters(tmp_path, capsys):
+    """`-D path=4` collided with load_scene's own arguments: a TypeError traceback from the command line, the API
+    and an experiment's defines."""
+    from probvis.cli import main
+    from probvis.scene import open_scene
+
+    body = sensor().replace('value="16"/><integer name="height"', 'value="$path"/><integer name="height"')
+    path = write_scene(tmp_path / "p.xml", body + LIGHT, '<default name="path" value="8"/><default name="strict" '
+                                                          'value="1"/>')
+    assert open_scene(path, {"path": "4", "strict": "2"}).camera.width == 4
+    assert probvis.load_scene(path, path=4).camera.width == 4
+    assert main(["render", str(path), "-D", "path=4", "-D", "strict=3", "--spp", "1", "--shadow-rays", "1",
+                 "-o", str(tmp_path / "o.exr"), "-q"]) == 0
+    assert main(["info", str(path), "-D", "path=5", "--json"]) == 0
+    assert '"width": 5' in capsys.readouterr().out
+    r = probvis.render(str(path), spp=1, shadow_rays=1, defines={"path": 6, "strict": 1})
+    assert r.image.shape[1] == 6
+    with pytest.raises(ProbvisError, match="built-in scene 'quad-shadow' has no parameter 'strict'"):
+        probvis.render("quad-shadow", spp=1, shadow_rays=1, defines={"strict": 1, "res": 8})

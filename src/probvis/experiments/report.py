@@ -28,6 +28,7 @@ from ..io.image import tonemap_srgb, utf8_path, write_png
 from .results import UNSTEADY
 
 STATIC = ("viewer.js", "report.css")
+NAME_MAX = 255  # bytes in a file name: what Linux's and macOS's file systems hold
 SECONDS_NOTE = {"total": "", "render": " and without scene loading and BVH building (seconds = render)"}
 
 
@@ -515,7 +516,15 @@ def report_problem(exp, folder):
         files += [f"plots/{slug}-{kind}.png" for kind in ("convergence", "cost", "strip")]
         files += [f"plots/{slug}-tests-{sr}.png" for sr in exp.shadow_rays]
         files += [Report._image_path(spec.name, m.name, sr) for m in exp.methods for sr in exp.shadow_rays]
+    for name in folders + files:
+        part = max(name.split("/"), key=lambda p: len(p.encode()))
+        if len(part.encode()) > NAME_MAX:
+            return (f"cannot write the report: a scene or method name makes its file name '{part[:40]}...' "
+                    f"{len(part.encode())} bytes long, more than file systems hold ({NAME_MAX}): use shorter names")
     for name in folders:
+        if os.path.islink(folder / name) and not (folder / name).exists():
+            return (f"cannot write the report: '{folder / name}', where the report keeps a folder, is a symbolic "
+                    "link that loops or points to nothing")
         if (folder / name).exists() and not (folder / name).is_dir():
             return f"cannot write the report: '{folder / name}' is a file, where the report keeps a folder"
     for name in files:

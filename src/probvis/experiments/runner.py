@@ -28,7 +28,7 @@ from ..errors import ProbvisError
 from ..interrupts import deferred_interrupts
 from ..io.atomic import atomic_path
 from ..io.image import read_exr, write_exr
-from ..scene import load_scene
+from ..scene import open_scene
 from ..scene.scene import MAX_EMISSION
 from .config import MethodSpec, Timing
 
@@ -147,11 +147,13 @@ def task_key(scene_hash, method, spp, shadow_rays, seed, timing=Timing(), finger
 
 
 class Cache:
-    """Renders on disk: `<key>.json` (stats, written last: its presence marks a finished render) beside
-    `<key>.exr` (image) and `<key>-tests.exr`."""
+    """Renders on disk: `<key>.json` (the stats and a digest of the images, written last: its presence marks a
+    finished render) beside `<key>.exr` (image) and `<key>-tests.exr`. An entry that does not read back as
+    stored (edited, truncated, a link that loops) counts as absent: its render is made again."""
 
     def __init__(self, folder):
         self.folder = Path(folder)
+        self._read = {}
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -161,24 +163,49 @@ class Cache:
         return self.folder / f"{key}.json", self.folder / f"{key}.exr", self.folder / f"{key}-tests.exr"
 
     def has(self, key):
-        return all(p.is_file() for p in self._paths(key))
+        if key not in self._read:
+            self._read[key] = self._entry(key)
+        return self._read[key] is not None
 
     def load(self, key):
+        if not self.has(key):
+            raise ProbvisError(f"cache entry {key} in '{self.folder}' is missing or damaged: run the same command "
+                               "to render it again")
+        return self._read[key]
+
+    def _entry(self, key):
         meta, img, tests = self._paths(key)
+        if not all(p.is_file() for p in self._paths(key)):
+            return None
         try:
-            stats = json.loads(meta.read_text())
-            tests_img = read_exr(tests, channel="Y")
-            return Render(stats, read_exr(img)[..., :3], tests_img)
-        except (OSError, ValueError, ProbvisError) as exc:
-            raise ProbvisError(f"cache entry {key} in '{self.folder}' is unreadable ({exc}); delete it to "
-                               f"recompute that render") from None
+            record = json.loads(meta.read_text())
+            render = Render(record["stats"], read_exr(img)[..., :3], read_exr(tests, channel="Y"))
+        except (OSError, ValueError, KeyError, TypeError, ProbvisError):
+            return None
+        if not isinstance(render.stats, dict) or record.get("digest") != _digest(render):
+            return None
+        return render
 
     def store(self, key, render):
+        for p in self._paths(key):  # a damaged entry's files go first (a link is removed, not written through)
+            p.unlink(missing_ok=True)
         meta, img, tests = self._paths(key)
         write_exr(img, render.image)
         write_exr(tests, None, channels={"Y": render.tests})
+        stored = Render(render.stats, read_exr(img)[..., :3], read_exr(tests, channel="Y"))  # as float32 holds it
         with atomic_path(meta) as tmp:
-            Path(tmp).write_text(json.dumps(render.stats))
+            Path(tmp).write_text(json.dumps({"stats": render.stats, "digest": _digest(stored)}))
+        self._read[key] = stored
+
+
+def _digest(render):
+    """SHA-256 of a render's images as stored (float32) and their shapes."""
+    h = hashlib.sha256()
+    for a in (render.image, render.tests):
+        a = np.ascontiguousarray(a, dtype=np.float32)
+        h.update(repr(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
 
 
 POLL_SECONDS = 0.2  # how often the render loop looks for Ctrl-C / SIGTERM while renders run
@@ -262,7 +289,7 @@ def _load_scenes(exp):
     scenes = {}
     for spec in exp.scenes:
         try:
-            scene = load_scene(spec.source, **spec.defines)
+            scene = open_scene(spec.source, spec.defines)
         except ProbvisError as exc:
             raise ProbvisError(f"scene '{spec.name}': {exc}") from None
         if exp.resolution is not None:

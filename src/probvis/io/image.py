@@ -22,13 +22,20 @@ MAX_IMAGE_BYTES = 4 << 30  # an image file larger than this is refused before re
 
 
 def utf8_path(path):
-    """Whether the full path (its folders too, links resolved) is UTF-8: a name of other bytes reaches Python as
-    surrogate escapes, which OpenEXR's writer refuses."""
+    """Whether the full path (its folders too, links resolved) is UTF-8 as the file system stores it: OpenEXR
+    takes names as UTF-8 text (`exr_name`)."""
     try:
-        os.path.realpath(path).encode("utf-8")
-    except UnicodeEncodeError:
+        exr_name(os.path.realpath(path))
+    except UnicodeError:
         return False
     return True
+
+
+def exr_name(path):
+    """The name OpenEXR opens as `path`: its bytes on the file system read as UTF-8 (under a locale whose file
+    system encoding is not UTF-8, Python holds a UTF-8 name's bytes as surrogate escapes, which OpenEXR's
+    encoder refuses). Raises UnicodeError for a name whose bytes are not UTF-8."""
+    return os.fsencode(path).decode("utf-8")
 
 
 def check_writable(path, formats=FORMATS, role="an image"):
@@ -116,7 +123,7 @@ def write_exr(path, image, channels=None):
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as tmp:
         with OpenEXR.File(header, data) as f:
-            f.write(tmp)
+            f.write(exr_name(tmp))
 
 
 def read_exr(path, channel=None):
@@ -125,6 +132,8 @@ def read_exr(path, channel=None):
     path = Path(path)
     if not path.is_file():
         raise ProbvisError(f"image {path} is not a regular file" if path.exists() else missing_file(path, "image"))
+    if not utf8_path(path):
+        raise ProbvisError(f"cannot read '{path}': OpenEXR opens only file and folder names in UTF-8; rename it")
     with library_output() as said:  # the library reports a failed read (a truncated file) as a line of its own
         try:
             return _exr_pixels(path, channel, said)
@@ -138,13 +147,13 @@ def read_exr(path, channel=None):
 def _exr_pixels(path, channel, said):
     import OpenEXR
 
-    with OpenEXR.File(str(path), header_only=True) as head:
+    with OpenEXR.File(exr_name(path), header_only=True) as head:
         lo, hi = (np.asarray(c, dtype=np.int64) for c in head.header()["dataWindow"])
     w, h = hi - lo + 1
     if w * h > MAX_IMAGE_PIXELS or min(w, h) < 1:
         raise ProbvisError(f"{path}: its header declares a {w}x{h} image ({w * h / 1e6:.0f} Mpixel), outside the 1 "
                            f"to {MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads")
-    with OpenEXR.File(str(path)) as f:
+    with OpenEXR.File(exr_name(path)) as f:
         if said():
             raise ValueError(said())
         ch = f.channels()

@@ -10,12 +10,20 @@ from .scene import Scene, SceneBuilder, ShapeInfo
 from .sensor import Camera
 
 
-def load_scene(path, strict=False, **defaults):
+def load_scene(path, /, strict=False, **defaults):
     """Load a Mitsuba 3 XML file, or a built-in scene by name (`probvis scenes` lists them).
 
     Keyword arguments override the scene's `<default>` parameters, like Mitsuba's `-D name=value`; with `strict`
-    appearance probvis would approximate (a non-diffuse BSDF) is an error instead of a warning.
+    appearance probvis would approximate (a non-diffuse BSDF) is an error instead of a warning. (A parameter
+    named `strict` is given through `open_scene`.)
     """
+    return open_scene(path, defaults, strict)
+
+
+def open_scene(path, defines, strict=False):
+    """`load_scene` with the parameters as a dict `defines`: any name, `path` and `strict` included (the command
+    line's `-D`, an experiment's `defines`)."""
+    defaults = dict(defines)
     if not isinstance(path, (str, Path)):
         raise ProbvisError(f"path must be a scene file path or a built-in name, got {type(path).__name__}")
     if not isinstance(strict, bool):
@@ -33,7 +41,7 @@ def load_scene(path, strict=False, **defaults):
             if Path(path).is_file():
                 warnings.warn(f"'{path}' names a built-in scene and a file here: rendering the built-in (give "
                               f"./{path} for the file)", stacklevel=2)
-            return builtin_scene(path, **defaults)
+            return builtin_scene(path, defaults)
         p = Path(path)
         if p.suffix.lower() != ".xml" and not p.exists():
             if str(path) in BUILTINS:
@@ -47,10 +55,10 @@ def load_scene(path, strict=False, **defaults):
         raise ProbvisError(f"out of memory building the built-in scene '{path}' (the machine's or the process's "
                            "limit, ulimit -v): raise the limit, or use a smaller scene") from None
     try:
-        return read_scene(p, strict, **defaults)
+        return read_scene(p, strict, defaults)
     except MemoryError:
         raise ProbvisError(f"out of memory loading {p} (the machine's or the process's limit, ulimit -v): its "
                            "meshes and images need more; raise the limit") from None
 
 
-__all__ = ["BUILTINS", "Camera", "Scene", "SceneBuilder", "ShapeInfo", "load_scene"]
+__all__ = ["BUILTINS", "Camera", "Scene", "SceneBuilder", "ShapeInfo", "load_scene", "open_scene"]

@@ -184,8 +184,9 @@ BUILTINS = {
 PARAMETERS = ("res", "spp", "shadow_rays", "seed")
 
 
-def builtin_scene(name, **defaults):
-    """Generate built-in scene `name`; `defaults` (strings or numbers) set its PARAMETERS, like `-D`."""
+def builtin_scene(name, defaults=None):
+    """Generate built-in scene `name`; `defaults` (a dict of strings or numbers) set its PARAMETERS, like `-D`."""
+    defaults = defaults or {}
     gen = BUILTINS[name][0]
     kwargs = {}
     for key, val in defaults.items():

@@ -1131,7 +1131,8 @@ class _Reader:
             raise ProbvisError(f"{self.path}: {exc}") from None
 
 
-def read_scene(path, strict=False, **overrides):
-    """Load a Mitsuba 3 XML scene; `overrides` replace `<default>` values as `-D name=value` does. Appearance
-    that probvis approximates (non-diffuse BSDFs) is a warning, or with `strict` an error."""
+def read_scene(path, strict=False, overrides=None):
+    """Load a Mitsuba 3 XML scene; `overrides` (a dict) replace `<default>` values as `-D name=value` does.
+    Appearance that probvis approximates (non-diffuse BSDFs) is a warning, or with `strict` an error."""
+    overrides = overrides or {}
     return _Reader(path, overrides, strict).read()
