@@ -332,6 +332,16 @@ def test_a_non_ascii_name_under_an_ascii_locale_is_escaped(tmp_path):
     assert r.returncode == 0 and b"sortie-\\xe9.exr" in r.stdout, r.stderr
 
 
+def test_a_switch_given_a_value_says_it_is_a_switch(capsys):
+    """`--adaptive-photons false` was 'unrecognized arguments: false', and `probvis estimators` listed the flag as
+    taking true/false."""
+    assert main(["render", "quad-shadow", "--visibility", "occlusion-map", "--adaptive-photons", "false"]) == 2
+    assert capsys.readouterr().err == ("probvis: error: unrecognized arguments: false (--adaptive-photons is a switch: "
+                                       "give --adaptive-photons or --no-adaptive-photons, without a value)\n")
+    assert main(["estimators", "occlusion-map"]) == 0
+    assert "--adaptive-photons / --no-adaptive-photons  (a switch; true/false in the API" in capsys.readouterr().out
+
+
 def _c_locale():
     """The environment of a C locale with Python's UTF-8 mode off: file names are ASCII to Python."""
     return {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONIOENCODING": "ascii"}

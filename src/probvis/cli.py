@@ -129,6 +129,10 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message):
         if message.startswith("unrecognized arguments:") and not message.split(":", 1)[1].strip():
             message = "unrecognized argument '' (an empty string: check the command's quoting)"
+        switch = self._switch_given_a_value(message)
+        if switch:
+            raise ProbvisError(f"{message} ({switch} is a switch: give {switch} or --no-{switch[2:]}, without a "
+                               "value)")
         if message.startswith("unrecognized arguments: ") and "--" in message:
             given = [a for a in message.split(": ", 1)[1].split() if a.startswith("--")]
             flags, owners = [f for a in self._actions for f in a.option_strings], {}
@@ -148,6 +152,20 @@ class _Parser(argparse.ArgumentParser):
             elif near:
                 message += f" (flags are spelt out in full: did you mean {' or '.join(near[:3])}?)"
         raise ProbvisError(message)
+
+    def _switch_given_a_value(self, message):
+        """The on/off flag that an unrecognised true/false (yes/no, on/off, 1/0) follows in the command, if any."""
+        if not message.startswith("unrecognized arguments: "):
+            return None
+        words = {"true", "false", "yes", "no", "on", "off", "1", "0"}
+        argv = getattr(self, "argv", [])
+        switches = {f for sub in (self._subparsers._group_actions if self._subparsers else ())
+                    for p in sub.choices.values() for a in p._actions
+                    if isinstance(a, argparse.BooleanOptionalAction) for f in a.option_strings}
+        for before, word in zip(argv, argv[1:]):
+            if before in switches and word.lower() in words and word in message.split(": ", 1)[1].split():
+                return before
+        return None
 
 
 def _add_option(group, opt):
@@ -405,7 +423,10 @@ def _cmd_estimators(args):
         _say(f"    class {d['class']}; render path: {d['render_path']}")
         for o in d["options"]:
             default = "automatic" if o["default"] is None else _show(o["default"])
-            _say(f"    {o['flag']}  ({o['type']}; default {default})")
+            if o["type"] == "true/false":  # true/false in the API and a study's TOML, a switch on the command line
+                _say(f"    {o['flag']} / --no-{o['flag'][2:]}  (a switch; true/false in the API; default {default})")
+            else:
+                _say(f"    {o['flag']}  ({o['type']}; default {default})")
             _say(f"        {o['help']}")
         if d["phases"]:
             _say("    phases: " + ", ".join(f"{p['name']} ({p['stage']})" for p in d["phases"]))

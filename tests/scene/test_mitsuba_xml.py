@@ -648,6 +648,7 @@ def test_a_parameter_value_that_is_no_string_or_number_is_refused():
                                            r"or a number; give each as a keyword argument"):
         probvis.load_scene("quad-shadow", defines={"res": 8})
     assert probvis.load_scene("quad-shadow", res=np.int64(8)).camera.width == 8
+    assert probvis.load_scene("quad-shadow", strict=np.True_, res=8).camera.width == 8  # as render's flags
 
 
 def test_a_default_may_refer_to_one_declared_before_it(tmp_path):
