@@ -220,7 +220,7 @@ def test_misbehaving_estimators_are_named_not_rendered(mode, message):
     ("out of memory", r"ran out of memory in the render \(.*\): an allocation of its own"),
     ("generator exit", r"raised GeneratorExit in the render"),
     # an exception whose own __str__ raises was a traceback from formatting the error line
-    ("unprintable", r"raised _Unprintable in the render \(.*\): <its message could not be read"),
+    ("unprintable", r"raised _Unprintable in the render \(.*\): <_Unprintable: its str\(\) failed>"),
 ])
 def test_an_estimator_that_raises_is_named(mode, message):
     cls = type(f"Broken_{mode.replace(' ', '_')}", (_Broken,), {"mode": mode})
@@ -519,3 +519,25 @@ def test_installed_estimators_that_do_not_load_do_not_stop_other_renders(roulett
     out = capsys.readouterr().out
     assert "exact  —" in out and "nested  —" in out
     assert all(f"{name}  —  cannot be loaded" in out for name in ("broke", "exiter", "modep", "num", "spy"))
+
+
+@pytest.mark.parametrize("where", ["import", "prepare", "check"])
+def test_unprintable_plugin_exceptions_are_named_wherever_they_arise(tmp_path, capsys, where):
+    """An exception whose __str__ raises (or exits) was a traceback when the plug-in's import or an option's check
+    raised it, and ended the command with exit 0 and no image when its __str__ called sys.exit."""
+    from probvis.cli import main
+
+    body = {"import": "raise BadExit()\n",
+            "prepare": "class P(Exact):\n    name = 'p'\n    summary = 's'\n"
+                       "    def prepare(self, *a):\n        raise BadExit()\n",
+            "check": "class P(Exact):\n    name = 'p'\n    summary = 's'\n"
+                     "    options = (Option('k', int, 3, 'k', check=lambda v: Bad()),)\n"}[where]
+    (tmp_path / "p.py").write_text(
+        "import sys\nfrom probvis.visibility import Option\nfrom probvis.visibility.exact import ExactVisibility as Exact\n"
+        "class Bad(Exception):\n    def __str__(self):\n        raise RuntimeError('str fails')\n"
+        "class BadExit(Exception):\n    def __str__(self):\n        sys.exit(0)\n" + body)
+    code = main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "--visibility", f"{tmp_path / 'p.py'}:P",
+                 "-o", str(tmp_path / "o.exr")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("probvis: error: ") and err.count("\n") == 1, err
+    assert "its str() failed" in err and not (tmp_path / "o.exr").exists()

@@ -4,6 +4,7 @@ damaged entry is rebuilt and a cache that cannot be written is a warning, never 
 import math
 import os
 import pwd
+import resource
 import warnings
 import zipfile
 import zlib
@@ -46,9 +47,11 @@ def fits(arrays, expect):
 
 
 def _check_sizes(path):
-    """ValueError if an array of the .npz at `path` declares more bytes than its member holds (NumPy would allocate
-    the declared size before reading: a damaged header asked for terabytes)."""
+    """ValueError if an array of the .npz at `path` declares more bytes than its member holds, or all of them
+    more than the process could allocate (NumPy would allocate the declared size before reading: a damaged
+    header asked for terabytes, and an archive of zeros can honestly inflate to more than the machine holds)."""
     fmt = np.lib.format
+    total = 0
     with zipfile.ZipFile(path) as archive:
         for info in archive.infolist():
             with archive.open(info) as member:
@@ -57,6 +60,16 @@ def _check_sizes(path):
                 shape, _, dtype = read(member)
                 if math.prod(shape) * dtype.itemsize > info.file_size:
                     raise ValueError(f"{info.filename} declares {shape} beyond its {info.file_size} bytes")
+                total += info.file_size
+    if total > _allocatable():
+        raise ValueError(f"{path} would inflate to {total} bytes, more than this process can allocate")
+
+
+def _allocatable():
+    """Bytes the process could allocate at most: the free physical memory, or its address-space limit."""
+    free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    return free if limit == resource.RLIM_INFINITY else min(free, limit)
 
 
 def load(kind, key, expect=None):
@@ -69,7 +82,7 @@ def load(kind, key, expect=None):
         _check_sizes(path)
         with np.load(path, allow_pickle=False) as f:
             arrays = {k: f[k] for k in f.files}
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error):
+    except (OSError, ValueError, KeyError, EOFError, MemoryError, zipfile.BadZipFile, zlib.error):
         return None
     digest = arrays.pop(DIGEST, None)
     if digest is None or digest.tobytes() != _digest(arrays):  # changed since it was stored, or not ours

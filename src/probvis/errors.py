@@ -7,6 +7,15 @@ class ProbvisError(Exception):
     """A mistake in the user's input (scene file, option, output path)."""
 
 
+def shown(obj, conv=str):
+    """`conv(obj)` (str or repr) for a message, or a placeholder where the object's own method fails: a plug-in's
+    exception or value whose `__str__` or `__repr__` raises, or even exits (a message must not end the command)."""
+    try:
+        return conv(obj)
+    except (Exception, SystemExit):  # noqa: BLE001 - whatever the plug-in's method does
+        return f"<{type(obj).__name__}: its {conv.__name__}() failed>"
+
+
 def missing_file(path, what):
     """Why input file `path` cannot be opened, for a one-line error: a symbolic link that loops (on Python before
     3.13 `Path.resolve` raises a RuntimeError for those) or points to nothing, else "`what` not found"."""

@@ -11,7 +11,7 @@ import numpy as np
 import xxhash
 
 from .cases import CASE_VERIFIED, N_CASES
-from .errors import ProbvisError
+from .errors import ProbvisError, shown
 from .memory import is_byte_counts
 from .shading import N_COUNTS, ShadedBatch
 from .visibility import VisibilityResult
@@ -113,7 +113,7 @@ def plugin_errors(cls, stage):
         if cls.__module__.split(".")[0] == "probvis" or not _raised_in_plugin(exc):
             raise
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "
-                           f"{type(exc).__name__} in {stage}: {_said(exc)}") from None
+                           f"{type(exc).__name__} in {stage}: {shown(exc)}") from None
     except MemoryError as exc:
         if cls.__module__.split(".")[0] == "probvis" or not _raised_in_plugin(exc):  # probvis's own buffers: the
             raise  # command line's out-of-memory line, naming the settings that size them
@@ -124,16 +124,8 @@ def plugin_errors(cls, stage):
         if cls.__module__.split(".")[0] == "probvis":
             raise
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "
-                           f"{type(exc).__name__} in {stage}: {_said(exc)} (a bug in the estimator; rerunning "
+                           f"{type(exc).__name__} in {stage}: {shown(exc)} (a bug in the estimator; rerunning "
                            "will not help)") from None
-
-
-def _said(exc):
-    """An exception's message, or a placeholder where its own `str` fails (a plug-in's exception class)."""
-    try:
-        return str(exc)
-    except Exception:  # noqa: BLE001 - whatever the plug-in's __str__ raises
-        return f"<its message could not be read: {type(exc).__name__}.__str__ failed>"
 
 
 def _raised_in_plugin(exc):

@@ -551,11 +551,32 @@ def test_a_bumpmap_may_reference_its_texture(tmp_path):
 
 
 def test_a_shape_without_area_is_left_out_with_a_warning(tmp_path):
-    """A sphere of radius 1e-12 away from the origin vanished without a word."""
-    body = sensor() + LIGHT + ("<shape type='sphere'><float name='radius' value='1e-12'/>"
-                               "<point name='center' x='0' y='0' z='1'/></shape>")
+    """A sphere too small for its position's precision (its corners round to one point) vanished without a word."""
+    body = sensor() + LIGHT + ("<shape type='sphere'><float name='radius' value='1e-20'/>"
+                               "<point name='center' x='1' y='1' z='1'/></shape>")
     with pytest.warns(UserWarning, match=r"shape 'sphere' has no area \(all 3968 of its triangles are degenerate"):
         probvis.load_scene(write_scene(tmp_path / "tiny.xml", body))
+
+
+@pytest.mark.parametrize("where", ["far", "beside a far vertex"])
+def test_small_shapes_keep_their_faces_wherever_they_are(tmp_path, where):
+    """Whether a face had area was judged against the largest coordinate of its whole mesh: a 0.4-unit cube at
+    x = 5e6 was left out as 'without area', and a sphere in one file with a vertex at 1e8 was dropped silently."""
+    if where == "far":
+        body = ("<shape type='cube'><transform name='to_world'><scale value='0.2'/><translate x='5e6'/>"
+                "</transform></shape>")
+    else:
+        import trimesh
+
+        sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
+        lines = [f"v {x} {y} {z}" for x, y, z in sphere.vertices] + ["v 1e8 0 0"]
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in sphere.faces]
+        (tmp_path / "m.obj").write_text("\n".join(lines) + "\n")
+        body = "<shape type='obj'><string name='filename' value='m.obj'/></shape>"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scene = probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + LIGHT + body))
+    assert scene.dropped_degenerate == 0 and scene.n_triangles == 2 + (12 if where == "far" else 1280)
 
 
 def test_an_up_vector_of_any_length_is_a_direction():

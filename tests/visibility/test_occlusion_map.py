@@ -252,6 +252,18 @@ def test_a_damaged_cache_archive_is_rebuilt(tmp_path, monkeypatch, damage):
     assert structure(scene).n_components == components(scene)[2]
 
 
+def test_a_cache_entry_that_would_inflate_beyond_memory_is_rebuilt(tmp_path, monkeypatch):
+    """An archive whose members honestly inflate to more than the process can allocate (zeros compress well) was
+    loaded, and its MemoryError was 'out of memory: lower the resolution'; it now counts as damaged."""
+    from probvis import disk_cache
+
+    monkeypatch.setenv("PROBVIS_CACHE_DIR", str(tmp_path))
+    disk_cache.store("structure", "k", {"label": np.zeros(1000, np.int64)})
+    assert disk_cache.load("structure", "k") is not None
+    monkeypatch.setattr(disk_cache, "_allocatable", lambda: 4000)  # 8,000 bytes declared
+    assert disk_cache.load("structure", "k") is None
+
+
 def test_a_cache_entry_changed_since_it_was_stored_is_rebuilt(tmp_path, monkeypatch):
     """An entry of the right names, shapes and types but other values (a huge n_components was 'out of memory',
     a shells grid of zeros a wrong image) no longer matches the digest stored with it, and is rebuilt; a write

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ProbvisError, missing_file
+from ..errors import ProbvisError, missing_file, shown
 from ..scene import BUILTINS
 from ..settings import MAX_SEED, MAX_SEGMENTS_PER_PIXEL, MAX_SHADOW_RAYS, MAX_SPP
 from ..visibility import estimator_class
@@ -212,7 +212,7 @@ def _method(where, table, base):
         _fail(f"method '{name}'", str(exc))
     except Exception as exc:  # a plug-in's bug: named as `render` names it
         _fail(f"method '{name}'", f"visibility '{vis}' ({cls.__module__}.{cls.__qualname__}) raised "
-                                  f"{type(exc).__name__} in __init__: {exc}")
+                                  f"{type(exc).__name__} in __init__: {shown(exc)}")
     return MethodSpec(name, vis, options)
 
 

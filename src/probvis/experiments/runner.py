@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..errors import ProbvisError
+from ..errors import ProbvisError, shown
 from ..interrupts import deferred_interrupts
 from ..io.atomic import atomic_path
 from ..io.image import read_exr, write_exr
@@ -82,7 +82,7 @@ def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, tim
         except (ProbvisError, MemoryError):
             raise
         except Exception as exc:  # a bug, not a lost worker: rerunning would fail the same way
-            raise ProbvisError(f"visibility '{visibility}' raised {type(exc).__name__}: {exc} (a bug in the "
+            raise ProbvisError(f"visibility '{visibility}' raised {type(exc).__name__}: {shown(exc)} (a bug in the "
                                "estimator or in probvis; rerunning will not help)") from None
         sec = r.stats["seconds"]
         times.append(sec["total"] - sec["compile"])

@@ -212,10 +212,8 @@ class SceneBuilder:
                                "number): rescale the scene")
         if flip_normals:
             f = f[:, ::-1]
-        tris, cross, area2 = _triangles(wv, f)
+        tris, cross, area2, keep = _triangles(wv, f)
         lo, hi = bounds(wv) if len(wv) else (np.zeros(3), np.zeros(3))
-        scale = max(float(np.abs(lo).max()), float(np.abs(hi).max()), 1e-300) if len(wv) else 1.0
-        keep = area2 > 1e-14 * scale * scale
         self.dropped += int((~keep).sum())
         if not keep.all():
             tris, f, cross, area2 = tris[keep], f[keep], cross[keep], area2[keep]
@@ -331,11 +329,15 @@ class SceneBuilder:
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def _triangles(wv, f):
-    """Each face's corners (n, 3, 3), the cross product of its edges from the first corner and that product's
-    length (twice its area): one pass, no temporaries (numpy's `wv[f]`, `np.cross` and `norm` made five), the
-    faces split over the threads."""
+    """Each face's corners (n, 3, 3), the cross product of its edges from the first corner, that product's
+    length (twice its area) and whether the face has area: one pass, no temporaries (numpy's `wv[f]`, `np.cross`
+    and `norm` made five), the faces split over the threads.
+
+    A face has area when twice its area exceeds 1e-14 times its longest edge squared (a sliver thinner than that
+    has no normal to speak of): a measure of its own shape, wherever it lies (a small object far from the origin,
+    or beside a far vertex of its file, keeps its faces)."""
     n = f.shape[0]
-    tris, cross, area2 = np.empty((n, 3, 3)), np.empty((n, 3)), np.empty(n)
+    tris, cross, area2, keep = np.empty((n, 3, 3)), np.empty((n, 3)), np.empty(n), np.empty(n, np.bool_)
     for i in prange(n):
         for c in range(3):
             for d in range(3):
@@ -345,7 +347,10 @@ def _triangles(wv, f):
         cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
         cross[i, 0], cross[i, 1], cross[i, 2] = cx, cy, cz
         area2[i] = math.sqrt(cx * cx + cy * cy + cz * cz)
-    return tris, cross, area2
+        ex, ey, ez = bx - ax, by - ay, bz - az
+        longest = max(ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz, ex * ex + ey * ey + ez * ez)
+        keep[i] = area2[i] > 1e-14 * longest
+    return tris, cross, area2, keep
 
 
 def _joined(parts):

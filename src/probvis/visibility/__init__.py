@@ -11,7 +11,7 @@ import unicodedata
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from ..errors import ProbvisError
+from ..errors import ProbvisError, shown
 from .base import (CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES, OPTION_TYPES, Aov,
                    Option, Phase, RenderPath, ShadingPoints, ShadowQuery, Switch, VisibilityEstimator, VisibilityResult)
 
@@ -59,7 +59,7 @@ def _load_unlocked(spec, what):
     except ProbvisError:
         raise
     except (Exception, SystemExit) as exc:  # an import error of any kind in the user's module, or its exit
-        raise ProbvisError(f"{what}: cannot import '{module_name}': {type(exc).__name__}: {exc}") from None
+        raise ProbvisError(f"{what}: cannot import '{module_name}': {type(exc).__name__}: {shown(exc)}") from None
     cls = getattr(module, class_name, None)
     if cls is None:
         raise ProbvisError(f"{what}: '{module_name}' defines no '{class_name}'")
@@ -174,7 +174,7 @@ def _check_declarations(cls, what):
                 raise ProbvisError(f"{where}: the default of option '{o.name}' is invalid: {exc}") from None
             except Exception as exc:  # the plug-in's own check failed on its default
                 raise ProbvisError(f"{where}: option '{o.name}': its check raised {type(exc).__name__} on the default "
-                                   f"{o.default!r}: {exc}") from None
+                                   f"{shown(o.default, repr)}: {shown(exc)}") from None
 
 
 def _estimator_class(name, what):
@@ -193,7 +193,7 @@ def _estimator_class(name, what):
                 cls = eps[name].load()
         except (Exception, SystemExit) as exc:  # its import failed, or called sys.exit
             raise ProbvisError(f"{what}: cannot load installed estimator '{name}' ({eps[name].value}): "
-                               f"{type(exc).__name__}: {exc}") from None
+                               f"{type(exc).__name__}: {shown(exc)}") from None
         return _estimator_subclass(cls, f"{eps[name].value}", what)
     if ":" in name:
         return _load(name, what)

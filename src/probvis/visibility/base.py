@@ -22,7 +22,7 @@ import numpy as np
 
 from ..cases import (CASE_LIT, CASE_MASK, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN,  # noqa: F401
                      CASE_VERIFIED, N_CASES)
-from ..errors import ProbvisError
+from ..errors import ProbvisError, shown
 from ..settings import parse_float, parse_int
 
 
@@ -92,7 +92,7 @@ class Option:
         if self.check is not None:
             message = self.check(v)
             if message:
-                raise ProbvisError(f"{self.name} {message}")
+                raise ProbvisError(f"{self.name} {shown(message)}")
         return v
 
     def _range(self):
