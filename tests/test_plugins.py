@@ -541,3 +541,28 @@ def test_unprintable_plugin_exceptions_are_named_wherever_they_arise(tmp_path, c
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("probvis: error: ") and err.count("\n") == 1, err
     assert "its str() failed" in err and not (tmp_path / "o.exr").exists()
+
+
+@pytest.mark.parametrize("field", ["name", "summary", "option name", "phase help", "AOV name"])
+def test_declarations_that_cannot_be_printed_are_named(field):
+    """A declared name or text of a str subclass whose __format__/__repr__ fails (or exits) was a traceback, or
+    exit 0 with nothing written; declarations are exact strings."""
+    class Bad(str):
+        def __repr__(self):
+            raise SystemExit(0)
+
+        def __format__(self, spec):
+            raise RuntimeError("format fails")
+
+    attrs = {"name": "p", "summary": "s"}
+    if field in ("name", "summary"):
+        attrs[field] = Bad("p")
+    elif field == "option name":
+        attrs["options"] = (probvis.visibility.Option(Bad("k"), int, 3, "k"),)
+    elif field == "phase help":
+        attrs["phases"] = (probvis.visibility.Phase("ph", "batch", Bad("h")),)
+    else:
+        attrs["aovs"] = (probvis.visibility.Aov(Bad("x"), "segment", "x"),)
+    cls = type("Unprintable", (_Exact,), attrs)
+    with pytest.raises(ProbvisError, match=r"(name|names|help|summary).* got <Bad: its repr\(\) failed>"):
+        probvis.render("quad-shadow", spp=1, visibility=cls)

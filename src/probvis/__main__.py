@@ -127,13 +127,13 @@ def _openmp_complaint():
 def main():
     if sys.stderr is None:  # closed (`2>&-`): the command goes on, its messages go nowhere (a closed standard
         sys.stderr = open(os.devnull, "w")  # output is the command's to report, on stderr)
-    problem = _bad_environment()
-    if problem:
-        print(problem, file=sys.stderr)
-        return 1
     stops = [signal.SIGTERM] + ([signal.SIGHUP] if signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN else [])
     previous = {s: signal.signal(s, _terminate) for s in stops}
     try:
+        problem = _bad_environment()  # checked under the handlers: a signal this early is an interrupt too
+        if problem:
+            print(problem, file=sys.stderr)
+            return 1
         with warnings.catch_warnings(record=True) as said:  # the filters as they are: what they show is recorded
             from .cli import main as cli_main
         for w in said:  # Numba parses its NUMBA_* variables as it loads, and only warns of one it cannot read

@@ -19,7 +19,7 @@ from .cases import CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_UNKNOWN, CASE_VERIFI
 from .emitters import delta_falloff, emitter_irradiance, sample_on_emitter
 from .environment import sample_environment
 from .rng import uniform
-from .scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT
+from .scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, RAY_OFFSET
 
 SHADOW_EPSILON = 1e-6  # segments stop this fraction short of the emitter point
 N_COUNTS = 5  # per-pixel counts: camera-ray triangle and node tests, shadow triangle and node tests, negatives
@@ -198,7 +198,7 @@ def point_samples(i, geom, es, batch, base, s_org, s_dir, contrib, s_emit, activ
             active[base + j] = False
         return a0, a1, a2, m
     gn = (fnormals[tri, 0], fnormals[tri, 1], fnormals[tri, 2])
-    eps = 1e-9 * (1.0 + max(abs(p[0]), abs(p[1]), abs(p[2])))
+    eps = RAY_OFFSET * (1.0 + max(abs(p[0]), abs(p[1]), abs(p[2])))
     key = batch.keys[i]
     if only >= 0:  # a single emitter: no choice (its random dimension is simply not drawn)
         only = np.int64(only)  # not typed as the literal -1 it may also be: one compile of emitter_segment

@@ -701,3 +701,21 @@ def test_parameters_named_path_or_strict_are_parameters(tmp_path, capsys):
     assert r.image.shape[1] == 6
     with pytest.raises(ProbvisError, match="built-in scene 'quad-shadow' has no parameter 'strict'"):
         probvis.render("quad-shadow", spp=1, shadow_rays=1, defines={"strict": 1, "res": 8})
+
+
+@pytest.mark.parametrize("scale, shift", [(1e-9, 0.0), (1.0, 1e9)])
+def test_a_scene_its_ray_offsets_would_blur_is_warned_about(tmp_path, scale, shift):
+    """Shadow rays leave their surfaces 1e-9 × (1 + the largest coordinate) away, as Mitsuba's ray epsilon: a scene
+    scaled by 1e-9, or one unit-sized at x = 1e9, lost its small shadows without a word."""
+    t = f"<scale value='{scale}'/><translate x='{shift}'/>"
+    body = (sensor(origin=f"{shift}, 0, {4 * scale}", target=f"{shift}, 0, 0").replace(
+        '<float name="fov"', f'<float name="near_clip" value="{scale * 1e-3}"/><float name="fov"')
+            + f"<shape type='rectangle'><transform name='to_world'>{t}</transform></shape>"
+            + f"<shape type='rectangle'><transform name='to_world'><translate z='2'/>{t}</transform>"
+            + "<emitter type='area'><rgb name='radiance' value='1'/></emitter></shape>")
+    with pytest.warns(UserWarning, match=r"shadow rays leave their surfaces up to .* of the scene\), which can lose "
+                                         r"small shadows; scale the scene nearer to unit size"):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        probvis.load_scene(write_scene(tmp_path / "u.xml", sensor() + LIGHT))

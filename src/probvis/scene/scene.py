@@ -14,6 +14,8 @@ from . import transform as tf
 from .sensor import Camera, camera_problem
 
 MAX_COORDINATE = 1e30  # a position beyond this is refused: squared distances would overflow
+RAY_OFFSET = 1e-9  # a shadow ray leaves its surface this far, times 1 + the point's largest coordinate
+OFFSET_SHARE = 1e-4  # a scene whose largest offset exceeds this share of its extent is warned about
 MAX_EMISSION = 1e30  # radiance, intensity or scale: beyond, power sums overflow
 EMITTER_AREA, EMITTER_POINT, EMITTER_SPOT, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT = 0, 1, 2, 3, 4
 
@@ -324,7 +326,11 @@ class SceneBuilder:
             dropped_degenerate=self.dropped,
         )
         scene.validate_camera()
+        from .scene_checks import warn_of_offsets  # the checks' module reads this one's records
+
+        warn_of_offsets(scene)
         return scene
+
 
 
 @njit(cache=True, parallel=True, error_model="numpy")

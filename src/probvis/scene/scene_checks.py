@@ -1,6 +1,7 @@
 """The checks of a `Scene` handed to a render: the API's Scene is a mutable record, and a field changed since the
 scene was built (a camera of None, NaN normals, a texture index past the textures) would otherwise surface as a
 TypeError, a black image or an out-of-bounds read in a kernel."""
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -9,7 +10,7 @@ from ..errors import ProbvisError
 from ..settings import RenderSettings
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import (EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, EMITTER_SPOT,
-                    MAX_COORDINATE, MAX_EMISSION, Environment, ShapeInfo)
+                    MAX_COORDINATE, MAX_EMISSION, OFFSET_SHARE, RAY_OFFSET, Environment, ShapeInfo)
 from .sensor import Camera
 from .shapes import MAX_UV
 
@@ -103,3 +104,17 @@ def _fine(a, shape):
     """Whether `a` is a finite numeric array of `shape` (None: any length)."""
     return (isinstance(a, np.ndarray) and a.dtype.kind in "fiu" and a.ndim == len(shape)
             and all(want is None or got == want for got, want in zip(a.shape, shape)) and bool(np.all(np.isfinite(a))))
+
+
+def warn_of_offsets(scene):
+    """A warning where shadow rays' offsets from their surfaces (RAY_OFFSET, as Mitsuba's ray epsilon: absolute
+    near the origin, relative far from it) are a noticeable share of the scene: a scene far smaller than a unit,
+    or far from the origin for its size, can lose small shadows without it."""
+    lo, hi = np.min([s.lo for s in scene.shapes], axis=0), np.max([s.hi for s in scene.shapes], axis=0)
+    extent = float((hi - lo).max())
+    offset = RAY_OFFSET * (1.0 + float(max(np.abs(lo).max(), np.abs(hi).max())))
+    if offset > OFFSET_SHARE * extent:
+        warnings.warn(f"scene '{scene.name}' spans {extent:g} units with coordinates up to "
+                      f"{offset / RAY_OFFSET - 1:g}: shadow rays leave their surfaces up to {offset:g} away "
+                      f"({offset / max(extent, 1e-300):.2%} of the scene), which can lose small shadows; scale the "
+                      "scene nearer to unit size, or move it nearer the origin", stacklevel=4)

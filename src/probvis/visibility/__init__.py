@@ -112,40 +112,43 @@ def _check_declarations(cls, what):
     flags, defaults their own checks accept."""
     where = f"{what}: {cls.__module__}.{cls.__qualname__}"
     own = cls.__module__.split(".")[0] == "probvis"
-    if not isinstance(cls.name, str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.+-]*", cls.name):
+    # exactly str, here and below: a subclass's own __str__ or __format__ could fail wherever it is printed
+    if type(cls.name) is not str or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.+-]*", cls.name):
         raise ProbvisError(f"{where}: name must be one word (letters, digits, '-', '_', '.', '+'), got "
-                           f"{cls.name!r}")
+                           f"{shown(cls.name, repr)}")
     if not own and cls.name in BUILTIN and "name" in vars(cls):  # a subclass may keep its built-in parent's
         raise ProbvisError(f"{where}: name '{cls.name}' is a built-in estimator's: choose another, so its stats and "
                            "reports are not taken for the built-in's")
     for field, kind in (("options", Option), ("phases", Phase), ("aovs", Aov)):
         value = getattr(cls, field)
         if not isinstance(value, (tuple, list)) or not all(isinstance(x, kind) for x in value):
-            raise ProbvisError(f"{where}: {field} must be a tuple of {kind.__name__}s, got {value!r}"[:300])
+            raise ProbvisError(f"{where}: {field} must be a tuple of {kind.__name__}s, got {shown(value, repr)}"[:300])
     if not isinstance(cls.unbiased, bool):
-        raise ProbvisError(f"{where}: unbiased must be True or False, got {cls.unbiased!r}")
+        raise ProbvisError(f"{where}: unbiased must be True or False, got {shown(cls.unbiased, repr)}")
+    for kind, xs in (("option", cls.options), ("phase", cls.phases), ("AOV", cls.aovs)):
+        for x in xs:
+            if type(x.name) is not str or not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", x.name):
+                raise ProbvisError(f"{where}: {kind} names are identifiers (letters, digits, '_'), got "
+                                   f"{shown(x.name, repr)}")
     texts = [("summary", cls.summary)] + [(f"{kind} '{x.name}': help", x.help) for kind, xs in
                                            (("option", cls.options), ("phase", cls.phases), ("AOV", cls.aovs))
                                            for x in xs]
     for field, text in texts:
-        if not isinstance(text, str) or any(unicodedata.category(c)[0] == "C" for c in text):
-            raise ProbvisError(f"{where}: {field} must be one line of plain text, got {text!r}"[:300])
-    for kind, xs in (("option", cls.options), ("phase", cls.phases), ("AOV", cls.aovs)):
-        for x in xs:
-            if not isinstance(x.name, str) or not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", x.name):
-                raise ProbvisError(f"{where}: {kind} names are identifiers (letters, digits, '_'), got {x.name!r}")
+        if type(text) is not str or any(unicodedata.category(c)[0] == "C" for c in text):
+            raise ProbvisError(f"{where}: {field} must be one line of plain text, got {shown(text, repr)}"[:300])
         names = [x.name for x in xs]
         if kind != "option" and len(set(names)) < len(names):
             raise ProbvisError(f"{where} declares {kind} '{next(n for n in names if names.count(n) > 1)}' twice")
     for phase in cls.phases:
         if phase.stage not in ("prepare", "batch"):
-            raise ProbvisError(f"{where}: phase '{phase.name}' has stage {phase.stage!r} (prepare or batch)")
+            raise ProbvisError(f"{where}: phase '{phase.name}' has stage {shown(phase.stage, repr)} (prepare or "
+                               "batch)")
         if phase.name in RESERVED_PHASES:
             raise ProbvisError(f"{where}: phase '{phase.name}' is one of probvis's own ({', '.join(RESERVED_PHASES)}) "
                                "in a study's time by phase: rename it")
     for aov in cls.aovs:
         if aov.kind not in ("cases", "segment"):
-            raise ProbvisError(f"{where}: AOV '{aov.name}' has kind {aov.kind!r} (cases or segment)")
+            raise ProbvisError(f"{where}: AOV '{aov.name}' has kind {shown(aov.kind, repr)} (cases or segment)")
         if aov.kind == "segment" and aov.name in RESERVED_AOVS:
             raise ProbvisError(f"{where}: AOV '{aov.name}' is one of the film's own ({', '.join(RESERVED_AOVS)}): "
                                "rename it")

@@ -16,7 +16,7 @@ from ...accel import all_hits
 from ...geometry import unit_normal
 from ...emitters import sample_on_emitter
 from ...environment import sample_environment
-from ...scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT
+from ...scene.scene import EMITTER_AREA, EMITTER_DIRECTIONAL, EMITTER_ENVIRONMENT, EMITTER_POINT, RAY_OFFSET
 from ...parallel import over_threads
 from ...rng import make_key, uniform
 
@@ -117,7 +117,7 @@ def _emitter_point_runs(emitter, es, triangles, stream_of, lo, hi, out):
             continue
         t, x, y, z = sample_on_emitter(e, es, triangles, uniform(key, 1), uniform(key, 2), uniform(key, 3))
         nx, ny, nz = unit_normal(triangles, t)
-        eps = 1e-9 * (1.0 + max(abs(x), abs(y), abs(z)))
+        eps = RAY_OFFSET * (1.0 + max(abs(x), abs(y), abs(z)))
         org[i, 0], org[i, 1], org[i, 2] = x + eps * nx, y + eps * ny, z + eps * nz
         nrm[i, 0], nrm[i, 1], nrm[i, 2] = nx, ny, nz
 
