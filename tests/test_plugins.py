@@ -344,6 +344,8 @@ def test_a_plugin_s_options_are_checked_when_it_loads(options, message):
     ({"aovs": (probvis.visibility.Aov("triangle_tests", "clash"),)}, "AOV 'triangle_tests' is one of the film's own"),
     ({"aovs": (probvis.visibility.Aov("second_moment", "clash"),)}, "AOV 'second_moment' is one of the film's own"),
     ({"aovs": (probvis.visibility.Aov("a", "x"), probvis.visibility.Aov("a", "y"))}, "declares AOV 'a' twice"),
+    ({"phases": (probvis.visibility.Phase("p", "batch"), probvis.visibility.Phase("p", "prepare"))},
+     "declares phase 'p' twice"),
     ({"phases": (probvis.visibility.Phase("load", "prepare"),)}, "phase 'load' is one of probvis's own"),
     ({"phases": (probvis.visibility.Phase("render", "batch"),)}, "phase 'render' is one of probvis's own"),
     ({"phases": (probvis.visibility.Phase("a b", "batch"),)}, "phase names are identifiers"),

@@ -130,15 +130,15 @@ def _check_declarations(cls, what):
             if type(x.name) is not str or not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", x.name):
                 raise ProbvisError(f"{where}: {kind} names are identifiers (letters, digits, '_'), got "
                                    f"{shown(x.name, repr)}")
+        names = [x.name for x in xs]
+        if kind != "option" and len(set(names)) < len(names):
+            raise ProbvisError(f"{where} declares {kind} '{next(n for n in names if names.count(n) > 1)}' twice")
     texts = [("summary", cls.summary)] + [(f"{kind} '{x.name}': help", x.help) for kind, xs in
                                            (("option", cls.options), ("phase", cls.phases), ("AOV", cls.aovs))
                                            for x in xs]
     for field, text in texts:
         if type(text) is not str or any(unicodedata.category(c)[0] == "C" for c in text):
             raise ProbvisError(f"{where}: {field} must be one line of plain text, got {shown(text, repr)}"[:300])
-        names = [x.name for x in xs]
-        if kind != "option" and len(set(names)) < len(names):
-            raise ProbvisError(f"{where} declares {kind} '{next(n for n in names if names.count(n) > 1)}' twice")
     for phase in cls.phases:
         if phase.stage not in ("prepare", "batch"):
             raise ProbvisError(f"{where}: phase '{phase.name}' has stage {shown(phase.stage, repr)} (prepare or "
