@@ -4,7 +4,6 @@ damaged entry is rebuilt and a cache that cannot be written is a warning, never 
 import math
 import os
 import pwd
-import resource
 import warnings
 import zipfile
 import zlib
@@ -12,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import xxhash
+
+from . import memory
 
 
 def cache_dir(kind):
@@ -61,15 +62,8 @@ def _check_sizes(path):
                 if math.prod(shape) * dtype.itemsize > info.file_size:
                     raise ValueError(f"{info.filename} declares {shape} beyond its {info.file_size} bytes")
                 total += info.file_size
-    if total > _allocatable():
+    if total > memory.available():
         raise ValueError(f"{path} would inflate to {total} bytes, more than this process can allocate")
-
-
-def _allocatable():
-    """Bytes the process could allocate at most: the free physical memory, or its address-space limit."""
-    free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
-    return free if limit == resource.RLIM_INFINITY else min(free, limit)
 
 
 def load(kind, key, expect=None):

@@ -260,7 +260,7 @@ def test_a_cache_entry_that_would_inflate_beyond_memory_is_rebuilt(tmp_path, mon
     monkeypatch.setenv("PROBVIS_CACHE_DIR", str(tmp_path))
     disk_cache.store("structure", "k", {"label": np.zeros(1000, np.int64)})
     assert disk_cache.load("structure", "k") is not None
-    monkeypatch.setattr(disk_cache, "_allocatable", lambda: 4000)  # 8,000 bytes declared
+    monkeypatch.setattr(disk_cache.memory, "available", lambda: 4000)  # 8,000 bytes declared
     assert disk_cache.load("structure", "k") is None
 
 
