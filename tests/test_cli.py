@@ -319,3 +319,15 @@ def test_a_long_case_image_name_of_a_one_emitter_scene_is_written(tmp_path):
     assert main(["render", "quad-shadow", "-D", "res=8", "--spp", "1", "--visibility", "occlusion-map", "--photons",
                  "2000", "-o", str(tmp_path / "o.exr"), "--case-image", str(name), "-q"]) == 0
     assert name.is_file()
+
+
+def test_a_huge_value_quoted_in_an_error_keeps_the_line_readable(tmp_path, capsys):
+    """A value of a megabyte (legal in size) was quoted whole: a one-line error of 50 MB."""
+    from tests.conftest import sensor, write_scene
+
+    body = sensor().replace('<float name="fov"', '<string name="fov_axis" value="$axis"/><float name="fov"', 1)
+    path = write_scene(tmp_path / "s.xml", body, f"<default name='axis' value='{'x' * 1_000_000}'/>")
+    assert main(["render", str(path), "-o", str(tmp_path / "o.exr"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and len(err) < 2200
+    assert err.startswith(f"probvis: error: {path}:") and "characters ...]" in err and err.rstrip().endswith(")")

@@ -550,6 +550,9 @@ def _cmd_experiment(args):
         raise ProbvisError("give an experiment file or --quick, not both")
     if not (args.quick or args.file):
         raise ProbvisError("give an experiment file (e.g. experiments/paper.toml) or --quick")
+    if args.scheduler is not None and not args.scheduler.strip():
+        raise ProbvisError("--scheduler needs a Dask scheduler's address (tcp://host:port); it is empty (leave the "
+                           "option out for a local cluster)")
     if args.scheduler and args.workers != 1:
         raise ProbvisError("--workers applies to the embedded LocalCluster, not to --scheduler")
     if args.scheduler and args.scheduler.startswith("inproc://"):
@@ -588,10 +591,18 @@ def _warning_line(message, category, filename, lineno, file=None, line=None):
 _COLOURS = re.compile(r"\x1b\[[0-9;]*m")  # terminal colours, as Numba's errors and warnings carry them
 
 
+MAX_MESSAGE = 2000  # characters of a message shown whole; a longer one (a huge value quoted) keeps both ends
+
+
 def _one_line(text):
     """`text` without terminal colours and with its other control characters escaped (a newline in a file name,
-    a terminal escape in a file's line): a message stays one line and cannot drive the terminal."""
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in _COLOURS.sub("", str(text)))
+    a terminal escape in a file's line): a message stays one line and cannot drive the terminal. A message longer
+    than MAX_MESSAGE keeps its start and end (what was wrong, and what to do) around an elision."""
+    text = _COLOURS.sub("", str(text))
+    if len(text) > MAX_MESSAGE:
+        head, tail = text[:MAX_MESSAGE * 2 // 3], text[-MAX_MESSAGE // 3:]
+        text = f"{head} [... {len(text) - MAX_MESSAGE:,} characters ...] {tail}"
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def _visibility_arg(argv):

@@ -114,12 +114,15 @@ def test_command_line_mistakes_exit_2_with_one_line(tmp_path, capsys):
     assert main(["experiment", "--quick", "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"]) == 2
     assert main(["experiment", "--quick", "--workers", "100000"]) == 2
     assert main(["experiment", "--quick", "--scheduler", "not a url"]) == 2
+    assert main(["experiment", "--quick", "--scheduler="]) == 2  # an unset variable: not a local cluster instead
     err = capsys.readouterr().err.splitlines()
     assert err == ["probvis: error: give an experiment file (e.g. experiments/paper.toml) or --quick",
                    f"probvis: error: experiment file not found: {tmp_path / 'missing.toml'}",
                    "probvis: error: --workers applies to the embedded LocalCluster, not to --scheduler",
                    f"probvis: error: argument --workers: must be at most {4 * (os.cpu_count() or 1)}, got 100000",
-                   "probvis: error: --scheduler 'not a url' is not a scheduler address (tcp://host:port)"]
+                   "probvis: error: --scheduler 'not a url' is not a scheduler address (tcp://host:port)",
+                   "probvis: error: --scheduler needs a Dask scheduler's address (tcp://host:port); it is empty "
+                   "(leave the option out for a local cluster)"]
 
 
 @pytest.mark.parametrize("change, message", [

@@ -2,6 +2,7 @@
 import errno
 import json
 import socket
+import threading
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ import pytest
 from probvis.errors import ProbvisError
 from probvis.experiments import experiment, parse_experiment
 from probvis.experiments import report as report_module
+from probvis.experiments import runner
 from probvis.experiments.runner import Cache, _load_scenes, plan
 
 TINY = {
@@ -155,6 +157,57 @@ def test_unreachable_scheduler_is_one_clear_error(tmp_path):
     assert not (tmp_path / "rep").exists()  # no empty cache folder left behind
     with pytest.raises(ProbvisError, match="out must be the report's folder"):
         experiment(parse_experiment(TINY), None)
+
+
+@pytest.mark.parametrize("peer, message", [
+    ("silent", "accepted the connection but did not answer within 0.5 s as a Dask scheduler does"),
+    ("text", r"is not a Dask scheduler \(it answered b'HTTP/1.0'\)"),
+    ("closes", "is not a Dask scheduler .it closed the connection without a word."),
+])
+def test_a_peer_that_is_not_a_dask_scheduler_is_named_before_the_plan(tmp_path, monkeypatch, peer, message):
+    """Dask's client hangs on a peer that never greets it (its own timeout does not cover that) and reads a
+    text answer as a frame's length (a false out-of-memory error); the address is refused first."""
+    monkeypatch.setattr(runner, "HANDSHAKE_SECONDS", 0.5)
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(1)
+        done = threading.Event()
+
+        def serve():
+            conn, _ = srv.accept()
+            with conn:
+                if peer == "text":
+                    conn.sendall(b"HTTP/1.0 200 OK\r\n\r\nhello")
+                if peer == "silent":
+                    done.wait(10)
+
+        server = threading.Thread(target=serve, daemon=True)
+        server.start()
+        said = []
+        address = f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+        with pytest.raises(ProbvisError, match=message):
+            experiment(parse_experiment(TINY), tmp_path / "rep", scheduler=address, progress=False, log=said.append)
+        done.set()
+        server.join(10)
+    assert said == [] and not (tmp_path / "rep").exists()
+
+
+@pytest.mark.parametrize("scheduler", ["", "  "])
+def test_an_empty_scheduler_is_refused_not_replaced_by_a_local_cluster(tmp_path, scheduler):
+    with pytest.raises(ProbvisError, match="scheduler must be an address .* got an empty one"):
+        experiment(parse_experiment(TINY), tmp_path / "rep", scheduler=scheduler, progress=False)
+
+
+def test_a_transport_without_its_settings_is_one_line(monkeypatch):
+    import dask.distributed
+
+    def tls_without_context(address, timeout):
+        raise TypeError("TLS expects a `ssl_context` argument of type ssl.SSLContext")
+
+    monkeypatch.setattr(dask.distributed, "Client", tls_without_context)
+    with pytest.raises(ProbvisError, match=r"^cannot connect to the Dask scheduler at tls://h:1: TypeError: TLS "
+                                           r"expects .*\(tls:// needs the transport's settings"):
+        runner._open_client(1, "tls://h:1")
 
 
 def test_full_disk_while_writing_the_report_keeps_the_renders(tiny_run, tmp_path, monkeypatch):

@@ -127,6 +127,11 @@ def test_a_damaged_hdr_is_one_error_with_opencv_s_reason(tmp_path, capfd):
     (lambda io, p: io.write_image(p / "o.png", np.zeros((4, 4, 3)), "2"), "exposure must be a number of stops"),
     (lambda io, p: io.write_image(p / "o.png", np.zeros((1, 0, 3))), "of at least one pixel, got shape (1, 0, 3)"),
     (lambda io, p: io.write_image(None, np.zeros((4, 4, 3))), "an output path must be a file name"),
+    (lambda io, p: io.write_exr(p / "o.exr", None, channels={1: np.zeros((4, 4))}), "a channel name must be a non"),
+    (lambda io, p: io.write_exr(p / "o.exr", None, channels={"\udcff": np.zeros((4, 4))}), "in UTF-8 without NUL"),
+    (lambda io, p: io.write_exr(p / "o.exr", None, channels={"a\0b": np.zeros((4, 4))}), "got 'a\\x00b'"),
+    (lambda io, p: io.write_exr(p / "o.exr", None, channels=[("R", np.zeros((4, 4)))]), "a dict of names to (h, w)"),
+    (lambda io, p: io.write_exr(p / "o.exr", None, channels={}), "images, got an empty dict"),
 ])
 def test_the_image_writers_name_bad_arguments(tmp_path, call, message):
     """Each was a ValueError, OverflowError or TypeError from inside the writer."""
@@ -153,7 +158,32 @@ def test_the_io_helpers_name_what_they_were_given(tmp_path):
         write_stats(tmp_path / "s.json", deep)
     with pytest.raises(ProbvisError, match="summary takes a render's stats"):
         summary({"a": 1})
+    with pytest.raises(ProbvisError, match=re.escape("summary takes a render's stats (RenderResult.stats, a dict), "
+                                                     "got NoneType")):
+        summary(None)
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("path", [3, b"a.exr", None, ""])
+def test_the_readers_name_a_path_that_is_no_file_name(path):
+    """read_exr(3) and read_pfm(0) were TypeErrors from pathlib; the writers already refused them."""
+    from probvis.io import read_exr, read_pfm
+
+    for read in (read_exr, read_pfm):
+        with pytest.raises(ProbvisError, match="an input path must be a file name"):
+            read(path)
+
+
+def test_case_colours_and_png_name_what_they_cannot_show(tmp_path):
+    from probvis.io import case_colours, write_image
+
+    for shares in (np.ones((2, 2)), np.ones((2, 2, 3)), np.array([["a"] * 4])):
+        with pytest.raises(ProbvisError, match=re.escape("case shares are an (..., 4) array of numbers")):
+            case_colours(shares)
+    image = np.zeros((2, 2, 3))
+    image[0, 0, 1], image[1, 1] = np.nan, np.inf
+    with pytest.warns(UserWarning, match="2 of 4 pixels are NaN or infinite: written as black or white"):
+        write_image(tmp_path / "o.png", image)
 
 
 def test_readers_refuse_what_is_no_regular_file(tmp_path):

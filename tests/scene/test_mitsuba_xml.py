@@ -719,3 +719,52 @@ def test_a_scene_its_ray_offsets_would_blur_is_warned_about(tmp_path, scale, shi
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         probvis.load_scene(write_scene(tmp_path / "u.xml", sensor() + LIGHT))
+
+
+def test_an_id_made_of_a_parameter_is_substituted_as_every_attribute_is(tmp_path):
+    """`<bsdf id="$m">` kept its id raw while `<ref id="$m">` was substituted: a correct scene was refused with
+    'reference to unknown id'. An id made of a parameter that collides with another is a duplicate."""
+    grey = "<shape type='sphere'><float name='radius' value='0.2'/><ref id='{ref}'/></shape>"
+    bsdf = "<bsdf type='diffuse' id='$m'><rgb name='reflectance' value='0.25'/></bsdf>"
+    for ref in ("$m", "dull"):
+        path = write_scene(tmp_path / "s.xml", sensor() + bsdf + grey.format(ref=ref) + LIGHT,
+                           "<default name='m' value='dull'/>")
+        scene = probvis.load_scene(path)
+        assert np.isclose(scene.reflectance, 0.25).all(axis=1).any()  # the sphere has the bsdf named
+    twice = bsdf + "<bsdf type='diffuse' id='dull'/>"
+    path = write_scene(tmp_path / "t.xml", sensor() + twice + grey.format(ref="dull") + LIGHT,
+                       "<default name='m' value='dull'/>")
+    with pytest.raises(ProbvisError, match=r"t.xml:\d+: <bsdf>: duplicate id 'dull' \(first defined on line"):
+        probvis.load_scene(path)
+
+
+def test_parameters_that_expand_exponentially_are_refused_before_they_grow(tmp_path):
+    """Defaults made of defaults ('billion laughs' through $parameters): a 2 KB file asked for gigabytes and
+    failed as 'out of memory ... its meshes and images', or quoted a 50 MB value in a one-line error."""
+    levels = ["<default name='g' value='" + "x" * 50 + "'/>"]
+    for name, inner in zip("fedcba", "gfedcb"):
+        levels.append(f"<default name='{name}' value='{('$' + inner) * 10}'/>")
+    path = write_scene(tmp_path / "s.xml", sensor() + LIGHT, "".join(levels))
+    with pytest.raises(ProbvisError, match=r"<default>: attribute 'value' expands to 5,000,000 characters through "
+                                           r"its parameters, more than 1,048,576"):
+        probvis.load_scene(path)
+
+
+def test_errors_name_the_command_line_parameter_a_value_came_from(tmp_path):
+    path = write_scene(tmp_path / "s.xml", sensor().replace('value="40"', 'value="$fov"') + LIGHT,
+                       "<default name='fov' value='30'/>")
+    with pytest.raises(ProbvisError, match=r"s.xml:\d+: <float>: .* \(with -D fov=wide\)$"):
+        probvis.load_scene(path, fov="wide")
+
+
+def test_include_and_unused_film_formats_are_named(tmp_path):
+    path = write_scene(tmp_path / "s.xml", sensor() + LIGHT + "<include filename='more.xml'/>")
+    with pytest.raises(ProbvisError, match="<include> is not supported by probvis: paste the included file's"):
+        probvis.load_scene(path)
+    body = sensor().replace("<rfilter", "<string name='pixel_format' value='rgba'/><rfilter", 1)
+    with pytest.warns(UserWarning, match="hdrfilm's pixel_format 'rgba' not used: probvis writes RGB float32"):
+        probvis.load_scene(write_scene(tmp_path / "t.xml", body + LIGHT))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # Mitsuba's defaults, and float32 components, are what probvis writes
+        body = sensor().replace("<rfilter", "<string name='component_format' value='float32'/><rfilter", 1)
+        probvis.load_scene(write_scene(tmp_path / "u.xml", body + LIGHT))

@@ -39,6 +39,8 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     workers = int(workers)
     if scheduler is not None and not isinstance(scheduler, str):
         raise ProbvisError(f"scheduler must be an address (tcp://host:port) or None, got {type(scheduler).__name__}")
+    if scheduler is not None and not scheduler.strip():  # not a local cluster instead of the one meant
+        raise ProbvisError("scheduler must be an address (tcp://host:port) or None, got an empty one")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ProbvisError(f"report folder '{out}' is a file: give -o a folder (new or existing)")

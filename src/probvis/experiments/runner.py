@@ -15,6 +15,7 @@ import os
 import resource
 import signal
 import socket
+import struct
 import sys
 import threading
 import warnings
@@ -212,18 +213,38 @@ def _digest(render):
 POLL_SECONDS = 0.2  # how often the render loop looks for Ctrl-C / SIGTERM while renders run
 
 
+HANDSHAKE_SECONDS = 10  # how long a scheduler may take to greet a new connection
+MAX_HANDSHAKE = 1 << 20  # bytes: a Dask handshake is a small message
+
+
 def _check_reachable(scheduler):
-    """A TCP scheduler that does not answer is named before anything is planned or printed (Dask's own client
-    would find it only after the plan's progress line). Other transports are left to the client."""
+    """A TCP scheduler that does not answer, or that is not a Dask scheduler, is named before anything is planned
+    or printed (Dask's own client finds the first only after the plan's progress line; a peer that never greets
+    it can hang it, and a peer that answers with text makes it read a frame of absurd length). A Dask peer writes
+    its handshake as soon as it accepts a connection, a frame that starts with its length (Dask's TCP framing,
+    `distributed.comm.tcp`); that is what is checked. Other transports are left to the client."""
     from urllib.parse import urlsplit
 
     parts = urlsplit(scheduler if "://" in scheduler else f"tcp://{scheduler}")
     if parts.scheme != "tcp":
         return
     try:
-        socket.create_connection((parts.hostname, parts.port or 8786), timeout=10).close()
+        with socket.create_connection((parts.hostname, parts.port or 8786), timeout=HANDSHAKE_SECONDS) as sock:
+            head = b""
+            while len(head) < 8:
+                chunk = sock.recv(8 - len(head))
+                if not chunk:
+                    break
+                head += chunk
+    except TimeoutError:
+        raise ProbvisError(f"the scheduler at {scheduler} accepted the connection but did not answer within "
+                           f"{HANDSHAKE_SECONDS} s as a Dask scheduler does: check the address and port") from None
     except (OSError, ValueError) as exc:
         raise ProbvisError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+    size = struct.unpack("Q", head)[0] if len(head) == 8 else 0
+    if not 0 < size <= MAX_HANDSHAKE:
+        said = f"it answered {head!r}" if head else "it closed the connection without a word"
+        raise ProbvisError(f"{scheduler} is not a Dask scheduler ({said}): check the address and port")
 
 
 def _one_line(text):
@@ -252,8 +273,12 @@ def _open_client(workers, scheduler):
     if scheduler:
         try:
             return Client(scheduler, timeout="10s"), None
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise ProbvisError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+        except Exception as exc:  # a transport without its settings (tls:// and its ssl_context, ucx:// and UCX)
+            scheme = scheduler.split("://")[0] if "://" in scheduler else "tcp"
+            hint = "" if scheme == "tcp" else (f" ({scheme}:// needs the transport's settings in Dask's configuration "
+                                               "and packages; tcp://host:port needs none)")
+            raise ProbvisError(f"cannot connect to the Dask scheduler at {scheduler}: {type(exc).__name__}: "
+                               f"{_one_line(shown(exc))}{hint}") from None
     # The embedded cluster is ours alone: its logs are muted (a worker closed mid-heartbeat at the end of an
     # interrupted run logs a traceback at ERROR); failed renders still reach the user through their futures.
     # Ctrl-C in a terminal signals the whole process group: the workers ignore it (they inherit the ignored

@@ -10,6 +10,10 @@ from .image import write_image
 def case_colours(shares):
     """(h, w, 4) shares of the occlusion cases (unknown, lit, shadowed, penumbra) as RGB: red penumbra,
     green lit, blue shadowed, grey unknown."""
+    shares = np.asarray(shares)
+    if shares.ndim < 1 or shares.shape[-1] != 4 or shares.dtype.kind not in "fiu":
+        raise ProbvisError(f"case shares are an (..., 4) array of numbers (unknown, lit, shadowed, penumbra), got "
+                           f"{shares.dtype} of shape {shares.shape}")
     unknown, lit, shadowed, penumbra = (shares[..., c] for c in range(4))
     return np.stack([penumbra + 0.5 * unknown, lit + 0.5 * unknown, shadowed + 0.5 * unknown], axis=-1)
 

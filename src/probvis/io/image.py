@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ProbvisError, missing_file
+from ..errors import ProbvisError, missing_file, shown
 from .atomic import atomic_path, temp_beside
 from .library_output import library_output
 
@@ -108,6 +108,23 @@ def _float32(path, values):
     return np.ascontiguousarray(values, dtype=np.float32)
 
 
+def _channel_names(path, channels):
+    """`write_exr`'s `channels`: a dict of at least one channel, named by non-empty strings that an EXR header
+    can hold (UTF-8, no NUL)."""
+    if not isinstance(channels, dict) or not channels:
+        got = "an empty dict" if isinstance(channels, dict) else type(channels).__name__
+        raise ProbvisError(f"cannot write '{path}': channels must be a dict of names to (h, w) images, got {got}")
+    for name in channels:
+        ok = isinstance(name, str) and name and "\0" not in name
+        try:
+            ok = ok and bool(name.encode("utf-8"))
+        except UnicodeEncodeError:
+            ok = False
+        if not ok:
+            raise ProbvisError(f"cannot write '{path}': a channel name must be a non-empty string in UTF-8 without "
+                               f"NUL, got {shown(name, repr)[:200]}")
+
+
 def write_exr(path, image, channels=None):
     """Write float32 channels; by default RGB. `channels` maps names to (h, w) arrays instead."""
     import OpenEXR
@@ -115,6 +132,7 @@ def write_exr(path, image, channels=None):
     if channels is None:
         data = {"RGB": _float32(path, _as_rgb(image))}
     else:
+        _channel_names(path, channels)
         data = {k: _float32(path, v) for k, v in channels.items()}
         shapes = {v.shape for v in data.values()}
         if len(shapes) != 1 or len(next(iter(shapes))) != 2 or min(next(iter(shapes))) < 1:
@@ -126,10 +144,17 @@ def write_exr(path, image, channels=None):
             f.write(exr_name(tmp))
 
 
+def _input_path(path):
+    """`path` as a Path, if it is a file name (str or Path; not bytes, not a number)."""
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise ProbvisError(f"an input path must be a file name (str or Path), got {shown(path, repr)[:200]}")
+    return Path(path)
+
+
 def read_exr(path, channel=None):
     """Read an RGB EXR as (h, w, 3) float32, or one named `channel` as (h, w). The header is read first: a size
     no image needs is refused before its pixels are allocated."""
-    path = Path(path)
+    path = _input_path(path)
     if not path.is_file():
         raise ProbvisError(f"image {path} is not a regular file" if path.exists() else missing_file(path, "image"))
     if not utf8_path(path):
@@ -296,6 +321,7 @@ def write_pfm(path, image):
 
 def read_pfm(path):
     """A PFM image as (h, w, channels) float32, top row first; a file that is not one is named."""
+    path = _input_path(path)
     try:
         return _read_pfm(path)
     except (ValueError, OSError) as exc:
@@ -343,7 +369,12 @@ def tonemap_srgb(image, exposure=0.0):
 def write_png(path, image, exposure=0.0):
     import imageio.v3 as iio
 
-    data = iio.imwrite("<bytes>", tonemap_srgb(image, exposure), extension=".png")  # encoded in memory: a failed
+    rgb = _as_rgb(image)
+    bad = int(np.count_nonzero(~np.isfinite(rgb).all(axis=-1)))
+    if bad:  # a render never holds them (its values are checked); an image from elsewhere may
+        warnings.warn(f"{path}: {bad:,} of {rgb.shape[0] * rgb.shape[1]:,} pixels are NaN or infinite: written as "
+                      "black or white", stacklevel=2)
+    data = iio.imwrite("<bytes>", tonemap_srgb(rgb, exposure), extension=".png")  # encoded in memory: a failed
     with atomic_path(path) as tmp, open(tmp, "wb") as f:  # write is then our OSError, not imageio's at exit
         f.write(data)
 

@@ -20,11 +20,16 @@ def write_stats(path, stats):
 
 def summary(stats):
     """The lines `probvis render` prints of a render's `stats` (`RenderResult.stats`)."""
+    if not isinstance(stats, dict):
+        raise ProbvisError(f"summary takes a render's stats (RenderResult.stats, a dict), got "
+                           f"{type(stats).__name__}")
     try:
         return _summary(stats)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ProbvisError(f"summary takes a render's stats (RenderResult.stats); this dict lacks or mistypes "
-                           f"{exc}") from None
+    except KeyError as exc:
+        raise ProbvisError(f"summary takes a render's stats (RenderResult.stats); this dict lacks {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise ProbvisError(f"summary takes a render's stats (RenderResult.stats); a value of this dict has the "
+                           f"wrong type ({exc})") from None
 
 
 def _summary(stats):

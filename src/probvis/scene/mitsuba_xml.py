@@ -121,6 +121,7 @@ def _invertible_affine(m):
     return bool(size > 0 and abs(np.linalg.det(m[:3, :3] / size)) >= 1e-12 and np.all(m[3] == (0, 0, 0, 1)))
 
 
+MAX_VALUE_CHARS = 1 << 20  # an attribute's value once its $parameters are substituted
 _VAR = re.compile(r"\$(\w+)")  # a parameter's name in a value, where every declared name is a word
 _WORD = re.compile(r"\w+")
 
@@ -131,12 +132,13 @@ def _by_name(node):
 
 
 def _unique_ids(root, fail):
-    """Every `id` of the file once, as Mitsuba requires; the element of each id."""
+    """Every `id` of the file once, as Mitsuba requires; the element of each id. Ids made of parameters
+    (`id="$name"`) are checked as their elements define them (`_Reader.define`)."""
     seen, todo = {}, [root]
     while todo:
         node = todo.pop()
         key = node.attrs.get("id") if node.tag != "ref" else None
-        if key is not None:
+        if key is not None and "$" not in key:
             if key in seen:
                 first, later = sorted((seen[key], node), key=lambda n: n.line)
                 fail(later, f"duplicate id '{key}' (first defined on line {first.line})")
@@ -156,12 +158,16 @@ class _Reader:
         self.default_lines = {}  # the line of each <default>
         self.used = set()  # overridden parameters the scene refers to
         self.ids = {}
+        self.id_defined = {}  # the element that defined each id
         self.referenced = set()  # ids a <ref> resolved
         self.images = {}  # decoded image files by (resolved path, raw)
         self.root = None  # the document's tree, once parsed
 
     # --- errors and values -------------------------------------------------------------------
     def fail(self, node, msg):
+        given = sorted({m.group(1) for v in node.attrs.values() for m in _VAR.finditer(v)} & set(self.overrides))
+        if given:  # the value came from the command line, not from the line named
+            msg += f" (with {', '.join(f'-D {n}={self.overrides[n]}' for n in given)})"
         raise ProbvisError(f"{self.path}:{node.line}: <{node.tag}>: {msg}")
 
     def checked(self, node, fn, *args):
@@ -194,7 +200,13 @@ class _Reader:
                                 "<default> above")
             self.fail(node, f"undefined parameter '${name}' (declare it with <default> or pass -D {name}=...)")
 
-        return self._variables().sub(sub, raw)
+        variables = self._variables()
+        size = len(raw) + sum(len(self.overrides.get(m.group(1), self.defaults.get(m.group(1), ""))) - len(m.group(0))
+                              for m in variables.finditer(raw))
+        if size > MAX_VALUE_CHARS:  # parameters made of parameters grow exponentially ("billion laughs")
+            self.fail(node, f"attribute '{key}' expands to {size:,} characters through its parameters, more than "
+                            f"{MAX_VALUE_CHARS:,}: check the <default> values that refer to other parameters")
+        return variables.sub(sub, raw)
 
     def _variables(self):
         """`$name` of any parameter, as Mitsuba substitutes it: declared names with other characters than letters,
@@ -577,12 +589,17 @@ class _Reader:
         return value
 
     def define(self, node, kind, value):
-        """Name `value` (a `kind`) by the node's id (unique in the file: `_unique_ids`)."""
-        self.ids[node.attrs["id"]] = (kind, value)
+        """Name `value` (a `kind`) by the node's id, its parameters substituted (unique in the file: `_unique_ids`,
+        and here for ids made of parameters)."""
+        key = self.attr(node, "id")
+        first = self.id_defined.setdefault(key, node)
+        if first is not node:  # an element read again (a shapegroup's) defines its id again
+            self.fail(node, f"duplicate id '{key}' (first defined on line {first.line})")
+        self.ids[key] = (kind, value)
 
     def ref_kind(self, node):
         """The kind ('bsdf', 'texture', ...) of the object a `<ref>` names; None if it names nothing defined."""
-        return self.ids.get(node.attrs.get("id"), (None,))[0]
+        return self.ids.get(self.attr(node, "id", required=False), (None,))[0]
 
     def resolve(self, node, kind):
         self.check_attrs(node, ("id", "name"))
@@ -807,7 +824,7 @@ class _Reader:
                             "last row must be 0 0 0 1): check its scale and matrix")
         if kind in ("rectangle", "disk", "sphere", "cylinder") and np.linalg.det(m[:3, :3]) < 0:
             flip = not flip  # analytic shapes orient by the normal transform, not by the mirrored winding
-        name = node.attrs.get("id", f"{kind}@{node.line}")
+        name = self.attr(node, "id", f"{kind}@{node.line}")
         try:
             kept = builder.add_mesh(name, kind, v, f, m, material, radiance, face_normals, vnormals, flip, uv)
         except ProbvisError as exc:
@@ -982,6 +999,13 @@ class _Reader:
                                ("file_format", ("openexr", "exr", "rgbe", "hdr", "pfm"))):
                 if props.get(key, known[0]).lower() not in known:
                     self.fail(node, f"unknown {key} '{props[key]}' (Mitsuba's hdrfilm takes {', '.join(known)})")
+            written = (("pixel_format", ("rgb",)), ("component_format", ("float16", "float32")),
+                       ("file_format", ("openexr", "exr")))  # what Mitsuba writes by default, and probvis
+            unused = [f"{key} '{props[key]}'" for key, same in written if props.get(key, same[0]).lower() not in same]
+            if unused:
+                warnings.warn(f"{self.path}:{node.line}: hdrfilm's {' and '.join(unused)} not used: probvis writes RGB "
+                              "float32 images in the format of the output's extension (-o out.exr, .pfm, .png)",
+                              stacklevel=2)
             for k, ch in enumerate(objs):
                 if k:
                     self.fail(ch, "only one reconstruction filter per film")
@@ -1112,6 +1136,8 @@ class _Reader:
                 self.shape(ch, builder)
             elif ch.tag == "emitter":
                 self.delta_emitter(ch, builder)
+            elif ch.tag == "include":
+                self.fail(ch, "<include> is not supported by probvis: paste the included file's elements here")
             else:
                 self.fail(ch, "unsupported element")
         for key, (kind, shapes) in list(self.ids.items()):  # Mitsuba loads a group's shapes though none uses it

@@ -1,6 +1,7 @@
 """The sensor a scene declares: Mitsuba's perspective or thin-lens camera with its film (`Camera`), and what
 makes one unusable (`camera_problem`)."""
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,7 +66,11 @@ def camera_problem(c):
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer) if whole else
                                                                   (int, float, np.integer, np.floating)):
             return f"camera.{f.name} must be a {'whole number' if whole else 'number'}, got {value!r}"
-        if not np.isfinite(value):
+        try:  # a Python int of any size is a number; as a float it must be finite
+            finite = math.isfinite(float(value))
+        except OverflowError:
+            finite = False
+        if not finite:
             return f"camera.{f.name} must be finite, got {value!r}"
     if c.rfilter not in ("box", "tent", "gaussian") or not (
             MIN_FILTER_REACH <= c.filter_radius <= MAX_FILTER_RADIUS
