@@ -4,8 +4,9 @@
 The renderer's own shadow segments (camera rays to their first hits, then `--shadow-rays` segments per hit to
 the emitters, from `Integrator.shading_batch` and `shadow_query`, one sample per pixel, both ends pulled in
 by 1e-5 of the scene's diagonal) are replayed through
-probvis's packet traversal (`accel.occluded_segments`) and through Embree 4 (`pip install embreex`: one
-`rtcOccluded` per ray, float32), one thread each, best of `--rounds`. Prints millions of segments per second,
+probvis's packet traversal (`accel.occluded_segments`: from the shading point, as the renderer traces them, with
+the pull as the segment's start `tmin`) and through Embree 4 (`pip install embreex`: one `rtcOccluded` per ray,
+float32, from the pulled origin), one thread each, best of `--rounds`. Prints millions of segments per second,
 their ratio, the occluded shares (and where the two disagree: Embree's float32 test is not watertight) and
 probvis's node and triangle tests per segment. A name is a built-in scene or, with ../shared beside the
 project, one of its scenes. Numba's threads are set to one before probvis is imported.
@@ -28,17 +29,16 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
 
 def segments(scene, bvh, shadow_rays, seed=1):
-    """The render's shadow segments of one camera sample per pixel: origin, direction, tmax, shading point. Both
-    ends are pulled in by 1e-5 of the scene's diagonal: the renderer's offset off the surface is made for double
-    precision, and in float32 Embree would find the surface a segment leaves."""
+    """The render's shadow segments of one camera sample per pixel: origin, direction, tmin, tmax, shading point.
+    Both ends are pulled in by 1e-5 of the scene's diagonal (`tmin` is the pull): the renderer's offset off the
+    surface is made for double precision, and in float32 Embree would find the surface a segment leaves."""
     integrator = Integrator(scene, bvh, build_emitter_sampler(scene))
     pixels = np.arange(scene.camera.width * scene.camera.height)
     query = integrator.shadow_query(integrator.shading_batch(pixels, 1, shadow_rays, seed))
     lo, hi = bvh.bounds[0, :3], bvh.bounds[0, 3:]
     length = np.linalg.norm(query.direction, axis=1)
     pull = 1e-5 * np.linalg.norm(hi - lo) / length  # in units of t
-    origin = query.origin + pull[:, None] * query.direction
-    return origin, query.direction, query.tmax - 2.0 * pull, query.point
+    return query.origin, query.direction, pull, query.tmax - pull, query.point
 
 
 def best_of(rounds, run):
@@ -73,13 +73,14 @@ def main():
             continue
         tris = np.ascontiguousarray(scene.triangles, dtype=np.float64)
         bvh = build_bvh(tris)
-        org, d, tmax, point = segments(scene, bvh, args.shadow_rays)
+        org, d, tmin, tmax, point = segments(scene, bvh, args.shadow_rays)
         n = len(tmax)
-        occluded_segments(bvh, org[:64], d[:64], tmax[:64], point[:64])  # load the kernel
-        (occ, nodes, tests), ours = best_of(args.rounds, lambda: occluded_segments(bvh, org, d, tmax, point))
+        occluded_segments(bvh, org[:64], d[:64], tmax[:64], point[:64], tmin[:64])  # load the kernel
+        (occ, nodes, tests), ours = best_of(args.rounds, lambda: occluded_segments(bvh, org, d, tmax, point, tmin))
         embree = rtcore_scene.EmbreeScene()
         TriangleMesh(embree, tris.astype(np.float32))
-        o32, d32, t32 = org.astype(np.float32), d.astype(np.float32), tmax.astype(np.float32)
+        o32 = (org + tmin[:, None] * d).astype(np.float32)
+        d32, t32 = d.astype(np.float32), (tmax - tmin).astype(np.float32)
         hits, theirs = best_of(args.rounds, lambda: embree.run(o32, d32, query="OCCLUDED", dists=t32))
         occ_e = np.asarray(hits) != -1
         print(f"{name}: {len(tris):,} triangles, {n:,} segments, occluded {np.mean(occ):.3f} (Embree "

@@ -1,22 +1,40 @@
-"""`spread` visits every block exactly once and gives each thread's contiguous run an even mix of blocks."""
+"""Lanes visit every block exactly once, each an even mix of the image in image order; `over_threads` splits a
+range into contiguous runs."""
+import numba
 import numpy as np
 import pytest
 
-from probvis.parallel import LANES, spread
+from probvis.parallel import lane_count, over_lanes
 
 
-@pytest.mark.parametrize("n_blocks", [0, 1, 5, LANES - 1, LANES, LANES + 1, 2 * LANES + 7, 1000])
-def test_every_block_once(n_blocks):
-    visited = [spread(t, n_blocks) for t in range(n_blocks)]
-    assert sorted(visited) == list(range(n_blocks))
+def _lanes(threads, n):
+    """The blocks each lane of `over_lanes` visits (as its kernels loop: range(lane, n, lanes))."""
+    seen = {}
+    before, threads = numba.get_num_threads(), min(threads, numba.config.NUMBA_NUM_THREADS)
+    numba.set_num_threads(threads)
+    try:
+        over_lanes(lambda lane, lanes: seen.setdefault(lane, list(range(lane, n, lanes))), n)
+        assert len(seen) == lane_count(n) == max(1, min(threads, n))
+    finally:
+        numba.set_num_threads(before)
+    return [seen[j] for j in sorted(seen)]
 
 
-def test_contiguous_halves_mix_the_image():
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("n", [0, 1, 3, 1000])
+def test_lanes_visit_every_block_once_each_in_image_order(threads, n):
+    lanes = _lanes(threads, n)
+    assert sorted(b for lane in lanes for b in lane) == list(range(n))
+    assert all(lane == sorted(lane) for lane in lanes)
+
+
+def test_each_lane_is_an_even_mix_of_the_image():
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs two threads")
     n = 1000
-    visited = np.array([spread(t, n) for t in range(n)])
-    for half in (visited[:n // 2], visited[n // 2:]):
-        assert half.min() < n / LANES and half.max() > n - n / LANES  # spans the image, not one half of it
-        assert abs(np.mean(half) - (n - 1) / 2) < n / LANES  # an even mix, not the cheap or dear end
+    for lane in _lanes(2, n):
+        assert min(lane) < 2 and max(lane) > n - 3  # spans the image, not one half of it
+        assert abs(np.mean(lane) - (n - 1) / 2) < 1  # an even mix, not the cheap or dear end
 
 
 @pytest.mark.parametrize("threads", [1, 2])

@@ -3,7 +3,7 @@ and each camera sample's radiance, shading point by shading point, so a point's 
 summed while they are in cache, with no batch-sized slot or segment arrays. The arithmetic and the packets are
 those of the staged path, so image and counts are identical (tested).
 
-The kernel is serial and runs without Numba's allocator and reference counts (`_nrt=False`): `over_threads`
+The kernel is serial and runs without Numba's allocator and reference counts (`_nrt=False`): `over_lanes`
 runs it on the thread budget, each thread with scratch arrays of its own. Compiled as a `prange` loop it took
 three times as long to compile; compiled serial with reference counts it ran three times slower, since every
 read of a record's array inside the loop was an atomic increment and decrement (the parallel loop's passes
@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 
 from .accel import SHADOW_PACKET, occluded_packet, packet_work, root_record
-from .parallel import over_threads, spread
+from .parallel import over_lanes
 from .shading import CAM_NODE, CAM_TRI, SH_NODE, SH_TRI, SHADOW_EPSILON, point_samples, shaded_arrays
 
 PIXELS_PER_BLOCK = 4  # pixels per parallel work item
@@ -25,11 +25,11 @@ def shade_exact(geom, es, bvh, batch):
     root2 = root_record(bvh.root)
     n_blocks = (out[1].shape[0] + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
 
-    def run(_, lo, hi):
-        _shade_blocks(geom, es, bvh, batch, root2, lo, hi, out, _scratch(batch.shadow_rays),
+    def run(lane, lanes):
+        _shade_blocks(geom, es, bvh, batch, root2, lane, lanes, out, _scratch(batch.shadow_rays),
                       packet_work(bvh.stack_depth))
 
-    over_threads(run, n_blocks)
+    over_lanes(run, n_blocks)
     return out
 
 
@@ -42,15 +42,14 @@ def _scratch(n):
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def _shade_blocks(geom, es, bvh, batch, root2, first, end, out, scratch, work):
-    """Iterations first..end-1 of `shade_exact`'s loop over blocks of pixels, into `out` (its arrays)."""
+def _shade_blocks(geom, es, bvh, batch, root2, lane, lanes, out, scratch, work):
+    """Blocks lane, lane + lanes, ... of `shade_exact`'s blocks of pixels, into `out` (its arrays)."""
     spp = batch.spp
     radiance, counts, n_seg = out
     org, dirs, contrib, s_emit, sample, active, tmin, tmax, occ, sh_node, sh_tri = scratch
     n_pix = counts.shape[0]
     n_blocks = (n_pix + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
-    for it in range(first, end):
-        blk = spread(it, n_blocks)
+    for blk in range(lane, n_blocks, lanes):
         tmin[:] = 0.0
         tmax[:] = 1.0 - SHADOW_EPSILON
         for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):

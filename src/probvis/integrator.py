@@ -105,7 +105,8 @@ class Integrator:
         """The batch's shadow segments in `buffers`: (`ShadowQuery`, emitted and analytic radiance per camera
         sample, the `ShadowSlots`, the dense offsets of each camera sample's segments)."""
         slots = buffers.slots(len(batch.keys) * batch.shadow_rays)
-        emitted = batch.emitted + sample_emitters(self.scene_arrays, self.emitters.arrays, batch, slots)
+        emitted = batch.emitted + sample_emitters(self.scene_arrays, self.emitters.arrays, batch, slots,
+                                                  numba.get_num_threads())
         offsets = compact(batch, slots, buffers.dense)
         seg = buffers.segments(int(offsets[-1]))
         query = ShadowQuery(origin=seg.origin, direction=seg.direction, tmax=seg.tmax, point=seg.point,

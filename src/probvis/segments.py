@@ -11,7 +11,6 @@ import numpy as np
 from numba import njit, prange
 
 from .color import luminance
-from .parallel import spread
 from .rng import mix64
 from .shading import CAM_NODE, CAM_TRI, NEGATIVE, SH_NODE, SH_TRI, SHADOW_EPSILON, point_samples, shaded_arrays
 
@@ -62,19 +61,20 @@ class SegmentBuffers:
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def sample_emitters(geom, es, batch, slots):
+def sample_emitters(geom, es, batch, slots, threads):
     """`shading.point_samples` of every camera sample of the batch, sample i in slots i * shadow_rays onwards;
-    returns the analytic radiance (of lit emitters) per camera sample."""
+    returns the analytic radiance (of lit emitters) per camera sample. `threads` is the thread budget (lanes)."""
     s_org, s_dir, contrib, s_emit, active = slots  # kernels write through plain arrays, never through a record
     unused = np.empty(0, np.int64)  # the dense-only sample indices
     n = batch.triangle.shape[0]
     analytic = np.zeros((n, 3))
     n_blocks = (n + POINTS_PER_BLOCK - 1) // POINTS_PER_BLOCK
-    for it in prange(n_blocks):
-        blk = spread(it, n_blocks)
-        for i in range(blk * POINTS_PER_BLOCK, min(n, (blk + 1) * POINTS_PER_BLOCK)):
-            analytic[i, 0], analytic[i, 1], analytic[i, 2] = point_samples(
-                i, geom, es, batch, i * batch.shadow_rays, s_org, s_dir, contrib, s_emit, active, unused, False)[:3]
+    lanes = min(threads, n_blocks)
+    for lane in prange(lanes):  # one lane of blocks per thread (see `parallel`)
+        for blk in range(lane, n_blocks, lanes):
+            for i in range(blk * POINTS_PER_BLOCK, min(n, (blk + 1) * POINTS_PER_BLOCK)):
+                analytic[i, 0], analytic[i, 1], analytic[i, 2] = point_samples(
+                    i, geom, es, batch, i * batch.shadow_rays, s_org, s_dir, contrib, s_emit, active, unused, False)[:3]
     return analytic
 
 

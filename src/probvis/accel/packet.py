@@ -13,7 +13,7 @@ boxes that its own order would have culled. Results are those of `traversal.any_
 import numpy as np
 from numba import njit
 
-from ..parallel import over_threads, spread
+from ..parallel import over_lanes
 from .traversal import _BOX_SLACK, hit_triangle, ray_setup, triangle_blocks
 
 MAX_PACKET = 64  # rays per packet: one bit each in a uint64 mask
@@ -236,30 +236,30 @@ def _over_tasks(kernel, bvh, rays, out):
     run without Numba's allocator and reference counts, as `fused_exact`'s)."""
     root2 = root_record(bvh.root)
     n_tasks = (rays[4].shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
-    over_threads(lambda _, first, end: kernel(bvh, root2, rays, first, end, out, packet_work(bvh.stack_depth)), n_tasks)
+    over_lanes(lambda lane, lanes: kernel(bvh, root2, rays, lane, lanes, out, packet_work(bvh.stack_depth)), n_tasks)
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def _any_hit_tasks(bvh, root2, rays, first, end, out, work):
-    """Work items first..end-1 of `any_hit_packets` (the unused nearest-hit arrays are stand-ins of the right
-    types)."""
+def _any_hit_tasks(bvh, root2, rays, lane, lanes, out, work):
+    """Work items lane, lane + lanes, ... of `any_hit_packets` (the unused nearest-hit arrays are stand-ins of the
+    right types)."""
     org, dirs, tmin, tmax, starts = rays
     occ, n_node, n_tri = out
     n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
-    for it in range(first, end):
-        _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), False, occ, n_node, tmax, tmax,
-                    tmax, n_node, n_tri, work)
+    for task in range(lane, n_tasks, lanes):
+        _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, task, False, occ, n_node, tmax, tmax, tmax, n_node,
+                    n_tri, work)
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def _closest_hit_tasks(bvh, root2, rays, first, end, out, work):
-    """Work items first..end-1 of `closest_hit_packets`."""
+def _closest_hit_tasks(bvh, root2, rays, lane, lanes, out, work):
+    """Work items lane, lane + lanes, ... of `closest_hit_packets`."""
     org, dirs, tmin, tmax, starts = rays
     no_occ, hit, t, b1, b2, n_node, n_tri = out
     n_tasks = (starts.shape[0] - 1 + PACKETS_PER_TASK - 1) // PACKETS_PER_TASK
-    for it in range(first, end):
-        _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, spread(it, n_tasks), True, no_occ, hit, t, b1, b2,
-                    n_node, n_tri, work)
+    for task in range(lane, n_tasks, lanes):
+        _trace_task(bvh, root2, org, dirs, tmin, tmax, starts, task, True, no_occ, hit, t, b1, b2, n_node, n_tri,
+                    work)
 
 
 def occluded_segments(bvh, origin, direction, tmax, point, tmin=None):

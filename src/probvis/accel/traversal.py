@@ -12,7 +12,7 @@ Wald (JCGT 2013) in double precision: rays through shared edges and vertices nev
 import numpy as np
 from numba import njit, prange
 
-from ..parallel import over_threads, spread
+from ..parallel import over_lanes
 
 CHUNK = 64  # rays per stack allocation in the parallel loops
 _BOX_SLACK = 1.0 + 2.0 * 3.0 * 1.1102230246251565e-16  # 1 + 2 gamma(3): conservative slab exit
@@ -203,8 +203,7 @@ def closest_hit(bvh, org, dirs, tmin, tmax):
     n_node = np.zeros(n, np.int32)
     n_tri = np.zeros(n, np.int32)
     n_chunks = (n + CHUNK - 1) // CHUNK
-    for it in prange(n_chunks):
-        c = spread(it, n_chunks)
+    for c in prange(n_chunks):
         stack = np.empty(depth, np.int32)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             p, tt, u, v, a, b = trace(cb, ci, root, tv, org[i, 0], org[i, 1], org[i, 2],
@@ -225,8 +224,7 @@ def any_hit(bvh, org, dirs, tmin, tmax):
     n_node = np.zeros(n, np.int32)
     n_tri = np.zeros(n, np.int32)
     n_chunks = (n + CHUNK - 1) // CHUNK
-    for it in prange(n_chunks):
-        c = spread(it, n_chunks)
+    for c in prange(n_chunks):
         stack = np.empty(depth, np.int32)
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             p, _, _, _, a, b = trace(cb, ci, root, tv, org[i, 0], org[i, 1], org[i, 2],
@@ -300,25 +298,24 @@ def all_hits(bvh, org, dirs, tmin, cap):
            np.zeros(n, np.int32))
     n_chunks = (n + CHUNK - 1) // CHUNK
 
-    def run(_, first, end):
+    def run(lane, lanes):
         scratch = (np.empty(bvh.stack_depth, np.int32), np.empty(cap), np.empty(cap, np.int32))
-        _all_hit_chunks(bvh, org, dirs, tmin, cap, first, end, out, scratch)
+        _all_hit_chunks(bvh, org, dirs, tmin, cap, lane, lanes, out, scratch)
 
-    over_threads(run, n_chunks)
+    over_lanes(run, n_chunks)
     return out
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def _all_hit_chunks(bvh, org, dirs, tmin, cap, first, end, out, scratch):
-    """Chunks first..end-1 of `all_hits`' rays, into `out`; `scratch` is this thread's stack and hit arrays.
-    Serial and without reference counts, run on the thread budget (`over_threads`)."""
+def _all_hit_chunks(bvh, org, dirs, tmin, cap, lane, lanes, out, scratch):
+    """Chunks lane, lane + lanes, ... of `all_hits`' rays, into `out`; `scratch` is this thread's stack and hit
+    arrays. Serial and without reference counts, run on the thread budget (`over_lanes`)."""
     cb, ci, root, tv, prim_ids, _ = bvh
     count, tri, dist, n_node, n_tri = out
     stack, ot, op = scratch
     n = org.shape[0]
     n_chunks = (n + CHUNK - 1) // CHUNK
-    for it in range(first, end):
-        c = spread(it, n_chunks)
+    for c in range(lane, n_chunks, lanes):
         for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             k, a, b = trace_all(cb, ci, root, tv, org[i, 0], org[i, 1], org[i, 2], dirs[i, 0], dirs[i, 1],
                                 dirs[i, 2], tmin[i], cap, ot, op, stack)

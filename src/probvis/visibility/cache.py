@@ -12,6 +12,7 @@ E = c + p (V − c) / p = V, whatever the cache holds: it only steers how often 
 import abc
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from ..accel import occluded_segments
@@ -123,7 +124,8 @@ class CachedVisibility(VisibilityEstimator):
         """The batch through `cache_kernel.shade_cached`: value for value what `evaluate` gives (tested)."""
         with self.timed("render_kernel"):
             radiance, counts, n_seg, traced = shade_cached(self.integrator.scene_arrays, self.emitters.arrays,
-                                                           self.bvh.arrays, batch, self.cache.arrays, self.plan())
+                                                           self.bvh.arrays, batch, self.cache.arrays, self.plan(),
+                                                           numba.get_num_threads())
         self.segments += int(n_seg.sum())
         self.traced += int(traced.sum())
         return ShadedBatch(radiance, counts, n_seg, {"traced": traced / batch.spp})

@@ -9,7 +9,6 @@ import numpy as np
 from numba import njit, prange
 
 from ..accel import SHADOW_PACKET, occluded_packet, packet_work, root_record
-from ..parallel import spread
 from ..rng import mix64, uniform
 from ..shading import CAM_NODE, CAM_TRI, NEGATIVE, SH_NODE, SH_TRI, SHADOW_EPSILON, point_samples, shaded_arrays
 
@@ -102,61 +101,63 @@ def pair_keys(cache, origin, direction):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def shade_cached(geom, es, bvh, batch, cache, plan):
+def shade_cached(geom, es, bvh, batch, cache, plan, threads):
     """`ShadedBatch` arrays of a `ShadingBatch` with the estimate c + B (V − c) / p per segment (c, p from
     `segment_plan`), and the segments traced per pixel. `geom` is the `SceneArrays`, `es` the `EmitterArrays`,
-    `bvh` the `BVHArrays`, `cache` the `CacheArrays`, `plan` the `CachePlan`."""
+    `bvh` the `BVHArrays`, `cache` the `CacheArrays`, `plan` the `CachePlan`, `threads` the thread budget."""
     root2 = root_record(bvh.root)
     spp, n_shadow = batch.spp, batch.shadow_rays
     radiance, counts, n_seg = shaded_arrays(batch)
     n_pix = counts.shape[0]
     traced = np.zeros(n_pix)
     n_blocks = (n_pix + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
-    for it in prange(n_blocks):
-        blk = spread(it, n_blocks)
-        org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
-        org2, dirs2 = np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
-        s_emit, sample = np.empty(n_shadow, np.int32), np.empty(n_shadow, np.int64)
-        active = np.empty(n_shadow, np.bool_)
-        value, prob, drawn = np.empty(n_shadow), np.empty(n_shadow), np.empty(n_shadow, np.int64)
-        tmin = np.zeros(n_shadow)
-        tmax = np.full(n_shadow, 1.0 - SHADOW_EPSILON)
-        occ = np.empty(n_shadow, np.bool_)
-        sh_node = np.empty(n_shadow, np.int32)
-        sh_tri = np.empty(n_shadow, np.int32)
-        work = packet_work(bvh.stack_depth)
-        for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
-            for s in range(spp):
-                i = px * spp + s
-                counts[px, CAM_TRI] += batch.cam_tri[i]
-                counts[px, CAM_NODE] += batch.cam_node[i]
-                a0, a1, a2, m = point_samples(i, geom, es, batch, 0, org, dirs, contrib, s_emit, active, sample, True)
-                nd = 0
-                for k in range(m):
-                    value[k], prob[k] = segment_plan(cache, plan, org[k, 0], org[k, 1], org[k, 2], dirs[k, 0],
-                                                     dirs[k, 1], dirs[k, 2])
-                    if uniform(mix64(batch.keys[i] + np.uint64(sample[k] + 1)), 0) < prob[k]:
-                        for c in range(3):
-                            org2[nd, c] = org[k, c]
-                            dirs2[nd, c] = dirs[k, c]
-                        drawn[nd] = k
-                        nd += 1
-                for lo in range(0, nd, SHADOW_PACKET):
-                    occluded_packet(bvh, root2, org2, dirs2, tmin, tmax, lo, min(SHADOW_PACKET, nd - lo), work, occ,
-                                    sh_node, sh_tri)
-                for d in range(nd):
-                    k = drawn[d]
-                    value[k] += (1.0 - np.float64(occ[d]) - value[k]) / prob[k]
-                    counts[px, SH_TRI] += sh_tri[d]
-                    counts[px, SH_NODE] += sh_node[d]
-                l0, l1, l2 = batch.emitted[i, 0] + a0, batch.emitted[i, 1] + a1, batch.emitted[i, 2] + a2
-                for k in range(m):
-                    v = value[k]
-                    l0 += contrib[k, 0] * v
-                    l1 += contrib[k, 1] * v
-                    l2 += contrib[k, 2] * v
-                    counts[px, NEGATIVE] += v < 0.0
-                n_seg[px] += m
-                traced[px] += nd
-                radiance[i, 0], radiance[i, 1], radiance[i, 2] = l0, l1, l2
+    lanes = min(threads, n_blocks)
+    for lane in prange(lanes):  # one lane of blocks per thread (see `parallel`)
+        for blk in range(lane, n_blocks, lanes):
+            org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
+            org2, dirs2 = np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
+            s_emit, sample = np.empty(n_shadow, np.int32), np.empty(n_shadow, np.int64)
+            active = np.empty(n_shadow, np.bool_)
+            value, prob, drawn = np.empty(n_shadow), np.empty(n_shadow), np.empty(n_shadow, np.int64)
+            tmin = np.zeros(n_shadow)
+            tmax = np.full(n_shadow, 1.0 - SHADOW_EPSILON)
+            occ = np.empty(n_shadow, np.bool_)
+            sh_node = np.empty(n_shadow, np.int32)
+            sh_tri = np.empty(n_shadow, np.int32)
+            work = packet_work(bvh.stack_depth)
+            for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
+                for s in range(spp):
+                    i = px * spp + s
+                    counts[px, CAM_TRI] += batch.cam_tri[i]
+                    counts[px, CAM_NODE] += batch.cam_node[i]
+                    a0, a1, a2, m = point_samples(i, geom, es, batch, 0, org, dirs, contrib, s_emit, active, sample,
+                                                  True)
+                    nd = 0
+                    for k in range(m):
+                        value[k], prob[k] = segment_plan(cache, plan, org[k, 0], org[k, 1], org[k, 2], dirs[k, 0],
+                                                         dirs[k, 1], dirs[k, 2])
+                        if uniform(mix64(batch.keys[i] + np.uint64(sample[k] + 1)), 0) < prob[k]:
+                            for c in range(3):
+                                org2[nd, c] = org[k, c]
+                                dirs2[nd, c] = dirs[k, c]
+                            drawn[nd] = k
+                            nd += 1
+                    for lo in range(0, nd, SHADOW_PACKET):
+                        occluded_packet(bvh, root2, org2, dirs2, tmin, tmax, lo, min(SHADOW_PACKET, nd - lo), work, occ,
+                                        sh_node, sh_tri)
+                    for d in range(nd):
+                        k = drawn[d]
+                        value[k] += (1.0 - np.float64(occ[d]) - value[k]) / prob[k]
+                        counts[px, SH_TRI] += sh_tri[d]
+                        counts[px, SH_NODE] += sh_node[d]
+                    l0, l1, l2 = batch.emitted[i, 0] + a0, batch.emitted[i, 1] + a1, batch.emitted[i, 2] + a2
+                    for k in range(m):
+                        v = value[k]
+                        l0 += contrib[k, 0] * v
+                        l1 += contrib[k, 1] * v
+                        l2 += contrib[k, 2] * v
+                        counts[px, NEGATIVE] += v < 0.0
+                    n_seg[px] += m
+                    traced[px] += nd
+                    radiance[i, 0], radiance[i, 1], radiance[i, 2] = l0, l1, l2
     return radiance, counts, n_seg, traced

@@ -10,6 +10,7 @@ blocks segments early; on an open mesh the outer shell alone costs its walk for 
 segments come near the walk costs more than it saves (`meshes_for_shells`)."""
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 from ..accel import occluded_segments
@@ -68,7 +69,7 @@ class ExactVisibility(VisibilityEstimator):
             radiance, counts, n_seg, _, tests = shade_proxy(
                 self.integrator.scene_arrays, self.emitters.arrays, self.bvh.arrays, batch, self.bvh.arrays,
                 ExtinctionGrid.none().arrays, 0.0, self.shells.arrays, self.shells.rest.arrays,
-                Correction(np.ones((n_pix, e)), np.ones((n_pix, e), bool), np.zeros(e)))
+                Correction(np.ones((n_pix, e)), np.ones((n_pix, e), bool), np.zeros(e)), numba.get_num_threads())
         self.tests += tests
         return ShadedBatch(radiance, counts, n_seg)
 

@@ -13,6 +13,7 @@ A proxy strays from its mesh by about its edge length, so a segment leaving a he
 often hit the proxy at once: the proxy test ignores the first `ProxyGeometry.clearance` of every segment (any
 V_P is a valid control variate; this one just agrees with V more often).
 """
+import numba
 import numpy as np
 
 from ..accel import build_bvh, occluded_segments
@@ -172,7 +173,7 @@ class ProxyVisibility(VisibilityEstimator):
     def _kernel(self, batch, shells, correction):
         return shade_proxy(self.integrator.scene_arrays, self.emitters.arrays, self.bvh.arrays, batch,
                            self.proxy_bvh.arrays, self.proxies.volume.arrays, self.proxies.clearance, shells.arrays,
-                           shells.rest.arrays, correction)
+                           shells.rest.arrays, correction, numba.get_num_threads())
 
     def shade(self, batch):
         region = film_regions(self.scene.camera, batch.pixel)

@@ -14,13 +14,13 @@ visible and the other emitters' light is kept even when only the environment was
 import math
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from numba import njit, prange
 
 from ..accel import SHADOW_PACKET, occluded_packet, occluded_segments, packet_starts, packet_work, root_record
 from ..color import luminance
 from ..emitters import emitter_irradiance
-from ..parallel import spread
 from ..scene.scene import EMITTER_ENVIRONMENT
 from ..shading import (CAM_NODE, CAM_TRI, SH_NODE, SH_TRI, SHADOW_EPSILON, ShadedBatch, point_samples,
                        shaded_arrays)
@@ -74,52 +74,55 @@ def ratio_factors(runs, emitter, weight, points, es, triangles, radiance):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def shade_ratio(geom, es, bvh, batch):
+def shade_ratio(geom, es, bvh, batch, threads):
     """`ShadedBatch` arrays of a `ShadingBatch` with the ratio estimator: every segment traced, its visibility
-    times its point's `point_factor` — value for value `ratio_factors` on the staged path."""
+    times its point's `point_factor` — value for value `ratio_factors` on the staged path. `threads` is the
+    thread budget."""
     root2 = root_record(bvh.root)
     spp, n_shadow = batch.spp, batch.shadow_rays
     radiance, counts, n_seg = shaded_arrays(batch)
     n_pix = counts.shape[0]
     n_blocks = (n_pix + PIXELS_PER_BLOCK - 1) // PIXELS_PER_BLOCK
-    for it in prange(n_blocks):
-        blk = spread(it, n_blocks)
-        org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
-        s_emit, sample = np.empty(n_shadow, np.int32), np.empty(n_shadow, np.int64)
-        active = np.empty(n_shadow, np.bool_)
-        tmin = np.zeros(n_shadow)
-        tmax = np.full(n_shadow, 1.0 - SHADOW_EPSILON)
-        occ = np.empty(n_shadow, np.bool_)
-        sh_node = np.empty(n_shadow, np.int32)
-        sh_tri = np.empty(n_shadow, np.int32)
-        work = packet_work(bvh.stack_depth)
-        for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
-            for s in range(spp):
-                i = px * spp + s
-                counts[px, CAM_TRI] += batch.cam_tri[i]
-                counts[px, CAM_NODE] += batch.cam_node[i]
-                a0, a1, a2, m = point_samples(i, geom, es, batch, 0, org, dirs, contrib, s_emit, active, sample, True)
-                for lo in range(0, m, SHADOW_PACKET):
-                    occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, min(SHADOW_PACKET, m - lo), work, occ,
-                                    sh_node, sh_tri)
-                total = env = 0.0
-                for k in range(m):
-                    w = luminance(contrib[k, 0], contrib[k, 1], contrib[k, 2])
-                    total += w
-                    if es.kind[s_emit[k]] == EMITTER_ENVIRONMENT:
-                        env += w
-                f = point_factor(total, env, es, geom.triangles, geom.emitter_radiance, batch.position, batch.normal,
-                                 batch.albedo, i) if m > 0 else 1.0
-                l0, l1, l2 = batch.emitted[i, 0] + a0, batch.emitted[i, 1] + a1, batch.emitted[i, 2] + a2
-                for k in range(m):
-                    v = (1.0 - np.float64(occ[k])) * f
-                    l0 += contrib[k, 0] * v
-                    l1 += contrib[k, 1] * v
-                    l2 += contrib[k, 2] * v
-                    counts[px, SH_TRI] += sh_tri[k]
-                    counts[px, SH_NODE] += sh_node[k]
-                n_seg[px] += m
-                radiance[i, 0], radiance[i, 1], radiance[i, 2] = l0, l1, l2
+    lanes = min(threads, n_blocks)
+    for lane in prange(lanes):  # one lane of blocks per thread (see `parallel`)
+        for blk in range(lane, n_blocks, lanes):
+            org, dirs, contrib = np.empty((n_shadow, 3)), np.empty((n_shadow, 3)), np.empty((n_shadow, 3))
+            s_emit, sample = np.empty(n_shadow, np.int32), np.empty(n_shadow, np.int64)
+            active = np.empty(n_shadow, np.bool_)
+            tmin = np.zeros(n_shadow)
+            tmax = np.full(n_shadow, 1.0 - SHADOW_EPSILON)
+            occ = np.empty(n_shadow, np.bool_)
+            sh_node = np.empty(n_shadow, np.int32)
+            sh_tri = np.empty(n_shadow, np.int32)
+            work = packet_work(bvh.stack_depth)
+            for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
+                for s in range(spp):
+                    i = px * spp + s
+                    counts[px, CAM_TRI] += batch.cam_tri[i]
+                    counts[px, CAM_NODE] += batch.cam_node[i]
+                    a0, a1, a2, m = point_samples(i, geom, es, batch, 0, org, dirs, contrib, s_emit, active, sample,
+                                                  True)
+                    for lo in range(0, m, SHADOW_PACKET):
+                        occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, min(SHADOW_PACKET, m - lo), work, occ,
+                                        sh_node, sh_tri)
+                    total = env = 0.0
+                    for k in range(m):
+                        w = luminance(contrib[k, 0], contrib[k, 1], contrib[k, 2])
+                        total += w
+                        if es.kind[s_emit[k]] == EMITTER_ENVIRONMENT:
+                            env += w
+                    f = point_factor(total, env, es, geom.triangles, geom.emitter_radiance, batch.position,
+                                     batch.normal, batch.albedo, i) if m > 0 else 1.0
+                    l0, l1, l2 = batch.emitted[i, 0] + a0, batch.emitted[i, 1] + a1, batch.emitted[i, 2] + a2
+                    for k in range(m):
+                        v = (1.0 - np.float64(occ[k])) * f
+                        l0 += contrib[k, 0] * v
+                        l1 += contrib[k, 1] * v
+                        l2 += contrib[k, 2] * v
+                        counts[px, SH_TRI] += sh_tri[k]
+                        counts[px, SH_NODE] += sh_node[k]
+                    n_seg[px] += m
+                    radiance[i, 0], radiance[i, 1], radiance[i, 2] = l0, l1, l2
     return radiance, counts, n_seg
 
 
@@ -137,7 +140,7 @@ class RatioVisibility(VisibilityEstimator):
     def shade(self, batch):
         with self.timed("render_kernel"):
             return ShadedBatch(*shade_ratio(self.integrator.scene_arrays, self.emitters.arrays, self.bvh.arrays,
-                                            batch))
+                                            batch, numba.get_num_threads()))
 
     def classify(self, points):
         """Keeps the batch's shading points for the staged interface's `evaluate`; every pair is sampled."""

@@ -25,7 +25,7 @@ from numba import njit
 from ...accel import SHADOW_PACKET, buffered_blocker, occluded_packet, packet_work, ray_setup, root_record
 from ...cases import CASE_LIT, CASE_MASK, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, CASE_VERIFIED
 from ...cycles import cycles
-from ...parallel import over_threads, spread
+from ...parallel import over_lanes
 from ...rng import mix64, uniform
 from ...shading import (CAM_NODE, CAM_TRI, NEGATIVE, SH_NODE, SH_TRI, SHADOW_EPSILON, point_samples,
                         shaded_arrays)
@@ -88,11 +88,11 @@ def shade_map(geom, es, bvh, batch, cand, lists, groups, terms, rows):
            np.zeros((n_blocks, N_PHASES)))
     root = root_record(bvh.root)
 
-    def run(thread, first, end):
-        _shade_blocks(geom, es, bvh, batch, (cand, lists, groups, terms, root, rows[thread]), first, end, out,
+    def run(lane, lanes):
+        _shade_blocks(geom, es, bvh, batch, (cand, lists, groups, terms, root, rows[lane]), lane, lanes, out,
                       _scratch(batch.shadow_rays), packet_work(bvh.stack_depth))
 
-    over_threads(run, n_blocks)
+    over_lanes(run, n_blocks)
     return radiance, counts, n_seg, out[3].sum(axis=0), out[4].sum(axis=0), out[5].sum(axis=0)
 
 
@@ -107,8 +107,8 @@ def _scratch(n):
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def _shade_blocks(geom, es, bvh, batch, tables, start, stop, out, scratch, work):
-    """Iterations start..stop-1 of `shade_map`'s loop over blocks of pixels, into `out` (its arrays, the
+def _shade_blocks(geom, es, bvh, batch, tables, lane, lanes, out, scratch, work):
+    """Blocks lane, lane + lanes, ... of `shade_map`'s blocks of pixels, into `out` (its arrays, the
     counters, sums and cycles per block); `tables` are (cand, lists, groups, terms, the root record, this
     thread's rows). Serial and without Numba's allocator and reference counts, as `fused_exact`'s kernel."""
     cand, lists, groups, terms, root, scratch_rows = tables
@@ -122,8 +122,7 @@ def _shade_blocks(geom, es, bvh, batch, tables, start, stop, out, scratch, work)
     general = groups.levels > 1 or groups.cells > 1
     list_rows, list_cull = scratch_rows[0, :, :9], scratch_rows[0, :, 9:]
     group_rows, group_cull = scratch_rows[1, :, :9], scratch_rows[1, :, 9:]
-    for it in range(start, stop):
-        blk = spread(it, n_blocks)
+    for blk in range(lane, n_blocks, lanes):
         tmin[:] = 0.0
         tmax[:] = 1.0 - SHADOW_EPSILON
         n_term[:] = 0

@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...accel import CHUNK, first_blocker, ray_setup
-from ...parallel import over_threads, spread
+from ...parallel import over_lanes
 from ...rng import mix64, uniform
 from .decomposition import MODE_A, MODE_AB_BLOCKED, MODE_B, MODE_BOTH, MODE_EXACT
 
@@ -89,20 +89,20 @@ def group_lists(triangles, pos, offsets, tris, unit, n_rep, method, levels, cell
     The blockers split are the list's blocker groups (`unit[t]`: the small connected component a recorded
     triangle stands for, or the triangle alone), which stand in the list as runs of consecutive triangles: a
     city's box goes to A or B whole, so the volumetric culling of its faces stays regular along the group. A
-    serial kernel over the pairs runs on the thread budget (`over_threads`)."""
+    serial kernel over the pairs runs on the thread budget (`over_lanes`)."""
     n_pairs = offsets.shape[0] - 1
     n_leaves = cells * (1 << levels)
     out = (np.empty_like(tris), np.empty((n_pairs, n_leaves + 1), np.int64), np.zeros((n_pairs, 2)))
     skip = np.zeros(n_pairs, np.bool_) if skip is None else skip
     config = (np.int64(n_rep), np.int64(method), np.int64(levels), np.int64(cells), np.int64(seed))
-    over_threads(lambda _, first, end: _group_pairs(triangles, pos, (offsets, tris, unit, skip), config, first, end,
-                                                    out), n_pairs)
+    over_lanes(lambda lane, lanes: _group_pairs(triangles, pos, (offsets, tris, unit, skip), config, lane, lanes,
+                                                out), n_pairs)
     return out
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _group_pairs(triangles, pos, lists, config, begin, stop, result):
-    """Pairs spread(begin..stop-1) of `group_lists`, into `result` (its reordered ids, bounds and balance);
+def _group_pairs(triangles, pos, lists, config, lane, lanes, result):
+    """Pairs lane, lane + lanes, ... of `group_lists`, into `result` (its reordered ids, bounds and balance);
     `lists` are its (offsets, tris, unit, skip), `config` its (n_rep, method, levels, cells, seed). Scratch is
     allocated once for the longest list."""
     offsets, tris, unit, skip = lists
@@ -111,8 +111,7 @@ def _group_pairs(triangles, pos, lists, config, begin, stop, result):
     n_pairs = offsets.shape[0] - 1
     n_leaves = cells * (1 << levels)
     n_max = 0
-    for it in range(begin, stop):
-        pr = spread(it, n_pairs)
+    for pr in range(lane, n_pairs, lanes):
         n_max = max(n_max, offsets[pr + 1] - offsets[pr])
     first = np.empty(n_max + 1, np.int64)  # runs of one blocker group: units lo + first[u] .. lo + first[u + 1]
     weight = np.empty(n_max)
@@ -121,8 +120,7 @@ def _group_pairs(triangles, pos, lists, config, begin, stop, result):
     srt = np.empty(n_max, np.int64)
     rank_key = np.empty(min(n_max, SMALL_SORT))
     counts = np.empty(n_leaves + 1, np.int64)
-    for it in range(begin, stop):
-        pr = spread(it, n_pairs)
+    for pr in range(lane, n_pairs, lanes):
         lo, hi = offsets[pr], offsets[pr + 1]
         n = hi - lo
         if skip[pr]:
