@@ -330,6 +330,17 @@ def test_an_existing_scheduler_gives_the_same_numbers(tiny_run, tmp_path):
     assert numbers(other) == numbers(results)
 
 
+def test_a_scheduler_without_workers_is_named(tmp_path, monkeypatch):
+    """It was reported as 'with 1 worker', then failed after a wait with Dask's 'No valid workers found'."""
+    from dask.distributed import LocalCluster
+
+    monkeypatch.setattr(runner, "WORKER_WAIT_SECONDS", 1)
+    with LocalCluster(n_workers=0, processes=False, dashboard_address=None) as cluster:
+        with pytest.raises(ProbvisError, match=r"has no workers \(1 s waited\): start some \(`dask worker"):
+            experiment(parse_experiment(TINY), tmp_path / "rep", scheduler=cluster.scheduler_address,
+                       progress=False, log=lambda m: None)
+
+
 def test_sigterm_stops_the_study_keeping_finished_renders(tmp_path):
     """A batch system's SIGTERM interrupts like Ctrl-C: one line, exit 130, finished renders cached."""
     import subprocess

@@ -161,6 +161,8 @@ def test_the_io_helpers_name_what_they_were_given(tmp_path):
     with pytest.raises(ProbvisError, match=re.escape("summary takes a render's stats (RenderResult.stats, a dict), "
                                                      "got NoneType")):
         summary(None)
+    with pytest.raises(ProbvisError, match=re.escape("stats are a dict (RenderResult.stats), got list")):
+        write_stats(tmp_path / "s.json", [1, 2])
     assert not list(tmp_path.iterdir())
 
 

@@ -214,6 +214,7 @@ POLL_SECONDS = 0.2  # how often the render loop looks for Ctrl-C / SIGTERM while
 
 
 HANDSHAKE_SECONDS = 10  # how long a scheduler may take to greet a new connection
+WORKER_WAIT_SECONDS = 10  # how long a scheduler without workers is given to get one
 MAX_HANDSHAKE = 1 << 20  # bytes: a Dask handshake is a small message
 
 
@@ -442,6 +443,13 @@ def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, c
     from dask.distributed import wait
     from tqdm import tqdm
 
+    if scheduler:  # a scheduler just started may still be waiting for its workers
+        try:
+            client.wait_for_workers(1, timeout=WORKER_WAIT_SECONDS)
+        except TimeoutError:
+            raise ProbvisError(f"the Dask scheduler at {scheduler} has no workers ({WORKER_WAIT_SECONDS} s waited): "
+                               f"start some (`dask worker {scheduler}`), or run without a scheduler for a "
+                               "local cluster") from None
     n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) or workers
     threads = None if scheduler else max(1, (os.cpu_count() or 1) // workers)
     log(f"computing {len(todo)} renders on {'scheduler ' + scheduler if scheduler else 'a LocalCluster'} "

@@ -6,7 +6,10 @@ from .atomic import atomic_path
 
 
 def write_stats(path, stats):
-    """`stats` as JSON; a value JSON cannot hold (NaN, infinity, an object) is refused, nothing written."""
+    """`stats` (a dict: a render's, or a study's) as JSON; a value JSON cannot hold (NaN, infinity, an object) is
+    refused, nothing written."""
+    if not isinstance(stats, dict):
+        raise ProbvisError(f"cannot write '{path}': stats are a dict (RenderResult.stats), got {type(stats).__name__}")
     try:
         text = json.dumps(stats, indent=2, allow_nan=False) + "\n"
     except (TypeError, ValueError) as exc:
