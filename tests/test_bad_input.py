@@ -111,6 +111,7 @@ CASES = [
     (["tables", "--probabilities", "0.5,0.5,0.5"], "--probabilities: probabilities must sum to 1"),
     (["experiment", "--quick", "--scheduler", "inproc://nothing"], "an inproc:// address names a scheduler"),
     (["experiment", "--quick", "--scheduler", ""], "--scheduler needs a Dask scheduler's address (tcp://host:port)"),
+    (["estimators", ""], "the estimator's name is empty (leave it out to list every estimator)"),
     (["render", "quad-shadow", "--vis", "occlusion-map"], "unrecognized arguments: --vis occlusion-map (flags are "
                                                              "spelt out in full: did you mean --visibility?)"),
     (["render", "quad-shadow", "--visibility", "occlusion-map", "--photons", "1000", "--phot", "2000"],

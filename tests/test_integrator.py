@@ -186,10 +186,28 @@ def test_shared_scenes_within_noise_floor(shared):
     (("quad-shadow", "yes"), {}, "strict must be True or False, got 'yes'"),
     (("quad-shadow",), {"res": True}, "parameter res must be an integer, got 'True'"),
     (("quad-shadow",), {"res": 8.5}, "parameter res must be an integer"),
+    (("quad-shadow",), {"spp": np.float32(2.5)}, "parameter spp must be an integer, got '2.5'"),  # was 2
+    (("quad-shadow",), {"res": np.longdouble(8.5)}, "parameter res must be an integer"),
 ])
 def test_load_scene_names_arguments_of_the_wrong_type(args, kwargs, message):
     with pytest.raises(ProbvisError, match=re.escape(message)):
         probvis.load_scene(*args, **kwargs)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"seed": np.timedelta64(2, "s")}, "seed must be a whole number, got "),
+    ({"threads": np.timedelta64(1, "s")}, "threads must be a whole number"),
+    ({"resolution": (np.timedelta64(8), np.timedelta64(8))}, "resolution must be (width, height), two whole"),
+    ({"visibility": "occlusion-map", "visibility_options": {"photons": np.timedelta64(1000)}}, "photons"),
+])
+def test_a_numpy_time_span_is_no_number(kwargs, message):
+    """NumPy counts np.timedelta64 as an integer (and so does `numbers`): it passed the checks, then int() of it
+    failed inside, a TypeError or a ctypes ArgumentError from Numba."""
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.render("quad-shadow", spp=1, shadow_rays=1, **kwargs)
+    scene = probvis.load_scene("quad-shadow", res=8)
+    with pytest.raises(ProbvisError, match="camera.width must be a whole number"):
+        scene.with_resolution(np.timedelta64(8), 8)
 
 
 def test_a_number_for_a_text_option_is_its_text():

@@ -404,6 +404,8 @@ def _describe(cls):
 def _cmd_estimators(args):
     from .visibility import available_names, estimator_class
 
+    if args.name is not None and not args.name.strip():  # an unset shell variable: not "list them all"
+        raise ProbvisError("the estimator's name is empty (leave it out to list every estimator)")
     described = []
     for name in [args.name] if args.name else available_names():
         try:

@@ -7,6 +7,17 @@ class ProbvisError(Exception):
     """A mistake in the user's input (scene file, option, output path)."""
 
 
+def is_number(value, whole=False):
+    """Whether `value` is a number the API takes: an int or, unless `whole`, a float, Python's or NumPy's; not a
+    bool, and not a NumPy time span (`np.timedelta64` is an integer to NumPy and to `numbers`, but int() of one
+    fails)."""
+    import numpy as np
+
+    if isinstance(value, (bool, np.bool_, np.timedelta64)):
+        return False
+    return isinstance(value, (int, np.integer) if whole else (int, float, np.integer, np.floating))
+
+
 def shown(obj, conv=str):
     """`conv(obj)` (str or repr) for a message, or a placeholder where the object's own method fails: a plug-in's
     exception or value whose `__str__` or `__repr__` raises, or even exits (a message must not end the command)."""

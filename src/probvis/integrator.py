@@ -28,7 +28,7 @@ from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler
-from .errors import ProbvisError
+from .errors import ProbvisError, is_number
 from .film import Film, splat_chunk, splat_filter
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
@@ -294,8 +294,7 @@ def _check_arguments(scene, settings, resolution, defines, options, numbers, fla
     if settings is not None and not isinstance(settings, RenderSettings):
         raise ProbvisError(f"settings must be a RenderSettings, got {type(settings).__name__}")
     if resolution is not None and not (isinstance(resolution, (tuple, list, np.ndarray)) and len(resolution) == 2
-                                       and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-                                               for v in list(resolution))):
+                                       and all(is_number(v, whole=True) for v in list(resolution))):
         raise ProbvisError(f"resolution must be (width, height), two whole numbers, got {resolution!r}")
     for name, value in (("defines", defines), ("visibility_options", options)):
         if value is not None and not isinstance(value, dict):
@@ -306,7 +305,7 @@ def _check_arguments(scene, settings, resolution, defines, options, numbers, fla
         if not isinstance(value, (bool, np.bool_)) and value is not None:
             raise ProbvisError(f"{name} must be True or False, got {value!r}")
     for name, value in numbers.items():
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))):
+        if value is not None and not is_number(value, whole=True):
             raise ProbvisError(f"{name} must be a whole number, got {value!r} (a {type(value).__name__})")
 
 

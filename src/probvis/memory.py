@@ -6,10 +6,10 @@ refuses a render that would not fit in the memory available now, naming what to 
 """
 import resource
 
-import numpy as np
 import psutil
 
 from .cases import N_CASES
+from .errors import is_number
 
 GIB = float(1 << 30)
 ENV_PIXEL_BYTES = 170  # an environment map's sampling tables as they are built, per pixel (tracemalloc's peak)
@@ -62,9 +62,7 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=
 def is_byte_counts(value):
     """Whether `value` is what an estimator's `memory_estimate()` and `memory_bytes()` return: a dict of byte
     counts (numbers from 0 to 2^63)."""
-    number = (int, float, np.integer, np.floating)
-    return isinstance(value, dict) and all(not isinstance(v, (bool, np.bool_)) and isinstance(v, number)
-                                           and 0 <= v < 2 ** 63 for v in value.values())
+    return isinstance(value, dict) and all(is_number(v) and 0 <= v < 2 ** 63 for v in value.values())
 
 
 def available():

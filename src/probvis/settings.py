@@ -8,7 +8,7 @@ import numbers
 import re
 from dataclasses import dataclass
 
-from .errors import ProbvisError
+from .errors import ProbvisError, is_number
 
 MAX_SPP = 1 << 20
 MAX_SHADOW_RAYS = 1 << 16
@@ -35,9 +35,9 @@ def parse_float(text):
     return float(text)
 
 
-def _whole(value):
+def whole_number(value):
     """Whether `value` is a whole number (an int, or a float or numpy number with no fraction), not a bool."""
-    return (isinstance(value, numbers.Real) and not isinstance(value, bool) and value == value
+    return (isinstance(value, numbers.Real) and is_number(value) and value == value
             and abs(value) != float("inf") and int(value) == value)
 
 
@@ -75,9 +75,9 @@ class RenderSettings:
     def validate(self):
         for what, val, lo, hi in (("spp", self.spp, 1, MAX_SPP), ("shadow_rays", self.shadow_rays, 1, MAX_SHADOW_RAYS),
                                   ("seed", self.seed, 0, MAX_SEED)):
-            if not _whole(val) or not lo <= val <= hi:
+            if not whole_number(val) or not lo <= val <= hi:
                 raise ProbvisError(f"{what} must be a whole number from {lo} to {hi}, got {val!r}")
-        if self.threads is not None and not (_whole(self.threads) and self.threads >= 1):
+        if self.threads is not None and not (whole_number(self.threads) and self.threads >= 1):
             raise ProbvisError(f"threads must be a positive whole number, got {self.threads!r}")
         if not isinstance(self.filter_importance, bool):
             raise ProbvisError(f"filter_importance must be True or False, got {self.filter_importance!r}")

@@ -183,12 +183,12 @@ def test_the_experiment_api_names_wrong_argument_types(tmp_path):
 
 
 def test_an_experiment_built_in_python_may_use_tuples_and_numpy():
-    """Tuples, NumPy arrays and NumPy scalars read as TOML's lists and numbers (they were refused, or a key of
-    the wrong type failed deep inside the runner)."""
+    """Tuples, NumPy arrays and NumPy scalars (and 0-d arrays) read as TOML's lists and numbers (they were
+    refused, or a key of the wrong type failed deep inside the runner; a 0-d array was a TypeError)."""
     plain = parse_experiment(doc(spp=2, resolution=[8, 8], shadow_rays=[1, 4],
                                  methods=[{"name": "p", "visibility": "probvis",
                                            "options": {"probabilities": [0.2, 0.4, 0.4]}}]))
-    numpy = parse_experiment(doc(spp=np.int64(2), resolution=np.array([8, 8]), shadow_rays=(1, np.uint8(4)),
+    numpy = parse_experiment(doc(spp=np.array(2), resolution=np.array([8, 8]), shadow_rays=(1, np.uint8(4)),
                                  scenes=({"name": "q", "source": Path("quad-shadow")},),
                                  methods=[{"name": "p", "visibility": "probvis",
                                            "options": {"probabilities": np.array([0.2, 0.4, 0.4])}}]))

@@ -218,10 +218,11 @@ def test_full_disk_while_writing_the_report_keeps_the_renders(tiny_run, tmp_path
 
     monkeypatch.setattr(report_module.Report, "_csv", full)
     with pytest.raises(ProbvisError, match="cannot write the report to .*No space left on device"):
-        experiment(parse_experiment(TINY), tmp_path / "report", cache=out / "cache", progress=False,
+        experiment(parse_experiment(TINY), tmp_path / "deeper" / "report", cache=out / "cache", progress=False,
                    log=lambda m: None)
     cache = Cache(out / "cache")
     assert all(cache.has(t.key) for t in run.tasks)
+    assert not (tmp_path / "deeper").exists()  # no empty skeleton of a report (images/, plots/, data/) is left
 
 
 def test_methods_that_match_the_reference_plot_without_warnings(tiny_run, tmp_path):

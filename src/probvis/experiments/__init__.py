@@ -2,9 +2,8 @@
 reported as a browsable folder (see `config`, `runner`, `results`, `report`)."""
 from pathlib import Path
 
-import numpy as np
 
-from ..errors import ProbvisError
+from ..errors import ProbvisError, is_number
 from ..interrupts import deferred_interrupts
 from .config import (Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment,
                      recheck)
@@ -31,7 +30,7 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
         raise ProbvisError(f"out must be the report's folder (a path), got {type(out).__name__}")
     if cache is not None and not isinstance(cache, (str, Path)):
         raise ProbvisError(f"cache must be a folder (a path) or None, got {type(cache).__name__}")
-    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)):
+    if not is_number(workers, whole=True):
         raise ProbvisError(f"workers must be a whole number, got {workers!r}")
     for name, folder in (("out", out), ("cache", cache)):
         if folder is not None and not str(folder).strip():

@@ -217,13 +217,15 @@ def _method(where, table, base):
 
 
 def _as_toml(value, depth=0):
-    """A document built in Python as TOML would give it: tuples and NumPy arrays as lists, NumPy scalars as
-    Python's, paths as strings."""
+    """A document built in Python as TOML would give it: tuples and NumPy arrays as lists, NumPy scalars and 0-d
+    arrays as Python's numbers, paths as strings."""
     if depth > MAX_DEPTH:
         raise ProbvisError(f"the experiment nests lists or dicts more than {MAX_DEPTH} deep (does one contain "
                            "itself?)")
     if isinstance(value, dict):
         return {k: _as_toml(v, depth + 1) for k, v in value.items()}
+    if isinstance(value, np.ndarray) and value.ndim == 0:  # a 0-d array: its one value, as a NumPy scalar is
+        return _as_toml(value[()], depth + 1)
     if isinstance(value, (list, tuple, np.ndarray)):
         return [_as_toml(v, depth + 1) for v in value]
     if isinstance(value, np.generic):

@@ -534,7 +534,24 @@ def report_problem(exp, folder):
 
 
 def write_report(exp, run, results, folder, command=""):
-    """Write the report; on failure (a full disk, say) say so — the renders stay in the cache."""
+    """Write the report; on failure (a full disk, say) say so — the renders stay in the cache — and leave none of
+    the report's folders that this call made behind empty."""
+    folder = Path(folder)
+    planned = [folder, *folder.parents, *(folder / sub for sub in ("images", "plots", "data")),
+               *(folder / "images" / _slug(spec.name) for spec in exp.scenes)]
+    made = [d for d in planned if not d.exists()]
+    try:
+        return _write_report(exp, run, results, folder, command)
+    except BaseException:
+        for d in sorted(made, key=lambda p: len(p.parts), reverse=True):  # the deepest first
+            try:
+                d.rmdir()  # only if empty: a cache of renders inside stays
+            except OSError:
+                pass
+        raise
+
+
+def _write_report(exp, run, results, folder, command):
     try:
         with warnings.catch_warnings():  # an exact method's relMSE of 0 has no place on a log axis: not plotted
             warnings.filterwarnings("ignore", message="Data has no positive values")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ProbvisError, missing_file, shown
+from ..errors import ProbvisError, is_number, missing_file, shown
 from .atomic import atomic_path, temp_beside
 from .library_output import library_output
 
@@ -357,8 +357,7 @@ def _read_pfm(path):
 
 def tonemap_srgb(image, exposure=0.0):
     """Linear radiance -> 8-bit sRGB after scaling by 2**exposure; negative values clamp to black."""
-    if isinstance(exposure, (bool, np.bool_)) or not isinstance(exposure, (int, float, np.integer, np.floating)) \
-            or not -MAX_EXPOSURE <= exposure <= MAX_EXPOSURE:
+    if not is_number(exposure) or not -MAX_EXPOSURE <= exposure <= MAX_EXPOSURE:
         raise ProbvisError(f"exposure must be a number of stops from -{MAX_EXPOSURE:g} to {MAX_EXPOSURE:g}, got "
                            f"{exposure!r}")
     x = np.clip(np.nan_to_num(_as_rgb(image) * (2.0 ** exposure), nan=0.0), 0.0, 1.0)  # NaN: black, as negative

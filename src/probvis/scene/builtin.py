@@ -6,7 +6,7 @@ Each generator takes `res`, `spp`, `shadow_rays` and `seed` (as the shared XML s
 import numpy as np
 
 from ..errors import ProbvisError
-from ..settings import RenderSettings, parse_int
+from ..settings import RenderSettings, parse_int, whole_number
 from . import shapes as shp
 from . import transform as tf
 from .scene import SceneBuilder
@@ -193,7 +193,7 @@ def builtin_scene(name, defaults=None):
         if key not in PARAMETERS:
             raise ProbvisError(f"built-in scene '{name}' has no parameter '{key}' ({', '.join(PARAMETERS)})")
         try:
-            if isinstance(val, bool) or isinstance(val, float) and not val.is_integer():
+            if not isinstance(val, str) and not whole_number(val):  # NumPy's floats too: 2.5 is no count
                 raise TypeError
             kwargs[key] = parse_int(val) if isinstance(val, str) else int(val)
         except (TypeError, ValueError):

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import is_number
 
 MAX_FILM_SIDE = 1 << 15  # pixels along a film's side
 MAX_FILTER_RADIUS = 32.0  # pixels a film's reconstruction filter may reach (splatting cost grows with its square)
@@ -63,8 +64,7 @@ def camera_problem(c):
         value, whole = getattr(c, f.name), f.name in _WHOLE_FIELDS
         if f.name in ("to_world", "rfilter") or (value is None and f.name in ("film_width", "film_height")):
             continue
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer) if whole else
-                                                                  (int, float, np.integer, np.floating)):
+        if not is_number(value, whole):
             return f"camera.{f.name} must be a {'whole number' if whole else 'number'}, got {value!r}"
         try:  # a Python int of any size is a number; as a float it must be finite
             finite = math.isfinite(float(value))

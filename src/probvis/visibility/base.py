@@ -22,7 +22,7 @@ import numpy as np
 
 from ..cases import (CASE_LIT, CASE_MASK, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN,  # noqa: F401
                      CASE_VERIFIED, N_CASES)
-from ..errors import ProbvisError, shown
+from ..errors import ProbvisError, is_number, shown
 from ..settings import parse_float, parse_int
 
 
@@ -120,7 +120,7 @@ class Option:
         if self.type is str:  # a number for a text option (a probability or a keyword): its text, as typed
             if isinstance(value, str):
                 return value
-            if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)):
+            if is_number(value):
                 return repr(float(value)) if isinstance(value, (float, np.floating)) else str(int(value))
             raise bad
         if self.type is tuple:
@@ -143,7 +143,7 @@ def _show(x):
 
 def _number(value, kind, bad):
     """`value` (string or number) as a finite int or float; `bad` is raised otherwise."""
-    if isinstance(value, (bool, np.bool_)):
+    if isinstance(value, (bool, np.bool_, np.timedelta64)):
         raise bad
     if isinstance(value, (np.integer, np.floating)):  # NumPy's numbers are numbers, as the render's arguments take them
         value = value.item()
