@@ -115,10 +115,9 @@ def _channel_names(path, channels):
         got = "an empty dict" if isinstance(channels, dict) else type(channels).__name__
         raise ProbvisError(f"cannot write '{path}': channels must be a dict of names to (h, w) images, got {got}")
     for name in channels:
-        ok = isinstance(name, str) and name and "\0" not in name
         try:
-            ok = ok and bool(name.encode("utf-8"))
-        except UnicodeEncodeError:
+            ok = isinstance(name, str) and name and "\0" not in name and name.encode("utf-8")
+        except UnicodeEncodeError:  # a lone surrogate
             ok = False
         if not ok:
             raise ProbvisError(f"cannot write '{path}': a channel name must be a non-empty string in UTF-8 without "

@@ -332,7 +332,6 @@ class SceneBuilder:
         return scene
 
 
-
 @njit(cache=True, parallel=True, error_model="numpy")
 def _triangles(wv, f):
     """Each face's corners (n, 3, 3), the cross product of its edges from the first corner, that product's
