@@ -134,8 +134,8 @@ def test_defines_on_a_shared_scene(shared, tmp_path):
 def test_unknown_define_on_an_xml_scene_is_a_warning(tmp_path, capsys):
     xml = write_scene(tmp_path / "w.xml", sensor() + """
         <shape type="rectangle"><bsdf type="diffuse"/></shape>
-        <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="180"/><translate z="1"/></transform>
-            <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""")
+        <shape type="rectangle"><transform name="to_world"><scale value="0.3"/><rotate x="1" angle="180"/>
+            <translate z="1"/></transform><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""")
     assert main(["render", str(xml), "-D", "spp=2", "-o", str(tmp_path / "w.exr"), "-q"]) == 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "-D spp: the scene declares no such parameter" in err[0]

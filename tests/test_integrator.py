@@ -1,6 +1,7 @@
 """Direct illumination against closed forms, determinism, and the stats contract."""
 import dataclasses
 import re
+import warnings
 
 import numba
 import numpy as np
@@ -45,7 +46,8 @@ def test_irradiance_from_an_unoccluded_rectangle(tmp_path):
 def test_point_in_full_shadow_is_black(tmp_path):
     blocker = """<shape type="rectangle"><transform name="to_world"><scale value="3"/><translate z="0.6"/>
         </transform><bsdf type="twosided"><bsdf type="diffuse"/></bsdf></shape>"""
-    r = probvis.render(light_over_floor(tmp_path, extra=blocker, cam_z=0.3))
+    with pytest.warns(UserWarning, match="the image is black"):
+        r = probvis.render(light_over_floor(tmp_path, extra=blocker, cam_z=0.3))
     assert np.all(r.image == 0.0)
     assert r.stats["shadow_rays"] > 0 and r.stats["intersection_tests"]["shadow"]["triangle"] > 0
 
@@ -55,12 +57,14 @@ def test_emitter_seen_directly_front_and_back(tmp_path):
         <emitter type="area"><rgb name="radiance" value="1.5, 2, 3"/></emitter></shape>"""
     front = probvis.render(write_scene(tmp_path / "f.xml", sensor(origin="0, 0, 1", fov=30) + light))
     np.testing.assert_array_equal(front.image, np.broadcast_to([1.5, 2.0, 3.0], front.image.shape))
-    back = probvis.render(write_scene(tmp_path / "b.xml", sensor(origin="0, 0, -1", fov=30) + light))
+    with pytest.warns(UserWarning, match="the image is black"):
+        back = probvis.render(write_scene(tmp_path / "b.xml", sensor(origin="0, 0, -1", fov=30) + light))
     assert np.all(back.image == 0.0)
 
 
 def test_one_sided_floor_is_black_from_below(tmp_path):
-    r = probvis.render(light_over_floor(tmp_path, cam_z=-1.0))
+    with pytest.warns(UserWarning, match="the image is black"):
+        r = probvis.render(light_over_floor(tmp_path, cam_z=-1.0))
     assert np.all(r.image == 0.0) and r.stats["shadow_rays"] == 0
 
 
@@ -210,6 +214,22 @@ def test_a_numpy_time_span_is_no_number(kwargs, message):
         scene.with_resolution(np.timedelta64(8), 8)
 
 
+def test_numpy_values_are_taken_alike_everywhere():
+    """A NumPy bool is a flag and a whole NumPy number a count wherever the API takes one (it was a flag for
+    `strict` but not for `filter_importance` or an estimator's switch; a long double was no number to an
+    estimator's option); the same image as with Python's values."""
+    plain = probvis.render("quad-shadow", spp=2, shadow_rays=1, resolution=(8, 8), filter_importance=True,
+                           visibility="occlusion-map", visibility_options={"radius": 0.1, "cache": False})
+    numpy = probvis.render("quad-shadow", spp=np.float16(2), shadow_rays=np.uint8(1), resolution=(8.0, np.int8(8)),
+                           filter_importance=np.True_, visibility="occlusion-map",
+                           visibility_options={"radius": np.longdouble(0.1), "cache": np.False_})
+    np.testing.assert_array_equal(plain.image, numpy.image)
+    for kwargs, message in (({"spp": 2.5}, "spp must be a whole number, got 2.5"),
+                            ({"resolution": (8.5, 8)}, "resolution must be (width, height), two whole numbers")):
+        with pytest.raises(ProbvisError, match=re.escape(message)):
+            probvis.render("quad-shadow", shadow_rays=1, **kwargs)
+
+
 def test_a_number_for_a_text_option_is_its_text():
     """`verify` takes auto, off or a probability: 0.5 in the API (or a TOML file) means what `--verify 0.5` does."""
     as_number = probvis.render("quad-shadow", spp=1, shadow_rays=2, resolution=(8, 8), visibility="occlusion-map",
@@ -284,3 +304,22 @@ def test_a_scene_changed_after_loading_is_checked(change, message):
     change(scene)
     with pytest.raises(ProbvisError, match=re.escape(message)):
         probvis.render(scene, spp=1, shadow_rays=1)
+
+
+@pytest.mark.parametrize("emitter", [
+    '<emitter type="directional"><vector name="direction" x="0" y="0" z="1"/></emitter>',  # shining away
+    '<emitter type="point"><point name="position" x="0" y="0" z="-1"/></emitter>',  # behind the one-sided floor
+    '<shape type="cube"><transform name="to_world"><scale value="0.2"/><translate z="1"/></transform></shape>'
+    '<emitter type="point"><point name="position" x="0" y="0" z="1"/></emitter>',  # inside a closed cube
+])
+def test_a_black_image_is_warned_of(tmp_path, emitter):
+    """No light reaching the camera rendered a black image without a word (exit 0 on the command line); the
+    same scene lit from the front renders without the warning."""
+    path = write_scene(tmp_path / "s.xml", sensor(spp=1, sr=1, w=8, h=8) + '<shape type="rectangle"/>' + emitter)
+    with pytest.warns(UserWarning, match=r"the image is black \(its largest value is [-+.e\d]+\): no light reached"):
+        probvis.render(path)
+    lit = write_scene(tmp_path / "lit.xml", sensor(spp=1, sr=1, w=8, h=8) + '<shape type="rectangle"/>'
+                      '<emitter type="point"><point name="position" x="0" y="0" z="1"/></emitter>')
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert probvis.render(lit).image.max() > 0

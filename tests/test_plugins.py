@@ -166,6 +166,14 @@ def test_bad_estimator_names_are_one_line_errors(spec, message):
         estimator_class(spec)
 
 
+def test_a_plugin_path_that_is_a_folder_is_named_a_folder(tmp_path):
+    (tmp_path / "pdir.py").mkdir()
+    with pytest.raises(ProbvisError, match=re.escape(f"{tmp_path / 'pdir.py'} is a folder, not a Python file")):
+        estimator_class(f"{tmp_path / 'pdir.py'}:P")
+    with pytest.raises(ProbvisError, match=re.escape(f"no file {tmp_path / 'none.py'}")):
+        estimator_class(f"{tmp_path / 'none.py'}:P")
+
+
 class _Broken(probvis.visibility.VisibilityEstimator):
     """An estimator whose `evaluate` misbehaves as `mode` says."""
 

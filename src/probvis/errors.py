@@ -18,6 +18,13 @@ def is_number(value, whole=False):
     return isinstance(value, (int, np.integer) if whole else (int, float, np.integer, np.floating))
 
 
+def is_flag(value):
+    """Whether `value` is True or False, Python's or NumPy's (a comparison of NumPy values gives `np.bool_`)."""
+    import numpy as np
+
+    return isinstance(value, (bool, np.bool_))
+
+
 def shown(obj, conv=str):
     """`conv(obj)` (str or repr) for a message, or a placeholder where the object's own method fails: a plug-in's
     exception or value whose `__str__` or `__repr__` raises, or even exits (a message must not end the command)."""

@@ -9,6 +9,7 @@ samples' sums for each pixel they may reach; per pixel of the image, its neighbo
 """
 import math
 import time
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -16,6 +17,8 @@ from numba import njit, prange
 
 from .cases import CASE_MASK, N_CASES
 from .shading import CAM_NODE, CAM_TRI, N_COUNTS, SH_NODE, SH_TRI
+
+BLACK = float(np.finfo(np.float32).tiny)  # below the smallest normal value of a 32-bit EXR: black
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -267,3 +270,13 @@ class Film:
     def developed(self):
         """The (height, width, 3) radiance image: each pixel's (weighted) mean, 0 where no sample reached it."""
         return self._mean().reshape(self.height, self.width, 3)
+
+
+def warn_if_black(image):
+    """Warn of an image with nothing a file can show: no light reached the camera, which is rarely meant."""
+    values = np.abs(image[np.isfinite(image)])  # NaN and infinite pixels are the image writers' to report
+    peak = float(values.max()) if values.size else np.inf
+    if peak < BLACK:
+        warnings.warn(f"the image is black (its largest value is {peak:.3g}): no light reached the camera. Is each "
+                      "emitter inside closed geometry, behind a one-sided surface, facing away from the scene or "
+                      "scaled to almost nothing?", stacklevel=4)

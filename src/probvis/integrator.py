@@ -28,8 +28,8 @@ from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler
-from .errors import ProbvisError, is_number
-from .film import Film, splat_chunk, splat_filter
+from .errors import ProbvisError, is_flag
+from .film import Film, splat_chunk, splat_filter, warn_if_black
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
@@ -38,7 +38,7 @@ from .plugin_checks import (arrays_digest, check_unchanged, checked_cases, check
 from .render_stats import render_stats
 from .scene import Scene, open_scene
 from .segments import SegmentBuffers, compact, sample_emitters, sample_radiance
-from .settings import RenderSettings
+from .settings import RenderSettings, whole_number
 from .shading import ShadedBatch, ShadingBatch
 from .visibility import RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, estimator_class
 
@@ -294,7 +294,7 @@ def _check_arguments(scene, settings, resolution, defines, options, numbers, fla
     if settings is not None and not isinstance(settings, RenderSettings):
         raise ProbvisError(f"settings must be a RenderSettings, got {type(settings).__name__}")
     if resolution is not None and not (isinstance(resolution, (tuple, list, np.ndarray)) and len(resolution) == 2
-                                       and all(is_number(v, whole=True) for v in list(resolution))):
+                                       and all(whole_number(v) for v in list(resolution))):
         raise ProbvisError(f"resolution must be (width, height), two whole numbers, got {resolution!r}")
     for name, value in (("defines", defines), ("visibility_options", options)):
         if value is not None and not isinstance(value, dict):
@@ -302,10 +302,10 @@ def _check_arguments(scene, settings, resolution, defines, options, numbers, fla
         if value is not None and not all(isinstance(k, str) for k in value):
             raise ProbvisError(f"{name} must be a dict with names (strings) as keys, got {sorted(map(repr, value))}")
     for name, value in flags.items():
-        if not isinstance(value, (bool, np.bool_)) and value is not None:
+        if not is_flag(value) and value is not None:
             raise ProbvisError(f"{name} must be True or False, got {value!r}")
     for name, value in numbers.items():
-        if value is not None and not is_number(value, whole=True):
+        if value is not None and not whole_number(value):
             raise ProbvisError(f"{name} must be a whole number, got {value!r} (a {type(value).__name__})")
 
 
@@ -376,6 +376,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
             cpu_compile = cpu_render - cpu_compile
             result = render_pass(scene, settings, estimator, progress)
     image = result.film.developed()
+    warn_if_black(image)
     negative = image < 0
     clamp = {"negative_pixel_share": float(negative.any(axis=-1).mean()),
              "negative_value_share": float(negative.mean()), "clamped": bool(clamp_negative)}

@@ -8,7 +8,7 @@ import numbers
 import re
 from dataclasses import dataclass
 
-from .errors import ProbvisError, is_number
+from .errors import ProbvisError, is_flag, is_number
 
 MAX_SPP = 1 << 20
 MAX_SHADOW_RAYS = 1 << 16
@@ -75,12 +75,13 @@ class RenderSettings:
     def validate(self):
         for what, val, lo, hi in (("spp", self.spp, 1, MAX_SPP), ("shadow_rays", self.shadow_rays, 1, MAX_SHADOW_RAYS),
                                   ("seed", self.seed, 0, MAX_SEED)):
-            if not whole_number(val) or not lo <= val <= hi:
+            if not whole_number(val) or not lo <= int(val) <= hi:
                 raise ProbvisError(f"{what} must be a whole number from {lo} to {hi}, got {val!r}")
         if self.threads is not None and not (whole_number(self.threads) and self.threads >= 1):
             raise ProbvisError(f"threads must be a positive whole number, got {self.threads!r}")
-        if not isinstance(self.filter_importance, bool):
+        if not is_flag(self.filter_importance):
             raise ProbvisError(f"filter_importance must be True or False, got {self.filter_importance!r}")
+        object.__setattr__(self, "filter_importance", bool(self.filter_importance))
         for name in ("spp", "shadow_rays", "seed", "threads"):  # numpy's or a float's whole numbers as Python ints,
             if getattr(self, name) is not None:  # whose arithmetic neither wraps nor rounds
                 object.__setattr__(self, name, int(getattr(self, name)))

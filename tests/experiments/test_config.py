@@ -193,8 +193,12 @@ def test_an_experiment_built_in_python_may_use_tuples_and_numpy():
                                  methods=[{"name": "p", "visibility": "probvis",
                                            "options": {"probabilities": np.array([0.2, 0.4, 0.4])}}]))
     assert numpy == plain
+    assert parse_experiment(doc(target_relmse=np.longdouble(0.5))).target_relmse == 0.5  # was no number
     with pytest.raises(ProbvisError, match=r"scenes\[0\].defines: parameter names must be non-empty strings, got 1"):
         parse_experiment(doc(scenes=[dict(MINIMAL["scenes"][0], defines={1: 2})]))
+    for value in ({8}, None, object()):  # were rendered as their str(): '{8}', 'None', an address in the cache key
+        with pytest.raises(ProbvisError, match=r"scenes\[0\].defines.res: expected a number, string or boolean"):
+            parse_experiment(doc(scenes=[dict(MINIMAL["scenes"][0], defines={"res": value})]))
 
 
 def test_the_experiment_api_takes_numpy_workers_and_refuses_empty_folders(tmp_path):

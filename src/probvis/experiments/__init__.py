@@ -3,7 +3,7 @@ reported as a browsable folder (see `config`, `runner`, `results`, `report`)."""
 from pathlib import Path
 
 
-from ..errors import ProbvisError, is_number
+from ..errors import ProbvisError, is_flag, is_number
 from ..interrupts import deferred_interrupts
 from .config import (Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment,
                      recheck)
@@ -20,7 +20,7 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
         raise ProbvisError(f"exp must be an Experiment (parse_experiment builds one from a dict) or an experiment "
                            f"file's path, got {type(exp).__name__}")
     exp = recheck(exp) if isinstance(exp, Experiment) else load_experiment(exp)
-    if not isinstance(progress, bool):
+    if not is_flag(progress):
         raise ProbvisError(f"progress must be True or False, got {progress!r}")
     if not isinstance(command, str):
         raise ProbvisError(f"command must be the command line shown in the report (a string), got {command!r}")

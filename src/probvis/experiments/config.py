@@ -161,8 +161,8 @@ def _scene(where, table, base):
     for key, value in defines.items():
         if not isinstance(key, str) or not key.strip():
             _fail(f"{where}.defines", f"parameter names must be non-empty strings, got {key!r}")
-        if isinstance(value, (dict, list)):
-            _fail(f"{where}.defines.{key}", f"expected a number, string or boolean, got {value!r}")
+        if not isinstance(value, (str, int, float)):  # a bool is an int; a TOML date or an object is neither
+            _fail(f"{where}.defines.{key}", f"expected a number, string or boolean, got {shown(value, repr)}")
     reference = table.get("reference")
     if reference is not None:
         given = base / _str(f"{where}.reference", reference)
@@ -228,6 +228,9 @@ def _as_toml(value, depth=0):
         return _as_toml(value[()], depth + 1)
     if isinstance(value, (list, tuple, np.ndarray)):
         return [_as_toml(v, depth + 1) for v in value]
+    if isinstance(value, (np.bool_, np.integer, np.floating)) and not isinstance(value, np.timedelta64):
+        return bool(value) if isinstance(value, np.bool_) else value.item() if isinstance(value, np.integer) \
+            else float(value)  # a long double's item() is itself, which TOML's numbers are not
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, os.PathLike):  # a source, reference or plug-in file given as a Path

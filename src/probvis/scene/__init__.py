@@ -3,9 +3,7 @@ import numbers
 import warnings
 from pathlib import Path
 
-import numpy as np
-
-from ..errors import ProbvisError
+from ..errors import ProbvisError, is_flag
 from .builtin import BUILTINS, builtin_scene
 from .mitsuba_xml import read_scene
 from .scene import Scene, SceneBuilder, ShapeInfo
@@ -28,7 +26,7 @@ def open_scene(path, defines, strict=False):
     defaults = dict(defines)
     if not isinstance(path, (str, Path)):
         raise ProbvisError(f"path must be a scene file path or a built-in name, got {type(path).__name__}")
-    if not isinstance(strict, (bool, np.bool_)):  # NumPy's bool too, as `render` takes its flags
+    if not is_flag(strict):
         raise ProbvisError(f"strict must be True or False, got {strict!r}")
     strict = bool(strict)
     if any(not (isinstance(k, str) and k.strip()) for k in defaults):

@@ -294,7 +294,9 @@ class SceneBuilder:
     def build(self, camera, defaults=RenderSettings()):
         """The `Scene`; `defaults` are the render settings the scene declares."""
         if self._n == 0:
-            raise ProbvisError(f"scene '{self.name}' contains no (non-degenerate) triangles")
+            seen = " (an environment alone is a background with nothing for it to light, which probvis does not " \
+                   "render: add a shape)" if self.environment is not None else ""
+            raise ProbvisError(f"scene '{self.name}' contains no (non-degenerate) triangles{seen}")
         if not self.emitter_radiance:
             raise ProbvisError(f"scene '{self.name}' has no emitter: add an area emitter to a shape, or a point, "
                                "spot, directional, envmap or constant emitter")

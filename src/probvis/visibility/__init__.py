@@ -44,7 +44,8 @@ def _load_unlocked(spec, what):
         if module_name.endswith(".py"):
             path = Path(module_name).resolve()
             if not path.is_file():
-                raise ProbvisError(f"{what}: no file {path}")
+                raise ProbvisError(f"{what}: {path} is a folder, not a Python file" if path.is_dir() else
+                                   f"{what}: no file {path}")
             name = "probvis_plugin_" + path.stem
             module = sys.modules.get(name)
             if module is None or getattr(module, "__file__", None) != str(path):

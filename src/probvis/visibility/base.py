@@ -22,7 +22,7 @@ import numpy as np
 
 from ..cases import (CASE_LIT, CASE_MASK, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN,  # noqa: F401
                      CASE_VERIFIED, N_CASES)
-from ..errors import ProbvisError, is_number, shown
+from ..errors import ProbvisError, is_flag, is_number, shown
 from ..settings import parse_float, parse_int
 
 
@@ -106,13 +106,13 @@ class Option:
     def _convert(self, value):
         bad = ProbvisError(f"{self.name} expects {self.describe_type()}, got {value!r}")
         if self.type is bool:
-            if isinstance(value, bool):
-                return value
+            if is_flag(value):
+                return bool(value)
             if isinstance(value, str) and value.lower() in ("true", "false", "1", "0", "yes", "no", "on", "off"):
                 return value.lower() in ("true", "1", "yes", "on")
             raise bad
         if self.type is Switch:
-            word = {True: "on", False: "off"}.get(value) if isinstance(value, bool) else \
+            word = ("on" if value else "off") if is_flag(value) else \
                 _SWITCH_WORDS.get(value.strip().lower()) if isinstance(value, str) else None
             if word is None:
                 raise bad
@@ -146,7 +146,7 @@ def _number(value, kind, bad):
     if isinstance(value, (bool, np.bool_, np.timedelta64)):
         raise bad
     if isinstance(value, (np.integer, np.floating)):  # NumPy's numbers are numbers, as the render's arguments take them
-        value = value.item()
+        value = int(value) if isinstance(value, np.integer) else float(value)
     if isinstance(value, str):
         try:
             value = parse_float(value) if kind is float else parse_int(value)
