@@ -4,7 +4,7 @@ A packet is either the shadow segments of one shading point (towards one emitter
 origin) or a run of 64 camera rays (4 neighbouring pixels' samples, all from the camera's origin). A packet
 fetches each node once, tests both child boxes against all of its rays in one loop that LLVM turns into SIMD
 code (computing box-minus-origin once when all rays share their origin), and descends with a bit mask of the
-rays whose boxes were hit. Where the mask has thinned to a few rays (SPARSE_RAYS), as deep in foliage where the
+rays whose boxes were hit. Where the mask has thinned to a few rays (SPARSE_RAYS, or a quarter of the packet), as deep in foliage where the
 rays of one point part ways, the node tests those rays alone, and leaves visit the mask's set bits only: the
 same tests in the same order, without a loop over the whole packet per node (leaves 1.3x, heavy-scan 1.2x,
 city 1.1x on one thread, bench/bench_embree_replay.py). Every ray still makes only box and triangle tests it would make alone (a ray only
@@ -24,7 +24,7 @@ MAX_PACKET = 64  # rays per packet: one bit each in a uint64 mask
 # more nodes than its rays need (heavy-scan at 64 shadow rays: 3.9 s at 64, 3.0 s at 32, see docs/decisions.md)
 SHADOW_PACKET = 32
 PACKETS_PER_TASK = 8
-SPARSE_RAYS = 4  # a node reached by at most this many of a packet's rays tests them one by one
+SPARSE_RAYS = 4  # a node reached by at most this many of a packet's rays (or a quarter) tests them one by one
 _BIG = 1e300  # reciprocal of a zero direction component: finite, so an axis-parallel ray gives no NaN
 
 
@@ -152,7 +152,7 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
             if cnt == 0:
                 left = np.uint64(0)
                 right = np.uint64(0)
-                if _popcount(mask) <= SPARSE_RAYS:  # few rays left in the packet: test those alone
+                if _popcount(mask) <= max(SPARSE_RAYS, m // 4):  # few rays left in the packet: test those alone
                     bits = mask
                     while bits != 0:
                         low = bits & (~bits + one)
