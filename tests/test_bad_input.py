@@ -611,3 +611,26 @@ def test_a_scene_changed_beyond_what_the_reader_accepts_is_refused(tmp_path):
         change(scene)
         with pytest.raises(ProbvisError, match=message):
             probvis.render(scene, spp=1, shadow_rays=1)
+
+
+def test_a_finished_command_leaves_at_once_with_its_status(monkeypatch, capsys):
+    """The interpreter's teardown after a command (Dask's, Numba's, LLVM's modules: tenths of a second) ran with
+    Python's default signal handlers back, so a SIGTERM in it killed a finished study (exit 143, no message):
+    the console command now flushes its output and leaves with the command's status."""
+    from probvis import __main__ as entry
+
+    left = []
+
+    def leave(status):
+        left.append(status)
+        raise SystemExit(status)
+
+    monkeypatch.setattr(entry.os, "_exit", leave)
+    monkeypatch.setattr(sys, "argv", ["probvis", "scenes"])
+    with pytest.raises(SystemExit):
+        entry.main()
+    assert left == [0] and "cornell-box" in capsys.readouterr().out
+    monkeypatch.setattr(sys, "argv", ["probvis", "render", "no-such-scene"])
+    with pytest.raises(SystemExit):
+        entry.main()
+    assert left == [0, 2] and "probvis: error:" in capsys.readouterr().err

@@ -230,6 +230,23 @@ def test_numpy_values_are_taken_alike_everywhere():
             probvis.render("quad-shadow", shadow_rays=1, **kwargs)
 
 
+def test_any_path_like_object_names_a_scene(tmp_path):
+    """A `PurePosixPath` or a class with `__fspath__` was refused ('got P') where `Path` was taken; bytes stay
+    refused."""
+    from pathlib import PurePosixPath
+
+    class Named:
+        def __fspath__(self):
+            return "quad-shadow"
+
+    images = [probvis.render(s, spp=1, shadow_rays=1, resolution=(8, 8)).image
+              for s in ("quad-shadow", PurePosixPath("quad-shadow"), Named())]
+    np.testing.assert_array_equal(images[0], images[1])
+    np.testing.assert_array_equal(images[0], images[2])
+    with pytest.raises(ProbvisError, match="scene must be a Scene, a scene file path or a built-in name, got bytes"):
+        probvis.render(b"quad-shadow")
+
+
 def test_a_number_for_a_text_option_is_its_text():
     """`verify` takes auto, off or a probability: 0.5 in the API (or a TOML file) means what `--verify 0.5` does."""
     as_number = probvis.render("quad-shadow", spp=1, shadow_rays=2, resolution=(8, 8), visibility="occlusion-map",

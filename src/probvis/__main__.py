@@ -15,6 +15,18 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt
 
 
+def _done(status):
+    """The command is over (its outputs written and closed, or its failure said): leave with its status at once.
+    The interpreter's own teardown (Dask's, Numba's and LLVM's modules) runs after Python has put the default
+    signal handlers back, so a stop signal in it killed a finished study (exit 143, no message)."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):  # a failing stdout was the command's to report
+            pass
+    os._exit(status)
+
+
 def _address_limit():
     """The process's address-space limit in MiB (ulimit -v), or None."""
     import resource
@@ -155,7 +167,7 @@ def main():
         for s, handler in previous.items():
             signal.signal(s, handler)
     try:
-        return cli_main()
+        return _done(cli_main())
     except (ImportError, OSError, SystemError) as exc:  # a library loaded later, or the interpreter's own allocation
         if _address_limit() is None or (isinstance(exc, OSError) and exc.errno not in (None, errno.ENOMEM)):
             raise

@@ -18,6 +18,14 @@ def is_number(value, whole=False):
     return isinstance(value, (int, np.integer) if whole else (int, float, np.integer, np.floating))
 
 
+def is_path(value):
+    """Whether `value` names a file: a string or any path-like object of one (`Path`, `PurePosixPath`, a class
+    with `__fspath__`), not bytes."""
+    import os
+
+    return isinstance(value, str) or isinstance(value, os.PathLike) and isinstance(os.fspath(value), str)
+
+
 def is_flag(value):
     """Whether `value` is True or False, Python's or NumPy's (a comparison of NumPy values gives `np.bool_`)."""
     import numpy as np

@@ -28,7 +28,7 @@ from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler
-from .errors import ProbvisError, is_flag
+from .errors import ProbvisError, is_flag, is_path
 from .film import Film, splat_chunk, splat_filter, warn_if_black
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
@@ -289,7 +289,7 @@ def _warm_up(cls, options, progress):
 def _check_arguments(scene, settings, resolution, defines, options, numbers, flags):
     """The API's arguments of the wrong type, as one ProbvisError naming the argument (ranges are checked where
     the values are used)."""
-    if not isinstance(scene, (Scene, str, Path)):
+    if not (isinstance(scene, Scene) or is_path(scene)):
         raise ProbvisError(f"scene must be a Scene, a scene file path or a built-in name, got {type(scene).__name__}")
     if settings is not None and not isinstance(settings, RenderSettings):
         raise ProbvisError(f"settings must be a RenderSettings, got {type(settings).__name__}")

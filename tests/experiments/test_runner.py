@@ -225,6 +225,26 @@ def test_full_disk_while_writing_the_report_keeps_the_renders(tiny_run, tmp_path
     assert not (tmp_path / "deeper").exists()  # no empty skeleton of a report (images/, plots/, data/) is left
 
 
+def test_a_stop_signal_while_the_report_is_written_leaves_a_complete_study(tiny_run, tmp_path, monkeypatch):
+    """SIGTERM while the report was written waited for the whole report, then said 'interrupted, run the same
+    command to resume' (exit 130) though nothing was left to do: the study completes and says so."""
+    import os
+    import signal
+
+    out, results, _, _ = tiny_run
+    csv = report_module.Report._csv
+
+    def signalled(self, *args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return csv(self, *args, **kwargs)
+
+    monkeypatch.setattr(report_module.Report, "_csv", signalled)
+    again, index, run = experiment(parse_experiment(TINY), tmp_path / "report", cache=out / "cache", progress=False,
+                                   log=lambda m: None)
+    assert index.is_file() and (tmp_path / "report" / "results.csv").is_file() and run.computed == 0
+    assert numbers(again) == numbers(results)
+
+
 def test_methods_that_match_the_reference_plot_without_warnings(tiny_run, tmp_path):
     """relMSE 0 (exact methods rendering the reference's own image) has no place on a log axis: left out, not
     warned about. matplotlib warns once a log axis holds only such values (here the target line's)."""

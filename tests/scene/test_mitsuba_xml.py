@@ -394,6 +394,71 @@ def test_values_that_parse_but_would_render_nonsense_are_named_at_their_line(tmp
         probvis.load_scene(path)
 
 
+@pytest.mark.parametrize("bsdf, message", [
+    ("<bsdf type='plastic'><rgb name='diffuse_reflectence' value='1, 0, 0'/></bsdf>",
+     "<rgb>: unsupported parameter 'diffuse_reflectence' for bsdf 'plastic' (its parameters: diffuse_reflectance,"),
+    ("<bsdf type='roughplastic'><texture type='checkerboard' name='diffuse'/></bsdf>",
+     "<texture>: unsupported parameter 'diffuse' for bsdf 'roughplastic'"),
+    ("<bsdf type='plastic'><point name='diffuse_reflectance' x='1'/></bsdf>",
+     "<point>: unsupported element <point> inside <bsdf type='plastic'>"),
+    ("<bsdf type='plastic'><emitter type='area'><rgb name='radiance' value='1'/></emitter></bsdf>",
+     "<emitter>: unsupported element <emitter> inside <bsdf type='plastic'>"),
+    ("<bsdf type='blendbsdf'><bsdf type='diffuse'/></bsdf>", "<bsdf>: bsdf 'blendbsdf' nests exactly two bsdfs, got 1"),
+    ("<bsdf type='blendbsdf'><bsdf type='diffuse'/><bsdf type='diffuse'/><bsdf type='diffuse'/></bsdf>",
+     "bsdf 'blendbsdf' nests exactly two bsdfs, got 3"),
+    ("<bsdf type='mask'><bsdf type='diffuse'/><bsdf type='diffuse'/></bsdf>",
+     "bsdf 'mask' nests exactly one bsdf, got 2"),
+    ("<bsdf type='conductor'><bsdf type='diffuse'/></bsdf>", "bsdf 'conductor' nests no other bsdf, got 1"),
+    ("<bsdf type='twosided'><bsdf type='diffuse'/><bsdf type='diffuse'/></bsdf>",
+     "twosided needs exactly one nested bsdf, got 2 (probvis renders the same bsdf on both sides"),
+])
+def test_an_approximated_bsdf_takes_mitsuba_s_parameters_only(tmp_path, bsdf, message):
+    """A BSDF probvis approximates took any child: a misspelt name, a <point> as a colour, an emitter inside it,
+    a blendbsdf of three: each ignored, exit 0 (Mitsuba refuses each)."""
+    path = write_scene(tmp_path / "bad.xml", sensor() + f"<shape type='rectangle'>{bsdf}</shape>" + LIGHT)
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.load_scene(path)
+
+
+def test_the_approximated_bsdfs_parameters_are_mitsuba_s(tmp_path):
+    """Each name the reader takes for a BSDF it approximates is one Mitsuba 3 takes (no 'unreferenced
+    property'), so a scene both accept is read the same, and one Mitsuba refuses is refused."""
+    mi = pytest.importorskip("mitsuba")
+    from probvis.scene.mitsuba_xml import _BSDF_PARAMETERS, _NESTED_BSDFS
+
+    mi.set_variant("scalar_rgb")
+    special = {"material": "Au", "distribution": "beckmann", "nonlinear": True, "sample_visible": True,
+               "polarizing": True, "normalmap": {"type": "checkerboard"}, "filename": str(tmp_path / "none")}
+    for kind, names in _BSDF_PARAMETERS.items():
+        nested = {f"b{k}": {"type": "diffuse"} for k in range(_NESTED_BSDFS.get(kind, 0))}
+        extra = {"t": {"type": "checkerboard"}} if kind == "bumpmap" else {}
+        for name in names:
+            pair = name in ("alpha_u", "alpha_v")  # given together or not at all
+            value = {"alpha_u": 0.2, "alpha_v": 0.3} if pair else {name: special.get(name, 0.5)}
+            if kind == "normalmap":
+                value["normalmap"] = special["normalmap"]
+            try:
+                mi.load_dict({"type": kind, **value, **nested, **extra})
+            except Exception as exc:  # a missing measured file fails after the parameters were read
+                assert "unreferenced" not in str(exc), (kind, name, str(exc)[:300])
+
+
+@pytest.mark.parametrize("edit, message", [
+    (('<float name="fov" value="40"/>', '<string name="fov_axis" value="y"/>'),
+     "fov_axis applies to 'fov' only (a focal_length spans the 35 mm frame's diagonal)"),
+    (('<float name="fov" value="40"/>', '<float name="focal_length" value="50"/><string name="fov_axis" value="y"/>'),
+     "fov_axis applies to 'fov' only"),
+    (('<integer name="height"', '<integer name="crop_offset_x" value="7"/><integer name="height"'),
+     "the crop window 16x16 at (7, 0) does not fit the 16x16 film"),
+])
+def test_sensor_parameters_mitsuba_refuses_are_refused(tmp_path, edit, message):
+    """fov_axis beside a focal length was dropped silently (even 'bogus'), and a crop offset without a width
+    made the window the rest of the film (a 1-pixel-wide image): Mitsuba refuses both."""
+    path = write_scene(tmp_path / "bad.xml", sensor().replace(*edit) + LIGHT + "<shape type='rectangle'/>")
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.load_scene(path)
+
+
 def test_a_second_film_is_refused(tmp_path):
     body = sensor().replace("</sensor>", "<film type='hdrfilm'/></sensor>")
     with pytest.raises(ProbvisError, match=re.escape("<film>: only one film per sensor")):

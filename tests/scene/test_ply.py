@@ -167,7 +167,8 @@ def test_a_malformed_header_is_named(tmp_path, edit, message):
 @pytest.mark.parametrize("faces, header_vertices, message", [
     ("0\n3 0 1 2\n", 3, "face 0 has 0 vertices; a face needs at least 3"),
     ("3 0 1 2\n2 0 1\n", 3, "face 1 has 2 vertices; a face needs at least 3"),
-    ("3 0 1 2\n", 10 ** 9, "its header declares 1,000,000,000 vertices and 2 faces, more than its"),
+    ("3 0 1 2\n", 10 ** 9, "its header declares 1,000,000,000 vertices and 2 faces, at least 6,000,000,004 bytes, "
+                          "more than its"),
 ])
 def test_short_faces_and_counts_the_file_cannot_hold_are_named(tmp_path, faces, header_vertices, message):
     """A face of fewer than 3 vertices (a vague 'truncated' and NumPy's loadtxt warning before); an ASCII header
@@ -184,6 +185,22 @@ def test_short_faces_and_counts_the_file_cannot_hold_are_named(tmp_path, faces, 
         warnings.simplefilter("error")
         with pytest.raises(ProbvisError, match=re.escape(message)):
             shapes.load_mesh(path)
+
+
+@pytest.mark.parametrize("faces", [50_000_000, 4_000_000_000])
+def test_a_binary_face_count_the_file_cannot_hold_is_refused_before_reading(tmp_path, faces):
+    """A 226-byte binary PLY declaring 400M faces took 17 s and 3.3 GB before 'truncated' (4e9: a false 'out of
+    memory'): only ASCII files had their counts checked against their size."""
+    from probvis.errors import ProbvisError
+
+    path = tmp_path / "m.ply"
+    path.write_bytes(f"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                     f"property float z\nelement face {faces}\nproperty list uchar int vertex_indices\nend_header\n"
+                     .encode() + np.array([0, 0, 0, 1, 0, 0, 0, 1, 0], "<f4").tobytes() + bytes([3])
+                     + np.arange(3, dtype="<i4").tobytes())
+    with pytest.raises(ProbvisError, match=re.escape(f"declares 3 vertices and {faces:,} faces, at least "
+                                                     f"{faces + 36:,} bytes, more than its")):
+        shapes.load_mesh(path)
 
 
 @pytest.mark.parametrize("order", ["<", ">"])

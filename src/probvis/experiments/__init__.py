@@ -1,9 +1,10 @@
 """`probvis experiment`: a study of scenes x methods x shadow-ray counts x seeds, run on Dask, cached on disk,
 reported as a browsable folder (see `config`, `runner`, `results`, `report`)."""
+import os
 from pathlib import Path
 
 
-from ..errors import ProbvisError, is_flag, is_number
+from ..errors import ProbvisError, is_flag, is_number, is_path
 from ..interrupts import deferred_interrupts
 from .config import (Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment,
                      recheck)
@@ -16,7 +17,7 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     """Run `exp` (an `Experiment` or a TOML path), cache its renders and write the report to folder `out`.
 
     Returns (results, path of index.html, run summary)."""
-    if not isinstance(exp, (Experiment, str, Path)):
+    if not (isinstance(exp, Experiment) or is_path(exp)):
         raise ProbvisError(f"exp must be an Experiment (parse_experiment builds one from a dict) or an experiment "
                            f"file's path, got {type(exp).__name__}")
     exp = recheck(exp) if isinstance(exp, Experiment) else load_experiment(exp)
@@ -26,10 +27,11 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
         raise ProbvisError(f"command must be the command line shown in the report (a string), got {command!r}")
     if log is not None and not callable(log):
         raise ProbvisError(f"log must be a function taking a line (or None), got {log!r}")
-    if not isinstance(out, (str, Path)):
+    if not is_path(out):
         raise ProbvisError(f"out must be the report's folder (a path), got {type(out).__name__}")
-    if cache is not None and not isinstance(cache, (str, Path)):
+    if cache is not None and not is_path(cache):
         raise ProbvisError(f"cache must be a folder (a path) or None, got {type(cache).__name__}")
+    out, cache = os.fspath(out), None if cache is None else os.fspath(cache)
     if not is_number(workers, whole=True):
         raise ProbvisError(f"workers must be a whole number, got {workers!r}")
     for name, folder in (("out", out), ("cache", cache)):
@@ -47,8 +49,14 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
         raise ProbvisError(problem)
     run = run_experiment(exp, Path(cache) if cache else out / "cache", workers, scheduler, progress, log)
     results = measure(exp, run)
-    with deferred_interrupts():  # seconds: an interrupt waits for a whole report rather than leave half of one
-        index = write_report(exp, run, results, out, command)
+    index = None
+    try:
+        with deferred_interrupts():  # seconds: an interrupt waits for a whole report rather than leave half of one
+            index = write_report(exp, run, results, out, command)
+    except KeyboardInterrupt:
+        if index is None:
+            raise
+        # the stop arrived while the report was written: the study is complete, nothing is left to stop
     return results, index, run
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ProbvisError, missing_file, shown
+from ..errors import ProbvisError, is_path, missing_file, shown
 from ..scene import BUILTINS
 from ..settings import MAX_SEED, MAX_SEGMENTS_PER_PIXEL, MAX_SHADOW_RAYS, MAX_SPP
 from ..visibility import estimator_class
@@ -242,8 +242,9 @@ def parse_experiment(data, base=Path("."), source=""):
     """Validate a parsed TOML document (or one built in Python) into an `Experiment`; `base` resolves relative
     paths."""
     where = source or "experiment"
-    if not isinstance(base, (str, Path)):
+    if not is_path(base):
         raise ProbvisError(f"base must be the folder relative paths start from (a path), got {type(base).__name__}")
+    base = os.fspath(base)
     if not isinstance(data, dict):
         raise ProbvisError(f"an experiment is a table (dict) of its keys, got {type(data).__name__}")
     data = _as_toml(data)
@@ -373,9 +374,9 @@ def _choice(where, value, choices):
 
 def load_experiment(path):
     """Read and validate an experiment TOML file."""
-    if not isinstance(path, (str, Path)):
+    if not is_path(path):
         raise ProbvisError(f"path must be an experiment file's path, got {type(path).__name__}")
-    path = Path(path)
+    path = Path(os.fspath(path))
     if path.is_dir():
         raise ProbvisError(f"{path} is a folder, not an experiment file (.toml)")
     if not path.is_file():

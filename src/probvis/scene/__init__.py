@@ -1,9 +1,10 @@
 """Scenes: Mitsuba XML files or built-in procedural scenes, loaded into flat triangle arrays."""
 import numbers
+import os
 import warnings
 from pathlib import Path
 
-from ..errors import ProbvisError, is_flag
+from ..errors import ProbvisError, is_flag, is_path
 from .builtin import BUILTINS, builtin_scene
 from .mitsuba_xml import read_scene
 from .scene import Scene, SceneBuilder, ShapeInfo
@@ -24,8 +25,9 @@ def open_scene(path, defines, strict=False):
     """`load_scene` with the parameters as a dict `defines`: any name, `path` and `strict` included (the command
     line's `-D`, an experiment's `defines`)."""
     defaults = dict(defines)
-    if not isinstance(path, (str, Path)):
+    if not is_path(path):
         raise ProbvisError(f"path must be a scene file path or a built-in name, got {type(path).__name__}")
+    path = os.fspath(path)
     if not is_flag(strict):
         raise ProbvisError(f"strict must be True or False, got {strict!r}")
     strict = bool(strict)

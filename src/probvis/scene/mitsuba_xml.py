@@ -112,6 +112,35 @@ def parse_tree(path):
 _APPROXIMATED_BSDFS = {"plastic", "roughplastic", "conductor", "roughconductor", "dielectric", "thindielectric",
                        "roughdielectric", "principled", "principledthin", "blendbsdf", "mask", "bumpmap", "normalmap",
                        "pplastic", "hair", "measured", "polarizer", "retarder"}
+_MICROFACET = ("distribution", "alpha", "alpha_u", "alpha_v", "sample_visible")
+_BSDF_PARAMETERS = {  # Mitsuba 3's parameters (properties and named textures) of the BSDFs probvis approximates
+    "plastic": ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear"),
+    "roughplastic": ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear",
+                     "distribution", "alpha", "sample_visible"),
+    "conductor": ("material", "eta", "k", "specular_reflectance"),
+    "roughconductor": ("material", "eta", "k", "specular_reflectance") + _MICROFACET,
+    "dielectric": ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
+    "thindielectric": ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"),
+    "roughdielectric": ("int_ior", "ext_ior", "specular_reflectance", "specular_transmittance") + _MICROFACET,
+    "principled": ("base_color", "roughness", "anisotropic", "metallic", "spec_trans", "eta", "specular", "spec_tint",
+                   "sheen", "sheen_tint", "clearcoat", "clearcoat_gloss", "diffuse_reflectance_sampling_rate",
+                   "main_specular_sampling_rate", "clearcoat_sampling_rate"),
+    "principledthin": ("base_color", "roughness", "anisotropic", "spec_trans", "eta", "spec_tint", "sheen",
+                       "sheen_tint", "flatness", "diff_trans", "diffuse_reflectance_sampling_rate",
+                       "specular_reflectance_sampling_rate", "specular_transmittance_sampling_rate",
+                       "diffuse_transmittance_sampling_rate"),
+    "blendbsdf": ("weight",),
+    "mask": ("opacity",),
+    "bumpmap": ("scale",),
+    "normalmap": ("normalmap",),
+    "pplastic": ("diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "alpha", "distribution"),
+    "hair": ("eumelanin", "pheomelanin", "sigma_a", "scale", "longitudinal_roughness", "azimuthal_roughness",
+             "scale_tilt", "int_ior"),
+    "measured": ("filename",),
+    "polarizer": ("theta", "transmittance", "polarizing"),
+    "retarder": ("theta", "delta", "transmittance"),
+}
+_NESTED_BSDFS = {"blendbsdf": 2, "mask": 1, "bumpmap": 1, "normalmap": 1}  # the others nest none
 _PROPERTY_TAGS = {"integer", "float", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform"}
 _SAMPLERS = {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"}
 def _invertible_affine(m):
@@ -418,7 +447,8 @@ class _Reader:
         elif kind == "twosided":
             _, objs = self.params(node, {}, ("bsdf", "ref"))
             if len(objs) != 1:
-                self.fail(node, "twosided needs exactly one nested bsdf")
+                self.fail(node, f"twosided needs exactly one nested bsdf, got {len(objs)} (probvis renders the same "
+                                "bsdf on both sides: Mitsuba's front and back pair is not supported)")
             inner, _, texture = self.bsdf(objs[0])
             out = (inner, True, texture)
         elif kind in _APPROXIMATED_BSDFS:
@@ -447,12 +477,22 @@ class _Reader:
             note = "appearance approximated; visibility is exact" if exact_visibility else "visibility approximated"
             warnings.warn(f"{self.path}:{node.line}: {what} {how} ({note})", stacklevel=2)
 
-    def loose_params(self, node):
-        """The simple properties of a plugin probvis approximates (any names), and its nested objects."""
+    def loose_params(self, node, kind):
+        """The simple properties of a BSDF probvis approximates and its nested objects; a name that is not one of
+        Mitsuba's parameters of that BSDF (`_BSDF_PARAMETERS`), or an element no BSDF takes, is refused as Mitsuba
+        does."""
         props, objects, lines = {}, [], {}
+        allowed = _BSDF_PARAMETERS[kind]
+
+        def check(ch, name):
+            if name not in allowed:
+                self.fail(ch, f"unsupported parameter '{name}' for bsdf '{kind}' (its parameters: "
+                              f"{', '.join(allowed)})")
+
         for ch in node.children:
             if ch.tag in ("rgb", "spectrum", "float", "integer", "boolean", "string"):
                 name = self.attr(ch, "name")
+                check(ch, name)
                 self.once(ch, name, lines)
                 raw = self.attr(ch, "value")
                 if ch.tag == "spectrum" and ":" not in raw and len(raw.replace(",", " ").split()) != 1:
@@ -461,8 +501,14 @@ class _Reader:
                     props[name] = self.value(ch)
             elif ch.tag in ("bsdf", "ref", "texture"):
                 if "name" in ch.attrs:
-                    self.once(ch, self.attr(ch, "name"), lines)
+                    name = self.attr(ch, "name")
+                    if kind != "bumpmap" and (ch.tag == "texture" or ch.tag == "ref" and self.ref_kind(ch) ==
+                                              "texture"):
+                        check(ch, name)  # a named texture stands for a colour; a nested BSDF's name is free
+                    self.once(ch, name, lines)
                 objects.append(ch)
+            else:
+                self.fail(ch, f"unsupported element <{ch.tag}> inside <bsdf type='{kind}'>")
         return props, objects
 
     def texture(self, node):
@@ -526,12 +572,17 @@ class _Reader:
 
     def nearest_diffuse(self, node, kind):
         """The diffuse colour nearest to a BSDF probvis does not model (documented in docs/decisions.md)."""
-        props, objs = self.loose_params(node)
+        props, objs = self.loose_params(node, kind)
         lines = _by_name(node)
         textures = [ch for ch in objs if ch.tag == "texture" or (ch.tag == "ref" and self.ref_kind(ch) == "texture")]
         # each read, though only a colour is used: a missing or broken file is an error, as in Mitsuba
         named = {ch.attrs.get("name"): self.texture(ch) for ch in textures}
         nested = [ch for ch in objs if ch.tag in ("bsdf", "ref") and ch not in textures]
+        if len(nested) != _NESTED_BSDFS.get(kind, 0):
+            want = _NESTED_BSDFS.get(kind, 0)
+            self.fail(node, f"bsdf '{kind}' nests no other bsdf, got {len(nested)}" if want == 0 else
+                      f"bsdf '{kind}' nests exactly {'one' if want == 1 else 'two'} bsdf{'s' * (want > 1)}, got "
+                      f"{len(nested)}")
 
         def colour(name, default):
             if name in named:  # a texture's mean; grey 0.5 for one probvis does not read
@@ -570,10 +621,10 @@ class _Reader:
             # that no ratio overflows: 1 in the limit of a huge contrast
             a, b = ior_in / max(ior_in, ior_out), ior_out / max(ior_in, ior_out)
             return np.full(3, ((a - b) / (a + b)) ** 2)
-        if kind == "blendbsdf" and len(nested) == 2:
+        if kind == "blendbsdf":
             w = float(np.mean(colour("weight", 0.5)))
             return (1.0 - w) * self.bsdf(nested[0])[0] + w * self.bsdf(nested[1])[0]
-        if nested:  # mask, bumpmap, normalmap, ...: the BSDF they wrap
+        if nested:  # mask, bumpmap, normalmap: the BSDF they wrap
             return self.bsdf(nested[0])[0]
         return np.full(3, 0.5)
 
@@ -939,6 +990,9 @@ class _Reader:
         parse_fov: the focal length spans the 36 x 24 mm frame's diagonal; default 50 mm)."""
         if "fov" in props and "focal_length" in props:
             self.fail(node, "give either 'fov' or 'focal_length', not both")
+        if "fov_axis" in props and "fov" not in props:  # unreferenced in Mitsuba, which refuses it
+            self.fail(node, "fov_axis applies to 'fov' only (a focal_length spans the 35 mm frame's diagonal): give "
+                            "fov, or drop fov_axis")
         if "fov" in props:
             fov = props["fov"]
             axis = props.get("fov_axis", "x").lower()
@@ -1014,7 +1068,7 @@ class _Reader:
             if width < 1 or height < 1 or width > MAX_FILM_SIDE or height > MAX_FILM_SIDE:
                 self.fail(node, f"film size {width}x{height} is out of range (1 to {MAX_FILM_SIDE})")
         cx, cy = props.get("crop_offset_x", 0), props.get("crop_offset_y", 0)
-        cw, ch_ = props.get("crop_width", width - cx), props.get("crop_height", height - cy)
+        cw, ch_ = props.get("crop_width", width), props.get("crop_height", height)  # Mitsuba's defaults
         if not (0 <= cx and cw >= 1 and cx + cw <= width and 0 <= cy and ch_ >= 1 and cy + ch_ <= height):
             self.fail(node, f"the crop window {cw}x{ch_} at ({cx}, {cy}) does not fit the {width}x{height} film")
         return {"width": cw, "height": ch_, "film_width": width, "film_height": height, "crop_x": cx, "crop_y": cy,

@@ -19,11 +19,14 @@ UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "t
 FORMATS = ("ascii", "binary_little_endian", "binary_big_endian")
 INDEX_NAMES = ("vertex_indices", "vertex_index")  # the face list that holds the corners, where there are several
 HEADER_LINES = 1000  # a header longer than this is left to the general reader
+TYPE_BYTES = {b"char": 1, b"int8": 1, b"uchar": 1, b"uint8": 1, b"short": 2, b"int16": 2, b"ushort": 2,
+              b"uint16": 2, b"int": 4, b"int32": 4, b"uint": 4, b"uint32": 4, b"float": 4, b"float32": 4,
+              b"double": 8, b"float64": 8}
 
 
 def _header(fh):
-    """(format, {element: [(property, is_list)]}, {element: count}) of a PLY header, or None if it is not one
-    this reader takes."""
+    """(format, {element: [(property, is_list, least bytes in a binary row)]}, {element: count}) of a PLY header,
+    or None if it is not one this reader takes (a list's least bytes are its count's: it may be empty)."""
     if fh.readline(16).strip() != b"ply":
         return None
     fmt, elements, counts, current = None, {}, {}, None
@@ -45,7 +48,9 @@ def _header(fh):
             current = elements.setdefault(words[1].decode("ascii", "replace"), [])
             counts[words[1].decode("ascii", "replace")] = int(words[2])
         elif words[0] == b"property" and current is not None:
-            current.append((words[-1].decode("ascii", "replace"), words[1] == b"list"))
+            is_list = words[1] == b"list"
+            size = TYPE_BYTES.get(words[2] if is_list and len(words) > 2 else words[1], 1)
+            current.append((words[-1].decode("ascii", "replace"), is_list, size))
     return None
 
 
@@ -66,20 +71,25 @@ def read_ply(path):
     if header[0] not in FORMATS:
         raise ProbvisError(f"mesh {path}: PLY format '{header[0]}' is not one of {', '.join(FORMATS)}")
     elements, counts = header[1], header[2]
-    if header[0] == "ascii":  # each row holds at least one number and a separator per property: refuse before
-        least = sum(2 * max(len(elements[e]), 1) * n for e, n in counts.items())  # a count the file cannot hold
-        if least > Path(path).stat().st_size:  # is allocated
-            raise ProbvisError(f"mesh {path}: truncated or malformed PLY (its header declares "
-                               f"{counts.get('vertex', 0):,} vertices and {counts.get('face', 0):,} faces, more "
-                               f"than its {Path(path).stat().st_size:,} bytes can hold)")
+    # refuse a count the file cannot hold before it is allocated: an ASCII row holds at least a digit and a
+    # separator per property, a binary row each scalar's bytes and each list's count
+    if header[0] == "ascii":
+        least = sum(2 * max(len(elements[e]), 1) * n for e, n in counts.items())
+    else:
+        least = sum(max(sum(size for _, _, size in elements[e]), 1) * n for e, n in counts.items())
+    size = Path(path).stat().st_size
+    if least > size:
+        raise ProbvisError(f"mesh {path}: truncated or malformed PLY (its header declares "
+                           f"{counts.get('vertex', 0):,} vertices and {counts.get('face', 0):,} faces, at least "
+                           f"{least:,} bytes, more than its {size:,} bytes)")
     vertex, face = elements.get("vertex", []), elements.get("face", [])
-    missing = [c for c in "xyz" if c not in {name for name, _ in vertex}]
+    missing = [c for c in "xyz" if c not in {name for name, _, _ in vertex}]
     if "vertex" in elements and missing:
         raise ProbvisError(f"mesh {path}: its vertex element has no {' or '.join(repr(c) for c in missing)} "
                            "property (a PLY mesh's vertices need x, y and z)")
-    lists = [name for name, is_list in face if is_list]
+    lists = [name for name, is_list, _ in face if is_list]
     index = next((name for name in INDEX_NAMES if name in lists), lists[0] if len(lists) == 1 else None)
-    if index is None or any(is_list for _, is_list in vertex):
+    if index is None or any(is_list for _, is_list, _ in vertex):
         return None
     try:
         # plyfile reads ASCII through a text wrapper it leaves open: over bytes in memory nothing is left open
