@@ -235,12 +235,14 @@ def test_any_path_like_object_names_a_scene(tmp_path):
     refused."""
     from pathlib import PurePosixPath
 
+    path = write_scene(tmp_path / "s.xml", sensor(spp=1, sr=1, w=8, h=8) + '<shape type="rectangle"/>'
+                       '<emitter type="point"><point name="position" x="0" y="0" z="1"/></emitter>')
+
     class Named:
         def __fspath__(self):
-            return "quad-shadow"
+            return str(path)
 
-    images = [probvis.render(s, spp=1, shadow_rays=1, resolution=(8, 8)).image
-              for s in ("quad-shadow", PurePosixPath("quad-shadow"), Named())]
+    images = [probvis.render(s).image for s in (path, PurePosixPath(path), Named())]
     np.testing.assert_array_equal(images[0], images[1])
     np.testing.assert_array_equal(images[0], images[2])
     with pytest.raises(ProbvisError, match="scene must be a Scene, a scene file path or a built-in name, got bytes"):

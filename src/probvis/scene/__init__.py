@@ -27,7 +27,7 @@ def open_scene(path, defines, strict=False):
     defaults = dict(defines)
     if not is_path(path):
         raise ProbvisError(f"path must be a scene file path or a built-in name, got {type(path).__name__}")
-    path = os.fspath(path)
+    path = path if isinstance(path, str) else Path(os.fspath(path))  # a path object names a file, not a built-in
     if not is_flag(strict):
         raise ProbvisError(f"strict must be True or False, got {strict!r}")
     strict = bool(strict)
