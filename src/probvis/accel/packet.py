@@ -6,8 +6,8 @@ fetches each node once, tests both child boxes against all of its rays in one lo
 code (computing box-minus-origin once when all rays share their origin), and descends with a bit mask of the
 rays whose boxes were hit. Where the mask has thinned to a few rays (SPARSE_RAYS, or a quarter of the packet), as deep in foliage where the
 rays of one point part ways, the node tests those rays alone, and leaves visit the mask's set bits only: the
-same tests in the same order, without a loop over the whole packet per node (leaves 1.3x, heavy-scan 1.2x,
-city 1.1x on one thread, bench/bench_embree_replay.py). Every ray still makes only box and triangle tests it would make alone (a ray only
+same tests in the same order, without a loop over the whole packet per node (leaves and heavy-scan 1.25-1.3x
+on one thread, bench/bench_embree_replay.py). Every ray still makes only box and triangle tests it would make alone (a ray only
 follows the nodes whose boxes it hits; in an any-hit query it leaves the packet at its first hit), in the
 packet's visiting order: an occluded ray may find a different blocker first, and a nearest-hit ray may test
 boxes that its own order would have culled. Results are those of `traversal.any_hit` and
