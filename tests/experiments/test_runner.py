@@ -246,6 +246,20 @@ def test_a_stop_signal_while_the_report_is_written_leaves_a_complete_study(tiny_
     assert numbers(again) == numbers(results)
 
 
+def test_a_folder_holding_another_index_html_is_not_overwritten(tiny_run, tmp_path):
+    """`-o` naming a web site's folder replaced its index.html and results.csv without a word; a report's own
+    folder is written again (resumed)."""
+    out, _, _, _ = tiny_run
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "index.html").write_text("<html><title>my site</title></html>")
+    with pytest.raises(ProbvisError, match="holds an index.html that is not a probvis report"):
+        experiment(parse_experiment(TINY), site, cache=out / "cache", progress=False, log=lambda m: None)
+    assert (site / "index.html").read_text() == "<html><title>my site</title></html>"
+    _, index, run = experiment(parse_experiment(TINY), out, progress=False, log=lambda m: None)
+    assert index.is_file() and run.computed == 0
+
+
 def test_methods_that_match_the_reference_plot_without_warnings(tiny_run, tmp_path):
     """relMSE 0 (exact methods rendering the reference's own image) has no place on a log axis: left out, not
     warned about. matplotlib warns once a log axis holds only such values (here the target line's)."""

@@ -29,6 +29,7 @@ from .results import UNSTEADY
 
 STATIC = ("viewer.js", "report.css")
 NAME_MAX = 255  # bytes in a file name: what Linux's and macOS's file systems hold
+REPORT_TITLE = "probvis experiment: "  # how its index.html begins: a folder holding another index.html is not replaced
 SECONDS_NOTE = {"total": "", "render": " and without scene loading and BVH building (seconds = render)"}
 
 
@@ -484,7 +485,7 @@ class Report:
         methods = "".join(f"<li><b>{e(m.name)}</b>: {e(m.visibility)} {e(json.dumps(m.options, default=list))}"
                           f"{' (baseline)' if m.name == exp.baseline else ''}</li>" for m in exp.methods)
         return f"""<!doctype html>
-<html lang=en><head><meta charset=utf-8><title>probvis experiment: {e(exp.name)}</title>
+<html lang=en><head><meta charset=utf-8><title>{REPORT_TITLE}{e(exp.name)}</title>
 <link rel=stylesheet href=report.css></head><body>
 <h1>probvis experiment: {e(exp.name)}</h1>
 <p>{e(exp.description)}</p>
@@ -530,6 +531,16 @@ def report_problem(exp, folder):
     for name in files:
         if (folder / name).is_dir():
             return f"cannot write the report: '{folder / name}' is a folder, where the report writes a file"
+    index = folder / "index.html"
+    if index.is_file():
+        try:
+            with open(index, "rb") as fh:
+                ours = REPORT_TITLE.encode() in fh.read(4096)
+        except OSError as exc:
+            return f"cannot write the report: '{index}' cannot be read ({exc.strerror or exc})"
+        if not ours:
+            return (f"'{folder}' holds an index.html that is not a probvis report, which the report would replace: "
+                    "give -o a new folder, or a report's own")
     return None
 
 
