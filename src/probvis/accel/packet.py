@@ -4,14 +4,14 @@ A packet is either the shadow segments of one shading point (towards one emitter
 origin) or a run of 64 camera rays (4 neighbouring pixels' samples, all from the camera's origin). A packet
 fetches each node once, tests both child boxes against all of its rays in one loop that LLVM turns into SIMD
 code (computing box-minus-origin once when all rays share their origin), and descends with a bit mask of the
-rays whose boxes were hit. Where the mask has thinned to a few rays (SPARSE_RAYS, or a quarter of the packet), as deep in foliage where the
-rays of one point part ways, the node tests those rays alone, and leaves visit the mask's set bits only: the
-same tests in the same order, without a loop over the whole packet per node (leaves and heavy-scan 1.25-1.3x
-on one thread, bench/bench_embree_replay.py). Every ray still makes only box and triangle tests it would make alone (a ray only
-follows the nodes whose boxes it hits; in an any-hit query it leaves the packet at its first hit), in the
-packet's visiting order: an occluded ray may find a different blocker first, and a nearest-hit ray may test
-boxes that its own order would have culled. Results are those of `traversal.any_hit` and
-`traversal.closest_hit`.
+rays whose boxes were hit. Where the mask has thinned to a few rays (SPARSE_RAYS, or a quarter of the packet),
+as deep in foliage where the rays of one point part ways, the node tests those rays alone, and leaves visit the
+mask's set bits only: the same tests in the same order, without a loop over the whole packet per node (leaves
+and heavy-scan 1.25-1.3x on one thread, bench/bench_embree_replay.py). Every ray still makes only box and
+triangle tests it would make alone (a ray only follows the nodes whose boxes it hits; in an any-hit query it
+leaves the packet at its first hit), in the packet's visiting order: an occluded ray may find a different
+blocker first, and a nearest-hit ray may test boxes that its own order would have culled. Results are those
+of `traversal.any_hit` and `traversal.closest_hit`.
 """
 import numpy as np
 from numba import njit
@@ -94,6 +94,12 @@ _BIT_INDEX = _bit_index_table()  # the index of a uint64's one set bit b: _BIT_I
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _lowest(bits):
+    """Index of the lowest set bit of a uint64 (0 for 0)."""
+    return _BIT_INDEX[((bits & (~bits + np.uint64(1))) * np.uint64(_DEBRUIJN)) >> np.uint64(58)]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _popcount(x):
     """Set bits of a uint64."""
     x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
@@ -155,14 +161,13 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
                 if _popcount(mask) <= max(SPARSE_RAYS, m // 4):  # few rays left in the packet: test those alone
                     bits = mask
                     while bits != 0:
-                        low = bits & (~bits + one)
-                        r = _BIT_INDEX[(low * np.uint64(_DEBRUIJN)) >> np.uint64(58)]
+                        r = _lowest(bits)
+                        bits &= bits - one
                         sh = np.uint64(r)
                         visits[r] += 1
                         _one_child_boxes(cb, node, r, rays, t_left, t_right)
                         left |= np.uint64(t_left[r] < np.inf) << sh
                         right |= np.uint64(t_right[r] < np.inf) << sh
-                        bits ^= low
                 else:
                     _child_boxes(cb, node, m, rays, shared, t_left, t_right)
                     for r in range(m):
@@ -173,7 +178,7 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
                         right |= (np.uint64(t_right[r] < np.inf) & inside) << sh
                 if left != 0 and right != 0:
                     both = left & right
-                    r0 = _BIT_INDEX[((both & (~both + one)) * np.uint64(_DEBRUIJN)) >> np.uint64(58)]  # 0 if both is 0
+                    r0 = _lowest(both)  # 0 if both is 0
                     # nearer child first, as seen by the first ray that hits both (left first if none does)
                     if both == 0 or t_left[r0] <= t_right[r0]:
                         stack[sp], stack_mask[sp] = ci[node, 12], right
@@ -193,9 +198,9 @@ def _trace_packet(cb, ci, root2, tv, org, dirs, tmin, tmax, lo, m, rays, t_left,
                 first = ci[node, 12]
                 bits = mask
                 while bits != 0:
-                    bit = bits & (~bits + one)
-                    bits ^= bit
-                    r = _BIT_INDEX[(bit * np.uint64(_DEBRUIJN)) >> np.uint64(58)]
+                    r = _lowest(bits)
+                    bits &= bits - one
+                    bit = one << np.uint64(r)
                     o = (rays[0, r], rays[1, r], rays[2, r])
                     # the triangle test's shear, only for the few rays that reach a leaf (saves divisions)
                     kx, ky, kz, sx, sy, sz = ray_setup(dirs[lo + r, 0], dirs[lo + r, 1], dirs[lo + r, 2])
