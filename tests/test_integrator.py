@@ -249,6 +249,22 @@ def test_any_path_like_object_names_a_scene(tmp_path):
         probvis.render(b"quad-shadow")
 
 
+def test_a_misspelt_or_missing_argument_is_named_with_the_nearest(tmp_path):
+    """Python's TypeError ('got an unexpected keyword argument') was all a misspelt keyword got; `load_scene(path=)`
+    said a required argument was missing though it was given."""
+    from probvis.experiments import experiment, quick_experiment
+
+    for call, message in ((lambda: probvis.render("quad-shadow", shadowrays=4), "render(): got an unexpected keyword "
+                           "argument 'shadowrays' (did you mean shadow_rays=?)"),
+                          (lambda: probvis.render(), "render(): missing a required argument: 'scene'"),
+                          (lambda: probvis.load_scene(path="quad-shadow"), "(path is given first, by position"),
+                          (lambda: experiment(quick_experiment(), tmp_path / "r", worker=2),
+                           "experiment(): got an unexpected keyword argument 'worker' (did you mean workers=?)")):
+        with pytest.raises(ProbvisError, match=re.escape(message)):
+            call()
+    assert not (tmp_path / "r").exists()
+
+
 def test_a_number_for_a_text_option_is_its_text():
     """`verify` takes auto, off or a probability: 0.5 in the API (or a TOML file) means what `--verify 0.5` does."""
     as_number = probvis.render("quad-shadow", spp=1, shadow_rays=2, resolution=(8, 8), visibility="occlusion-map",

@@ -6,7 +6,7 @@ import os
 # (bench/bench_contention.py, docs/decisions.md). Set before the OpenMP runtime loads; a user's value wins.
 os.environ.setdefault("GOMP_SPINCOUNT", "1000")
 
-from .errors import ProbvisError  # noqa: E402
+from .errors import ProbvisError, checked_call  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -25,6 +25,7 @@ def __getattr__(name):
     return value
 
 
+@checked_call
 def render(scene, settings=None, **kwargs):
     """Render `scene` (a `Scene`, an XML path or a built-in name); see `probvis.integrator.render`."""
     from .integrator import render as _render

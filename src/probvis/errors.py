@@ -1,5 +1,6 @@
 """User-facing errors: reported by the CLI as one line, without a traceback."""
 import errno
+import re
 import os
 
 
@@ -16,6 +17,37 @@ def is_number(value, whole=False):
     if isinstance(value, (bool, np.bool_, np.timedelta64)):
         return False
     return isinstance(value, (int, np.integer) if whole else (int, float, np.integer, np.floating))
+
+
+def checked_call(func):
+    """`func` with a call that does not fit its signature (a misspelt keyword, a missing argument) refused as a
+    ProbvisError naming the nearest argument, instead of Python's TypeError."""
+    import difflib
+    import functools
+    import inspect
+
+    sig = inspect.signature(func)
+    params = sig.parameters.values()
+    names = [p.name for p in params if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL, p.POSITIONAL_ONLY)]
+    by_position = [p.name for p in params if p.kind == p.POSITIONAL_ONLY]
+
+    @functools.wraps(func)
+    def call(*args, **kwargs):
+        try:
+            sig.bind(*args, **kwargs)
+        except TypeError as exc:
+            text, hint = str(exc), ""
+            unknown = re.search(r"unexpected keyword argument '(\w+)'", text)
+            if unknown:
+                close = difflib.get_close_matches(unknown.group(1), names, 1)
+                hint = f" (did you mean {close[0]}=?)" if close else f" (its arguments: {', '.join(names)})"
+            given = [name for name in by_position if name in kwargs]
+            if given:
+                hint = f" ({given[0]} is given first, by position: {func.__name__}(value, ...))"
+            raise ProbvisError(f"{func.__name__}(): {text}{hint}") from None
+        return func(*args, **kwargs)
+
+    return call
 
 
 def is_path(value):

@@ -28,7 +28,7 @@ from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler
-from .errors import ProbvisError, is_flag, is_path
+from .errors import ProbvisError, checked_call, is_flag, is_path
 from .film import Film, splat_chunk, splat_filter, warn_if_black
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
@@ -309,6 +309,7 @@ def _check_arguments(scene, settings, resolution, defines, options, numbers, fla
             raise ProbvisError(f"{name} must be a whole number, got {value!r} (a {type(value).__name__})")
 
 
+@checked_call
 def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threads=None, resolution=None,
            visibility="exact", visibility_options=None, defines=None, strict=False, progress=False,
            clamp_negative=False, filter_importance=None):

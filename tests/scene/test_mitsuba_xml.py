@@ -351,15 +351,15 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
     ("<shape type='rectangle'><bsdf type='roughconductor'><string name='material' value='unobtainium'/></bsdf>"
      "</shape>", "<bsdf>: unknown conductor material 'unobtainium' (Mitsuba's: Ag, Al,"),
     ("<shape type='rectangle'><bsdf type='dielectric'><rgb name='int_ior' value='1.5'/></bsdf></shape>",
-     "<rgb>: int_ior is one number or a material name: give it as <float> or <string>"),
+     "<rgb>: 'int_ior' of a dielectric bsdf is given as <float> or <string>"),
     ("<shape type='rectangle'><bsdf type='plastic'><string name='diffuse_reflectance' value='red'/></bsdf></shape>",
-     "<string>: 'diffuse_reflectance' of a plastic bsdf is a colour: give it as <rgb>"),
+     "<string>: 'diffuse_reflectance' of a plastic bsdf is given as <rgb> or <spectrum> or <float> or a <texture>"),
     ("<shape type='rectangle'><bsdf type='conductor'><rgb name='material' value='0.5'/></bsdf></shape>",
-     "<rgb>: a conductor's material is a name: give it as <string>"),
+     "<rgb>: 'material' of a conductor bsdf is given as <string>"),
     ("<shape type='rectangle'><bsdf type='principled'><boolean name='base_color' value='true'/></bsdf></shape>",
-     "<boolean>: 'base_color' of a principled bsdf is a colour"),
+     "<boolean>: 'base_color' of a principled bsdf is given as <rgb>"),
     ("<shape type='rectangle'><bsdf type='blendbsdf'><string name='weight' value='half'/><bsdf type='diffuse'/>"
-     "<bsdf type='diffuse'/></bsdf></shape>", "<string>: 'weight' of a blendbsdf bsdf is a colour"),
+     "<bsdf type='diffuse'/></bsdf></shape>", "<string>: 'weight' of a blendbsdf bsdf is given as <rgb>"),
     ("<shape type='rectangle'><bsdf type='diffuse'><spectrum name='reflectance' value='nan:0.5, 500:0.5'/></bsdf>"
      "</shape>", "<spectrum>: non-finite wavelength or value in 'nan:0.5, 500:0.5'"),
     ("<shape type='rectangle'><bsdf type='diffuse'><spectrum name='reflectance' value='4_00:0.5, 500:0.5'/>"
@@ -420,6 +420,85 @@ def test_an_approximated_bsdf_takes_mitsuba_s_parameters_only(tmp_path, bsdf, me
         probvis.load_scene(path)
 
 
+@pytest.mark.parametrize("bsdf, message", [
+    ("<bsdf type='roughconductor'><string name='distribution' value='bogus'/></bsdf>",
+     "<string>: 'distribution' of a roughconductor bsdf is beckmann or ggx, got 'bogus'"),
+    ("<bsdf type='conductor'><string name='material' value='Au'/><rgb name='eta' value='0.2'/></bsdf>",
+     "a conductor bsdf takes either a material or eta and k, not both"),
+    ("<bsdf type='roughconductor'><float name='alpha' value='0.1'/><float name='alpha_u' value='0.2'/></bsdf>",
+     "a roughconductor bsdf takes either alpha or both alpha_u and alpha_v"),
+    ("<bsdf type='plastic'><string name='nonlinear' value='maybe'/></bsdf>",
+     "<string>: 'nonlinear' of a plastic bsdf is given as <boolean>"),
+    ("<bsdf type='principled'><string name='roughness' value='rough'/></bsdf>",
+     "'roughness' of a principled bsdf is given as <rgb> or <spectrum> or <float> or a <texture>"),
+    ("<bsdf type='dielectric'><integer name='int_ior' value='2'/></bsdf>",
+     "<integer>: 'int_ior' of a dielectric bsdf is given as <float> or <string>"),
+    ("<bsdf type='measured'><string name='filename' value='nothere.bsdf'/></bsdf>",
+     "<string>: no file 'nothere.bsdf' for the measured bsdf"),
+    ("<bsdf type='measured'/>", "a measured bsdf needs a 'filename'"),
+    ("<bsdf type='bumpmap'><bsdf type='diffuse'/></bsdf>",
+     "a bumpmap bsdf needs exactly one nested texture (its height), got 0"),
+])
+def test_an_approximated_bsdf_s_values_are_checked_as_mitsuba_does(tmp_path, bsdf, message):
+    """Names were checked, not what they held: a bogus distribution, a material beside eta, a string for a flag
+    or a colour, a measured BSDF without its file, a bumpmap without its texture rendered with exit 0."""
+    path = write_scene(tmp_path / "bad.xml", sensor() + f"<shape type='rectangle'>{bsdf}</shape>" + LIGHT)
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.load_scene(path)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (('<sampler type="independent">', '<sampler type="independent"><integer name="dimension" value="4"/>'),
+     "<integer>: unsupported parameter 'dimension' for sampler 'independent'"),
+    (('<sampler type="independent">', '<sampler type="independent"><boolean name="jitter" value="true"/>'),
+     "unsupported parameter 'jitter' for sampler 'independent'"),
+    (('<sampler type="independent">', '<sampler type="independent"><integer name="seed" value="4294967296"/>'),
+     "seed must be from 0 to 4294967295, got 4294967296"),
+    (('<integer name="bsdf_samples" value="0"/>', '<integer name="bsdf_samples" value="-1"/>'),
+     "<integer>: bsdf_samples must not be negative, got -1"),
+    (('<float name="fov" value="40"/>', '<float name="focal_length" value="35"/>'),
+     "parameter 'focal_length' must be given as <string>"),
+    (('<rfilter type="box"/>', '<rfilter type="box"/><string name="pixel_format" value="y"/>'),
+     "unknown pixel_format 'y' (Mitsuba's hdrfilm takes rgb, rgba, luminance, luminance_alpha, xyz, xyza)"),
+])
+def test_sampler_integrator_and_film_parameters_are_mitsuba_s(tmp_path, edit, message):
+    """Parameters no sampler of that type takes, a seed beyond Mitsuba's 32 bits, a negative bsdf_samples, a
+    focal length as a number and a pixel format Mitsuba does not know were accepted."""
+    path = write_scene(tmp_path / "bad.xml", sensor().replace(*edit) + LIGHT + "<shape type='rectangle'/>")
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.load_scene(path)
+
+
+def test_valid_sampler_and_film_parameters_of_mitsuba_are_taken(tmp_path):
+    """orthogonal's own `strength` was refused; `xyz` and `RGB` pixel formats (Mitsuba lower-cases them) were
+    refused, `luminance_alpha` too: each is read, the format with the warning that probvis writes RGB."""
+    body = sensor().replace('<sampler type="independent">', '<sampler type="orthogonal"><integer name="strength" '
+                            'value="2"/><boolean name="jitter" value="false"/>')
+    for fmt in ("xyz", "RGB", "luminance_alpha"):
+        with pytest.warns(UserWarning):
+            probvis.load_scene(write_scene(tmp_path / f"{fmt}.xml", body.replace(
+                '<rfilter type="box"/>', f'<rfilter type="box"/><string name="pixel_format" value="{fmt}"/>')
+                + LIGHT + "<shape type='rectangle'/>"))
+    body = sensor() + LIGHT + ("<shape type='rectangle'><bsdf type='diffuse'><texture type='bitmap' "
+                               "name='reflectance'><string name='filename' value='t.png'/><string name='format' "
+                               "value='bogus'/></texture></bsdf></shape>")
+    with pytest.raises(ProbvisError, match=re.escape("unknown bitmap format 'bogus' (Mitsuba's: auto, variant")):
+        probvis.load_scene(write_scene(tmp_path / "fmt.xml", body))
+
+
+def test_an_instance_s_singular_transform_is_named_at_the_instance(tmp_path):
+    """It was named at the line of the shape inside the shapegroup, which has no transform."""
+    body = sensor() + LIGHT + """
+<shape type="shapegroup" id="g"><shape type="sphere"><float name="radius" value="0.1"/></shape></shape>
+<shape type="instance"><ref id="g"/>
+<transform name="to_world"><scale x="0"/></transform></shape>"""
+    path = write_scene(tmp_path / "inst.xml", body)
+    line = next(k for k, text in enumerate(path.read_text().splitlines(), 1) if "<scale x=" in text)
+    with pytest.raises(ProbvisError, match=re.escape(f"inst.xml:{line}: <transform>: the instance's to_world is "
+                                                     "singular or projective")):
+        probvis.load_scene(path)
+
+
 def test_the_approximated_bsdfs_parameters_are_mitsuba_s(tmp_path):
     """Each name the reader takes for a BSDF it approximates is one Mitsuba 3 takes (no 'unreferenced
     property'), so a scene both accept is read the same, and one Mitsuba refuses is refused."""
@@ -446,7 +525,8 @@ def test_the_approximated_bsdfs_parameters_are_mitsuba_s(tmp_path):
 @pytest.mark.parametrize("edit, message", [
     (('<float name="fov" value="40"/>', '<string name="fov_axis" value="y"/>'),
      "fov_axis applies to 'fov' only (a focal_length spans the 35 mm frame's diagonal)"),
-    (('<float name="fov" value="40"/>', '<float name="focal_length" value="50"/><string name="fov_axis" value="y"/>'),
+    (('<float name="fov" value="40"/>',
+      '<string name="focal_length" value="50mm"/><string name="fov_axis" value="y"/>'),
      "fov_axis applies to 'fov' only"),
     (('<integer name="height"', '<integer name="crop_offset_x" value="7"/><integer name="height"'),
      "the crop window 16x16 at (7, 0) does not fit the 16x16 film"),
@@ -587,7 +667,7 @@ def test_a_dielectric_approximated_at_any_contrast_is_finite(tmp_path, ior, refl
     ("<float name='fov' value='179.9999999'/>", "fov 179.9999999 makes the view 179.9999999 degrees wide"),
     ("<string name='focal_length' value='1e-7mm'/>", "focal_length 1e-7mm makes the view 179.9999993 degrees wide"),
     # the ratio overflowed: NumPy's warning, then 'fov must be between 0 and 180 degrees, got 180' (no fov given)
-    ("<float name='focal_length' value='1e-320'/>", "focal_length 1e-320 makes the view 180 degrees wide"),
+    ("<string name='focal_length' value='1e-320mm'/>", "focal_length 1e-320mm makes the view 180 degrees wide"),
     ("<string name='focal_length' value='1e-320mm'/>", "focal_length 1e-320mm makes the view 180 degrees wide"),
 ])
 def test_a_view_so_wide_the_scene_shrinks_to_a_dot_is_refused(tmp_path, camera, message):

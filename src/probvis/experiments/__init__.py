@@ -4,7 +4,7 @@ import os
 from pathlib import Path
 
 
-from ..errors import ProbvisError, is_flag, is_number, is_path
+from ..errors import ProbvisError, checked_call, is_flag, is_number, is_path
 from ..interrupts import deferred_interrupts
 from .config import (Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment,
                      recheck)
@@ -13,6 +13,7 @@ from .results import measure
 from .runner import run_experiment
 
 
+@checked_call
 def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, command="", log=None):
     """Run `exp` (an `Experiment` or a TOML path), cache its renders and write the report to folder `out`.
 

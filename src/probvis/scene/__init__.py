@@ -4,13 +4,14 @@ import os
 import warnings
 from pathlib import Path
 
-from ..errors import ProbvisError, is_flag, is_path
+from ..errors import ProbvisError, checked_call, is_flag, is_path
 from .builtin import BUILTINS, builtin_scene
 from .mitsuba_xml import read_scene
 from .scene import Scene, SceneBuilder, ShapeInfo
 from .sensor import Camera
 
 
+@checked_call
 def load_scene(path, /, strict=False, **defaults):
     """Load a Mitsuba 3 XML file, or a built-in scene by name (`probvis scenes` lists them).
 

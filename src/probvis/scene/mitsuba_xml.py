@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import ProbvisError, missing_file
 from ..io.image import read_linear_rgb
-from ..settings import (MAX_SEED, MAX_SHADOW_RAYS, MAX_SPP, RenderSettings, parse_float as _float,
+from ..settings import (MAX_SHADOW_RAYS, MAX_SPP, RenderSettings, parse_float as _float,
                         parse_int as _int)
 from . import shapes as shp
 from . import transform as tf
@@ -141,8 +141,17 @@ _BSDF_PARAMETERS = {  # Mitsuba 3's parameters (properties and named textures) o
     "retarder": ("theta", "delta", "transmittance"),
 }
 _NESTED_BSDFS = {"blendbsdf": 2, "mask": 1, "bumpmap": 1, "normalmap": 1}  # the others nest none
+# how the approximated BSDFs' parameters are given (Mitsuba's types); the others are colours or numbers:
+# <rgb>, <spectrum>, <float> or a texture
+_FLAG_PARAMETERS = {"nonlinear", "sample_visible", "polarizing"}
+_NAME_PARAMETERS = {"material", "distribution", "filename"}
+_IOR_PARAMETERS = {"int_ior", "ext_ior"}  # a number or a material's name
+_DISTRIBUTIONS = ("beckmann", "ggx")
 _PROPERTY_TAGS = {"integer", "float", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform"}
-_SAMPLERS = {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"}
+_SAMPLERS = {"independent": (), "stratified": ("jitter",), "multijitter": ("jitter",),  # their own parameters
+             "orthogonal": ("jitter", "strength"), "ldsampler": ()}  # beside sample_count and seed
+MAX_SAMPLER_SEED = 2 ** 32 - 1  # a Mitsuba sampler's seed is a 32-bit unsigned integer
+BITMAP_FORMATS = ("auto", "variant", "float16", "uint8")
 def _invertible_affine(m):
     """Whether the 4x4 transform `m` is affine (last row 0 0 0 1) with an invertible linear part, judged
     independently of its overall scale."""
@@ -494,6 +503,11 @@ class _Reader:
                 name = self.attr(ch, "name")
                 check(ch, name)
                 self.once(ch, name, lines)
+                want = (("boolean",) if name in _FLAG_PARAMETERS else ("string",) if name in _NAME_PARAMETERS
+                        else ("float", "string") if name in _IOR_PARAMETERS else ("rgb", "spectrum", "float"))
+                if ch.tag not in want:
+                    self.fail(ch, f"'{name}' of a {kind} bsdf is given as <{'> or <'.join(want)}>"
+                                  f"{'' if 'float' not in want or name in _IOR_PARAMETERS else ' or a <texture>'}")
                 raw = self.attr(ch, "value")
                 if ch.tag == "spectrum" and ":" not in raw and len(raw.replace(",", " ").split()) != 1:
                     props[name] = np.full(3, 0.5)  # not a spectrum Mitsuba would read: its colour is not modelled
@@ -524,6 +538,9 @@ class _Reader:
                                           "format": ("string",), "accel": ("boolean",)})
             if "filename" not in props:
                 self.fail(node, "bitmap needs a 'filename'")
+            if props.get("format", "auto") not in BITMAP_FORMATS:
+                self.fail(_by_name(node)["format"], f"unknown bitmap format '{props['format']}' (Mitsuba's: "
+                                                     f"{', '.join(BITMAP_FORMATS)})")
             filt, wrap = props.get("filter_type", "bilinear"), props.get("wrap_mode", "repeat")
             if filt not in ("bilinear", "nearest"):
                 self.fail(node, f"filter_type must be bilinear or nearest, got '{filt}'")
@@ -583,6 +600,23 @@ class _Reader:
             self.fail(node, f"bsdf '{kind}' nests no other bsdf, got {len(nested)}" if want == 0 else
                       f"bsdf '{kind}' nests exactly {'one' if want == 1 else 'two'} bsdf{'s' * (want > 1)}, got "
                       f"{len(nested)}")
+
+        if props.get("distribution", "beckmann") not in _DISTRIBUTIONS:
+            self.fail(lines["distribution"], f"'distribution' of a {kind} bsdf is beckmann or ggx, got "
+                                             f"'{props['distribution']}'")
+        if "alpha" in props and ("alpha_u" in props or "alpha_v" in props) or ("alpha_u" in props) != (
+                "alpha_v" in props):
+            self.fail(node, f"a {kind} bsdf takes either alpha or both alpha_u and alpha_v")
+        if "material" in props and ("eta" in props or "k" in props):
+            self.fail(node, f"a {kind} bsdf takes either a material or eta and k, not both")
+        if kind == "measured":
+            if "filename" not in props:
+                self.fail(node, "a measured bsdf needs a 'filename'")
+            if not self.input_file(lines["filename"], props["filename"]).is_file():
+                self.fail(lines["filename"], f"no file '{props['filename']}' for the measured bsdf")
+        if kind in ("bumpmap", "normalmap") and len(textures) != 1:
+            what = "height" if kind == "bumpmap" else "normals"
+            self.fail(node, f"a {kind} bsdf needs exactly one nested texture (its {what}), got {len(textures)}")
 
         def colour(name, default):
             if name in named:  # a texture's mean; grey 0.5 for one probvis does not read
@@ -795,6 +829,10 @@ class _Reader:
                 self.fail(node, "an instance needs exactly one <ref> to a shapegroup")
             group = self.resolve(objs[0], "shapegroup")
             m = props.get("to_world", np.eye(4)) if outer is None else outer @ props.get("to_world", np.eye(4))
+            if not _invertible_affine(m):  # named here: the group's shapes have transforms of their own
+                self.fail(_by_name(node).get("to_world", node), "the instance's to_world is singular or projective (a "
+                                                                "scale of 0 flattens it; a matrix's last row must be "
+                                                                "0 0 0 1): check its scale and matrix")
             for child in group:
                 self.shape(child, builder, m)
             return
@@ -921,7 +959,7 @@ class _Reader:
         kind = self.attr(node, "type")
         if kind not in ("perspective", "thinlens"):
             self.fail(node, f"unsupported sensor type '{kind}' (supported: perspective, thinlens)")
-        allowed = {"fov": ("float",), "focal_length": ("string", "float"), "fov_axis": ("string",),
+        allowed = {"fov": ("float",), "focal_length": ("string",), "fov_axis": ("string",),
                    "to_world": ("transform",), "near_clip": ("float",), "far_clip": ("float",),
                    "srf": ("spectrum", "rgb")}
         if kind == "perspective":  # focus_distance is read by every projective camera; a pinhole ignores it
@@ -949,10 +987,10 @@ class _Reader:
                                   "sampler (same expected image, different noise)", stacklevel=2)
                 lines = _by_name(ch)
                 sp, _ = self.params(ch, {"sample_count": ("integer",), "seed": ("integer",),
-                                         "jitter": ("boolean",), "dimension": ("integer",),
-                                         "scramble_seed": ("integer",)})
+                                         **{name: ("integer",) if name == "strength" else ("boolean",)
+                                            for name in _SAMPLERS[st]}})
                 spp, seed = sp.get("sample_count", spp), sp.get("seed", seed)
-                for name, value, lo, hi in (("sample_count", spp, 1, MAX_SPP), ("seed", seed, 0, MAX_SEED)):
+                for name, value, lo, hi in (("sample_count", spp, 1, MAX_SPP), ("seed", seed, 0, MAX_SAMPLER_SEED)):
                     if not lo <= value <= hi:
                         self.fail(lines.get(name, ch), f"{name} must be from {lo} to {hi}, got {value}")
             else:
@@ -1047,9 +1085,8 @@ class _Reader:
                        "crop_offset_y": ("integer",), "crop_width": ("integer",), "crop_height": ("integer",),
                        "sample_border": ("boolean",), "banner": ("boolean",), "compensate": ("boolean",)},
                 ("rfilter",))
-            if props.get("pixel_format", "rgb") not in ("rgb", "rgba", "rgb_alpha", "luminance", "y"):
-                self.fail(node, f"unsupported pixel_format '{props['pixel_format']}'")
-            for key, known in (("component_format", ("float16", "float32", "uint32")),
+            for key, known in (("pixel_format", ("rgb", "rgba", "luminance", "luminance_alpha", "xyz", "xyza")),
+                               ("component_format", ("float16", "float32", "uint32")),
                                ("file_format", ("openexr", "exr", "rgbe", "hdr", "pfm"))):
                 if props.get(key, known[0]).lower() not in known:
                     self.fail(node, f"unknown {key} '{props[key]}' (Mitsuba's hdrfilm takes {', '.join(known)})")
@@ -1130,6 +1167,8 @@ class _Reader:
         if not 1 <= base <= MAX_SHADOW_RAYS:
             self.fail(lines.get("shading_samples", node), f"shading_samples must be from 1 to {MAX_SHADOW_RAYS}, "
                                                           f"got {base}")
+        if props.get("bsdf_samples", 0) < 0:
+            self.fail(lines["bsdf_samples"], f"bsdf_samples must not be negative, got {props['bsdf_samples']}")
         if props.get("bsdf_samples", 0) != 0:  # only when the file asks for them: a default is no request
             warnings.warn(f"{self.path}:{node.line}: bsdf_samples ignored: probvis samples emitters only "
                           "(same expected image)", stacklevel=2)
