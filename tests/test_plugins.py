@@ -160,6 +160,8 @@ def test_installed_estimators_load_through_the_entry_point_group(roulette, tmp_p
     ("nowhere_module:Thing", "cannot import 'nowhere_module'"),
     ("probvis.settings:RenderSettings", "is not a probvis.visibility.VisibilityEstimator subclass"),
     ("magic", "unknown visibility 'magic'"),
+    (".hidden:X", "'.hidden' is neither a module name (package.module) nor a Python file (.py)"),  # was a TypeError
+    ("./x.xml:P", "'./x.xml' is neither a module name"),
 ])
 def test_bad_estimator_names_are_one_line_errors(spec, message):
     with pytest.raises(ProbvisError, match=re.escape(message)):
