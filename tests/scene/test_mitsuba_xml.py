@@ -908,3 +908,18 @@ def test_include_and_unused_film_formats_are_named(tmp_path):
         warnings.simplefilter("error")  # Mitsuba's defaults, and float32 components, are what probvis writes
         body = sensor().replace("<rfilter", "<string name='component_format' value='float32'/><rfilter", 1)
         probvis.load_scene(write_scene(tmp_path / "u.xml", body + LIGHT))
+
+
+@pytest.mark.parametrize("transform, radius", [('<scale x="4" y="1" z="1"/>', 0.8),  # 0.2 times x's 4
+                                               ('<matrix value="1 2 0 0  0 1 0 0  0 0 1 0  0 0 0 1"/>',
+                                                0.2 / np.sqrt(2))])  # the stretch of that shear: x's 1/sqrt(2)
+def test_a_sphere_stretched_or_sheared_stays_round_as_in_mitsuba(tmp_path, transform, radius):
+    """A non-uniform scale or a shear made an ellipsoid where Mitsuba renders a round sphere (with a warning) of
+    the radius the transform's stretch gives its x axis; a lit ellipsoid where Mitsuba's sphere enclosed the light
+    and its image was black."""
+    body = sensor() + LIGHT + (f"<shape type='sphere'><float name='radius' value='0.2'/><transform name='to_world'>"
+                               f"{transform}<translate y='0.5'/></transform></shape>")
+    with pytest.warns(UserWarning, match="the sphere's to_world has a non-uniform scale or a shear: rendered round"):
+        scene = probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+    sphere = scene.triangles[scene.tri_emitter < 0].reshape(-1, 3)
+    np.testing.assert_allclose(np.linalg.norm(sphere - [0.0, 0.5, 0.0], axis=1), radius, rtol=1e-9)

@@ -904,7 +904,7 @@ class _Reader:
             r = props.get("radius", 1.0)
             if not 0 < r <= MAX_COORDINATE:
                 self.fail(node, f"sphere radius must be positive and at most {MAX_COORDINATE:g}, got {r:g}")
-            m = m @ tf.translate(props.get("center", np.zeros(3))) @ tf.scale([r, r, r])
+            m = self.round_sphere(node, m @ tf.translate(props.get("center", np.zeros(3))) @ tf.scale([r, r, r]))
             face_normals = False
         if kind in ("disk", "sphere", "cylinder"):
             uv = shp.analytic_uv(kind, v[f])
@@ -1177,6 +1177,22 @@ class _Reader:
             self.fail(lines.get("emitter_samples", node), f"emitter_samples must be from 1 to {MAX_SHADOW_RAYS}, "
                                                           f"got {sr}")
         return sr
+
+    def round_sphere(self, node, m):
+        """A sphere's transform as Mitsuba takes it: a non-uniform scale or a shear gives not an ellipsoid but a
+        round sphere (Mitsuba warns), of the radius the transform's stretch gives its x axis once the rotation is
+        taken out (the polar decomposition m = rotation @ stretch)."""
+        u, sig, vt = np.linalg.svd(m[:3, :3])
+        stretch = vt.T @ np.diag(sig) @ vt
+        radius = stretch[0, 0]
+        if np.allclose(stretch, radius * np.eye(3), rtol=0.0, atol=1e-6 * sig.max()):
+            return m
+        warnings.warn(f"{self.path}:{node.line}: the sphere's to_world has a non-uniform scale or a shear: rendered "
+                      f"round, of radius {radius:.6g}, as Mitsuba renders it (an ellipsoid is a mesh: obj or ply)",
+                      stacklevel=2)
+        out = m.copy()
+        out[:3, :3] = (u @ vt) * radius
+        return out
 
     def input_file(self, node, name):
         """The file a scene parameter names, relative to the scene file's folder, recorded among the inputs."""
