@@ -1181,7 +1181,10 @@ class _Reader:
     def round_sphere(self, node, m):
         """A sphere's transform as Mitsuba takes it: a non-uniform scale or a shear gives not an ellipsoid but a
         round sphere (Mitsuba warns), of the radius the transform's stretch gives its x axis once the rotation is
-        taken out (the polar decomposition m = rotation @ stretch)."""
+        taken out (the polar decomposition m = rotation @ stretch). A singular or projective one is left to be
+        refused."""
+        if not _invertible_affine(m):
+            return m
         u, sig, vt = np.linalg.svd(m[:3, :3])
         stretch = vt.T @ np.diag(sig) @ vt
         radius = stretch[0, 0]
