@@ -168,6 +168,16 @@ def test_bad_estimator_names_are_one_line_errors(spec, message):
         estimator_class(spec)
 
 
+def test_a_package_beside_the_user_is_a_module_name(tmp_path, monkeypatch):
+    """A package folder in the working directory names a module (`pkgplugin:Mine`), not a file of another kind."""
+    (tmp_path / "pkgplugin").mkdir()
+    (tmp_path / "pkgplugin" / "__init__.py").write_text(
+        "from probvis.visibility.exact import ExactVisibility\n\n\nclass Mine(ExactVisibility):\n    name = 'mine'\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert estimator_class("pkgplugin:Mine").name == "mine"
+
+
 def test_a_plugin_path_that_is_a_folder_is_named_a_folder(tmp_path):
     (tmp_path / "pdir.py").mkdir()
     with pytest.raises(ProbvisError, match=re.escape(f"{tmp_path / 'pdir.py'} is a folder, not a Python file")):

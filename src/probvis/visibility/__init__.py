@@ -54,7 +54,7 @@ def _load_unlocked(spec, what):
                 sys.modules[name] = module
                 mspec.loader.exec_module(module)
         else:
-            if Path(module_name).exists() or not all(part.isidentifier() for part in module_name.split(".")):
+            if Path(module_name).is_file() or not all(part.isidentifier() for part in module_name.split(".")):
                 raise ProbvisError(f"{what}: '{module_name}' is neither a module name (package.module) nor a Python "
                                    "file (.py): give module:Class or path/to/file.py:Class")
             if "" not in sys.path and str(Path.cwd()) not in sys.path:
