@@ -9,9 +9,15 @@ import signal
 import sys
 import warnings
 
+from .interrupts import stop_signals
+
+_stopped = []  # stop signals received while the libraries load
+
 
 def _terminate(signum, frame):
-    """SIGTERM or SIGHUP while the libraries load stops the start as Ctrl-C does."""
+    """Ctrl-C, SIGTERM or SIGHUP while the libraries load stops the start, and is remembered: a library's bare
+    `except:` around an optional import of its own may swallow the KeyboardInterrupt (the start then ran on)."""
+    _stopped.append(signum)
     raise KeyboardInterrupt
 
 
@@ -139,8 +145,7 @@ def _openmp_complaint():
 def main():
     if sys.stderr is None:  # closed (`2>&-`): the command goes on, its messages go nowhere (a closed standard
         sys.stderr = open(os.devnull, "w")  # output is the command's to report, on stderr)
-    stops = [signal.SIGTERM] + ([signal.SIGHUP] if signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN else [])
-    previous = {s: signal.signal(s, _terminate) for s in stops}
+    previous = {s: signal.signal(s, _terminate) for s in stop_signals()}
     try:
         problem = _bad_environment()  # checked under the handlers: a signal this early is an interrupt too
         if problem:
@@ -155,6 +160,8 @@ def main():
                 print(_bad_setting(found.group(1), found.group(2), "a value Numba can read"), file=sys.stderr)
                 return 1
             warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+        if _stopped:  # the interrupt was swallowed inside an import
+            raise KeyboardInterrupt
     except KeyboardInterrupt:
         print("probvis: interrupted, nothing written", file=sys.stderr, flush=True)
         # at once: a normal exit after an interrupted import sometimes died by SIGINT (-2) instead, most likely

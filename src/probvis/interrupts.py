@@ -15,9 +15,10 @@ from contextlib import contextmanager
 
 def stop_signals():
     """The signals that stop a command as Ctrl-C does: SIGINT, SIGTERM (a batch system's stop) and SIGHUP (the
-    terminal or ssh session closed), unless SIGHUP is ignored (`nohup`)."""
+    terminal or ssh session closed), unless SIGINT or SIGHUP is ignored (a shell script's `probvis ... &`,
+    `nohup`), as Python itself leaves an ignored SIGINT ignored."""
     return tuple(s for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-                 if s != signal.SIGHUP or signal.getsignal(s) is not signal.SIG_IGN)
+                 if s == signal.SIGTERM or signal.getsignal(s) is not signal.SIG_IGN)
 
 
 @contextmanager
