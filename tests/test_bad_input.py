@@ -3,6 +3,7 @@ limits and must end with one line `probvis: error: ...` naming the problem, a no
 no output file, in bounded time and memory."""
 import io
 import os
+import re
 import resource
 import signal
 import subprocess
@@ -12,6 +13,7 @@ import time
 import numpy as np
 import pytest
 
+import probvis
 from probvis.cli import main
 from tests.conftest import sensor, write_scene
 
@@ -126,6 +128,7 @@ CASES = [
     (["info", "d" * 300 + ".xml"], ": File name too long"),
     (["experiment", "--quick", "-o", ""], "-o needs a folder name (got an empty one)"),
     (["experiment", "--quick", "--cache", " "], "--cache needs a folder name (got an empty one)"),
+    (["experiment", "--quick", "--cache", __file__], "test_bad_input.py' is a file, not a folder"),
 ]
 
 
@@ -297,6 +300,20 @@ def test_an_interrupt_while_the_libraries_load_is_one_line(tmp_path, signum):
     assert proc.returncode == 130 and err == "probvis: interrupted, nothing written\n", err
     assert not list(tmp_path.iterdir())
 
+
+
+def test_an_ignored_ctrl_c_stays_ignored(tmp_path):
+    """A shell script's `probvis render ... &` starts with SIGINT ignored, so that Ctrl-C at the terminal spares
+    it (Python leaves it so); probvis's own handlers took it over and stopped the render."""
+    proc = subprocess.Popen([sys.executable, "-m", "probvis", "render", "quad-shadow", "-D", "res=16", "-q", "-o",
+                             "o.exr"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    for _ in range(3):
+        time.sleep(0.15)
+        proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=TIME_LIMIT)
+    assert proc.returncode == 0 and err == "", err
+    assert (tmp_path / "o.exr").is_file()
 
 def test_a_stack_too_small_to_start_is_one_line(tmp_path):
     """A stack limit (ulimit -s) below what a render needs is refused at the start, in one line, before numpy
@@ -634,3 +651,12 @@ def test_a_finished_command_leaves_at_once_with_its_status(monkeypatch, capsys):
     with pytest.raises(SystemExit):
         entry.main()
     assert left == [0, 2] and "probvis: error:" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["m.obj", "m.PLY", "m.serialized"])
+def test_a_mesh_given_as_the_scene_is_named_as_a_mesh(tmp_path, name):
+    """A mesh file for the scene was "malformed XML: syntax error" at its line 1."""
+    (tmp_path / name).write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(probvis.ProbvisError, match=re.escape(f"{name} is a mesh, not a scene: a scene is a Mitsuba "
+                                                             "XML file that places it (a <shape type=")):
+        probvis.load_scene(tmp_path / name)

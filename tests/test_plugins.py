@@ -162,6 +162,8 @@ def test_installed_estimators_load_through_the_entry_point_group(roulette, tmp_p
     ("magic", "unknown visibility 'magic'"),
     (".hidden:X", "'.hidden' is neither a module name (package.module) nor a Python file (.py)"),  # was a TypeError
     ("./x.xml:P", "'./x.xml' is neither a module name"),
+    # was "cannot import 'exact': No module named 'exact'"
+    ("exact:shells=off", "'exact:shells=off' is not an estimator: 'exact' is a built-in one, whose options are flags"),
 ])
 def test_bad_estimator_names_are_one_line_errors(spec, message):
     with pytest.raises(ProbvisError, match=re.escape(message)):
@@ -227,9 +229,12 @@ class _Broken(probvis.visibility.VisibilityEstimator):
     ("negative tests", "returned triangle_tests that are not whole numbers >= 0"),
     ("fractional tests", "returned triangle_tests that are not whole numbers >= 0"),
     ("undeclared aov", "returned AOV 'foo', which the class does not declare"),
+    # a declared AOV never returned was a silent zero image
+    ("missing aov", "returned no AOV 'bar', which the class declares in `aovs`: return one number per segment"),
 ])
 def test_misbehaving_estimators_are_named_not_rendered(mode, message):
-    cls = type(f"Broken_{mode.replace(' ', '_')}", (_Broken,), {"mode": mode})
+    declared = {"aovs": (probvis.visibility.Aov("bar", "declared, never returned"),)} if mode == "missing aov" else {}
+    cls = type(f"Broken_{mode.replace(' ', '_')}", (_Broken,), {"mode": mode, **declared})
     with pytest.raises(ProbvisError, match=rf"visibility 'broken' \(.*{cls.__name__}\): evaluate {message}"):
         probvis.render("quad-shadow", spp=1, visibility=cls)
 
@@ -314,12 +319,25 @@ def _raise(*args, **kwargs):
      "shade\\(\\) returned radiance of shape"),
     ({"render_path": lambda self: probvis.visibility.RenderPath.OWN_KERNEL,
       "shade": lambda self, b: tuple(self.integrator.shade_exact(b))}, "shade\\(\\) returned tuple, not a ShadedBatch"),
+    ({"aovs": (probvis.visibility.Aov("bar", "declared, never returned"),),
+      "render_path": lambda self: probvis.visibility.RenderPath.OWN_KERNEL,
+      "shade": lambda self, b: self.integrator.shade_exact(b)}, "shade\\(\\) returned no AOV 'bar', which the class "
+     "declares in `aovs`: return one number per pixel"),
 ])
 def test_a_plugin_s_every_method_is_checked(methods, message):
     cls = type("Faulty", (_Exact,), methods)
     with pytest.raises(ProbvisError, match=rf"visibility 'exact-plugin' \(.*Faulty\).*{message}"):
         probvis.render("quad-shadow", spp=1, defines={"res": 8}, visibility=cls)
     assert probvis.render("quad-shadow", spp=1, defines={"res": 8}, visibility=_Exact).image.mean() > 0
+
+
+def test_a_plugin_s_own_memory_is_named_with_it():
+    """A plug-in's part of an estimate beyond the machine was named only by its key ('mine'), with "lower the
+    settings"."""
+    cls = type("Hungry", (_Exact,), {"memory_estimate": lambda self, *a: {"mine": 2 ** 62}})
+    with pytest.raises(ProbvisError, match=r"needs about .* \(visibility 'exact-plugin': mine .* GiB\) but .* are "
+                       r"available: lower the options of visibility 'exact-plugin'"):
+        probvis.render("quad-shadow", spp=1, defines={"res": 8}, visibility=cls)
 
 
 @pytest.mark.parametrize("options, message", [
@@ -331,6 +349,15 @@ def test_a_plugin_s_every_method_is_checked(methods, message):
     ((probvis.visibility.Option("kind", str, "c", "not a choice", choices=("a", "b")),),
      "the default of option 'kind' is invalid: kind must be one of a, b, got 'c'"),
     ((probvis.visibility.Option("k", list, [1], "a list"),), "option 'k' has type 'list', which an option cannot take"),
+    ((probvis.visibility.Option("shadowless", bool, "false", "a bool as text"),),
+     "the default of option 'shadowless' is 'false' (type str), not a value of the option's type: write False"),
+    ((probvis.visibility.Option("n", int, "3", "an int as text"),), "is '3' (type str), not a value of the option's type: "
+     "write 3"),
+    ((probvis.visibility.Option("n", int, 3.0, "an int as a float"),), "is 3.0 (type float), not a value of the option's"),
+    ((probvis.visibility.Option("t", tuple, "1,2", "a tuple as text", count=2),), "write (1.0, 2.0)"),
+    ((probvis.visibility.Option("s", str, 5, "a number for a text"),), "is 5 (type int), not a value of the option's type: "
+     "write '5'"),
+    ((probvis.visibility.Option("s", probvis.visibility.Switch, "true", "a switch as true"),), "write 'on'"),
     ((probvis.visibility.Option("t", tuple, (1.0, 2.0), "no count"),), "option 't' is a tuple and needs count"),
     ((probvis.visibility.Option("k", int, 1, "raises", check=lambda v: 1 / 0),),
      "option 'k': its check raised ZeroDivisionError on the default 1"),

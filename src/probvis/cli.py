@@ -566,6 +566,8 @@ def _cmd_experiment(args):
     for flag, value in (("-o", args.output), ("--cache", args.cache)):
         if value is not None and not value.strip():
             raise ProbvisError(f"{flag} needs a folder name (got an empty one)")
+    if args.cache is not None and Path(args.cache).exists() and not Path(args.cache).is_dir():
+        raise ProbvisError(f"--cache '{args.cache}' is a file, not a folder: give a folder for the renders' cache")
     exp = quick_experiment() if args.quick else load_experiment(args.file)
     if args.seeds:
         exp = dataclasses.replace(exp, seeds=args.seeds)

@@ -368,7 +368,8 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
                                splat_chunk(rfilter, scene.camera.width)[1] if rfilter is not None else 0)
     if (type(estimator), repr(sorted(options.items()))) not in _warmed:
         need["kernels"] = memory.KERNEL_BYTES  # loading (or compiling) the kernels comes after the estimate
-    memory.check(need, MEMORY_HINTS)
+    memory.check(need, {**{k: f"the options of visibility '{estimator.name}'" for k in need if k not in memory.PARTS},
+                        **MEMORY_HINTS})
     with threadpool_limits(limits=threads):  # one budget: BLAS and OpenMP pools get no more than Numba
         with plugin_errors(type(estimator), "the render (prepare, classify, evaluate or shade)"):
             cpu_compile = time.process_time()

@@ -22,6 +22,9 @@ SPLAT_BYTES = 4 * 8  # per pixel of a splatting film: its weight sum and weighte
 TRIANGLE_BYTES = 72 + 72 + 24 + 4 + 4 + 72 + 8 + 2 * 128  # scene arrays, BVH-order copy, ids, nodes
 
 
+PARTS = ("film", "batch", "scene", "environment", "splat", "process", "kernels")  # what probvis counts itself
+
+
 def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=0):
     """Bytes by part (a dict) of rendering `scene` with `settings` and `estimator`; `staged`: its render may take
     the staged path, whose batches have shadow-ray slots and segments; `splat_bytes`: what a splatting film's
@@ -47,14 +50,16 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_estimate() must "
                            f"return a dict of byte counts (whole numbers from 0 to 2**63: no machine holds more), "
                            f"got {own!r:.200}")
-    clash = sorted(set(own) & (set(parts) | {"kernels"}))
+    clash = sorted(set(own) & set(PARTS))
     if clash:
         from .errors import ProbvisError
 
         cls = type(estimator)
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_estimate() names "
-                           f"{', '.join(clash)}, which probvis counts itself (film, batch, scene, environment, "
-                           "splat, process, kernels): name the estimator's own parts")
+                           f"{', '.join(clash)}, which probvis counts itself ({', '.join(PARTS)}): name the "
+                           "estimator's own parts")
+    if type(estimator).__module__.split(".")[0] != "probvis":  # a plug-in's parts, named with it in an error
+        own = {f"visibility '{estimator.name}': {k}": v for k, v in own.items()}
     parts.update(own)
     return parts
 

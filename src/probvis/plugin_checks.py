@@ -70,6 +70,7 @@ def checked_result(estimator, res, n):
             raise ProbvisError(f"{where} returned AOV '{name}' of shape {arr.shape} ({arr.dtype}): it needs one "
                                f"finite number per segment ({n})")
     aovs = res.aovs or {}
+    _refuse_missing(where, declared - set(aovs), "segment")
     if np.asarray(res.value).dtype != np.float64 or any(np.asarray(a).dtype != np.float64 for a in aovs.values()):
         # float16, float32, integers: the kernels take float64 (float16 was a NotImplementedError in them)
         return dataclasses.replace(res, value=value,
@@ -94,12 +95,20 @@ def checked_shaded(estimator, shaded, batch):
             raise ProbvisError(f"{where} returned {name} of shape {arr.shape} ({arr.dtype}): it needs whole "
                                f"numbers >= 0 per pixel ({n_pix})")
     aovs = shaded.aovs or {}
+    _refuse_missing(where, {a.name for a in estimator.aovs if a.kind == "segment"} - set(aovs), "pixel")
     for name, arr in aovs.items():
         arr = np.asarray(arr)
         if arr.shape != (n_pix,) or arr.dtype.kind not in "biuf" or not np.all(np.isfinite(arr)):
             raise ProbvisError(f"{where} returned AOV '{name}' of shape {arr.shape}: one finite number per pixel")
     return shaded
 
+
+
+def _refuse_missing(where, missing, per):
+    """An AOV declared in `aovs` but not returned would be a silent zero image."""
+    if missing:
+        raise ProbvisError(f"{where} returned no AOV '{sorted(missing)[0]}', which the class declares in `aovs`: "
+                           f"return one number per {per} under that name (or drop it from `aovs`)")
 
 @contextmanager
 def plugin_errors(cls, stage):

@@ -572,6 +572,17 @@ def test_a_singular_or_projective_shape_transform_is_named(tmp_path, shape, tran
         probvis.load_scene(write_scene(tmp_path / "bad.xml", sensor() + body + LIGHT))
 
 
+
+@pytest.mark.parametrize("op, mixed", [("<translate x='7' value='1.5,1.5,3'/>", "'x'"),
+                                       ("<scale value='0.3' x='2' z='1'/>", "'x', 'z'"),
+                                       ("<rotate x='1' value='0,1,0' angle='180'/>", "'x'")])
+def test_value_mixed_with_x_y_z_is_refused_as_in_mitsuba(tmp_path, op, mixed):
+    """`value` won silently over the x/y/z also given; Mitsuba refuses the mix."""
+    body = f"<shape type='sphere'><transform name='to_world'>{op}</transform></shape>"
+    with pytest.raises(ProbvisError, match=r"bad.xml:\d+: <(translate|scale|rotate)>: give either 'value' or x/y/z, "
+                       + re.escape(f"not both (here also {mixed})")):
+        probvis.load_scene(write_scene(tmp_path / "bad.xml", sensor() + body + LIGHT))
+
 def test_a_reflectance_texture_outside_the_unit_range_warns(tmp_path):
     """Mitsuba renders such a bitmap as given; probvis does too, with a warning naming the file and line."""
     from probvis.io import write_pfm
@@ -719,12 +730,16 @@ def test_small_shapes_keep_their_faces_wherever_they_are(tmp_path, where):
     assert scene.dropped_degenerate == 0 and scene.n_triangles == 2 + (12 if where == "far" else 1280)
 
 
-def test_an_up_vector_of_any_length_is_a_direction():
-    """up = 1e300 overflowed in the cross product (numpy warnings, then 'parallel to the viewing direction')."""
+@pytest.mark.parametrize("up", [[0, 1e300, 0], [0, 1e-13, 0], [0, 1e-20, 0], [2e-13, 1e-13, 0]])
+def test_an_up_vector_of_any_length_is_a_direction(up):
+    """up = 1e300 overflowed in the cross product (numpy warnings, then 'parallel to the viewing direction'); a
+    short up (1e-13, perpendicular to the view) was refused as parallel to it, where Mitsuba renders."""
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        np.testing.assert_allclose(tf.look_at([0, 0, 4], [0, 0, 0], [0, 1e300, 0]),
-                                   tf.look_at([0, 0, 4], [0, 0, 0], [0, 1, 0]))
+        np.testing.assert_allclose(tf.look_at([0, 0, 4], [0, 0, 0], up),
+                                   tf.look_at([0, 0, 4], [0, 0, 0], np.array(up) / np.abs(up).max()))
+    with pytest.raises(ValueError, match="parallel to the viewing direction"):
+        tf.look_at([0, 0, 4], [0, 0, 0], [1e-20, 0, 1e-6])
 
 
 def test_huge_normals_and_light_directions_are_directions(tmp_path):

@@ -60,14 +60,20 @@ def test_polygons_are_split_into_fans(tmp_path):
     np.testing.assert_array_equal(f, np.vstack([[[0, 1, 2], [0, 2, 3], [0, 3, 4]], F[1:]]))
 
 
-@pytest.mark.parametrize("kind", ["ascii", "truncated", "index out of range"])
+@pytest.mark.parametrize("kind", ["ascii", "truncated"])
 def test_files_it_cannot_map_go_to_the_general_reader(tmp_path, kind):
-    faces = F
-    if kind == "index out of range":
-        faces = np.vstack([F, [[0, 1, 40]]])
-    path = write_ply(tmp_path / "m.ply", faces=faces, truncate=5 if kind == "truncated" else 0,
+    path = write_ply(tmp_path / "m.ply", faces=F, truncate=5 if kind == "truncated" else 0,
                      fmt="ascii" if kind == "ascii" else None)
     assert read_ply(path) is None
+
+
+def test_a_binary_ply_s_index_out_of_range_is_named(tmp_path):
+    from probvis.errors import ProbvisError
+
+    path = write_ply(tmp_path / "m.ply", faces=np.vstack([F, [[0, 1, 40]]]))
+    with pytest.raises(ProbvisError, match="m.ply: a face has vertex index 40; its 40 vertices are numbered from 0 "
+                       "to 39"):
+        shapes.load_mesh(path)
 
 
 def test_a_negative_element_count_is_named(tmp_path):
@@ -218,4 +224,23 @@ def test_short_faces_of_a_binary_ply_are_named(tmp_path, order, sizes, message):
     path.write_bytes(f"ply\nformat {fmt} 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
                      f"element face 2\nproperty list uchar int vertex_indices\nend_header\n".encode() + body)
     with pytest.raises(ProbvisError, match=re.escape(f"{message}; a face needs at least 3")):
+        shapes.load_mesh(path)
+
+
+@pytest.mark.parametrize("faces, message", [
+    ("element face 0\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n", "contains no triangles"),
+    ("element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n",
+     "a face has vertex index -1; its 3 vertices are numbered from 0 to 2"),
+    ("element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 3\n",
+     "a face has vertex index 3; its 3 vertices are numbered from 0 to 2"),
+])
+def test_an_ascii_ply_without_faces_or_with_indices_out_of_range_says_so(tmp_path, faces, message):
+    """`element face 0` was said to hold indices of the wrong type; an index out of range was not named, nor its
+    file."""
+    from probvis.errors import ProbvisError
+
+    path = tmp_path / "m.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                    + faces)
+    with pytest.raises(ProbvisError, match=f"mesh .*m.ply:? {message}" if "no" in message else f"m.ply: {message}"):
         shapes.load_mesh(path)

@@ -58,6 +58,10 @@ def open_scene(path, defines, strict=False):
     except MemoryError:
         raise ProbvisError(f"out of memory building the built-in scene '{path}' (the machine's or the process's "
                            "limit, ulimit -v): raise the limit, or use a smaller scene") from None
+    kind = p.suffix.lower()[1:]
+    if kind in ("obj", "ply", "serialized"):  # was "malformed XML: syntax error"
+        raise ProbvisError(f"{p} is a mesh, not a scene: a scene is a Mitsuba XML file that places it (a <shape "
+                           f"type=\"{kind}\">, with a sensor and an emitter), or a built-in scene")
     try:
         return read_scene(p, strict, defaults)
     except MemoryError:

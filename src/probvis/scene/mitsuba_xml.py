@@ -368,6 +368,10 @@ class _Reader:
 
         def vec(names=("x", "y", "z"), default="0"):
             if "value" in op.attrs:
+                mixed = [a for a in names if a in op.attrs]
+                if mixed:  # Mitsuba refuses the mix; which one wins would be a guess
+                    self.fail(op, f"give either 'value' or {'/'.join(names)}, not both (here also "
+                                  f"{', '.join(repr(a) for a in mixed)})")
                 vals = self.numbers(op, self.attr(op, "value"), (1, 3))
                 return np.array(vals) * np.ones(3)
             return np.array([self.number(op, a, default) for a in names])

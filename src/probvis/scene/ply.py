@@ -111,6 +111,8 @@ def read_ply(path):
                 fh.seek(0)
                 ply = PlyData.read(fh)
             rows = ply["face"].data[index]
+            if len(rows) == 0:  # an empty object array: its dtype says nothing of the declared index type
+                raise ProbvisError(f"mesh {path} contains no triangles")
             values = rows[0] if rows.dtype == object and len(rows) else rows
             if np.asarray(values).dtype.kind not in "iu":
                 raise ProbvisError(f"mesh {path}: the faces' '{index}' are {np.asarray(values).dtype} numbers; "
@@ -140,5 +142,7 @@ def read_ply(path):
     except (PlyElementParseError, KeyError, ValueError):
         return None
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
-        return None
+        bad = int(f.min() if f.min() < 0 else f.max())
+        raise ProbvisError(f"mesh {path}: a face has vertex index {bad:,}; its {len(v):,} vertices are numbered from 0"
+                           f"{f' to {len(v) - 1:,}' if len(v) else ''}")
     return v, f, n, uv

@@ -40,7 +40,7 @@ def look_at(origin, target, up):
     if not np.abs(up).max() > 0.0:
         raise ValueError("lookat 'up' is the zero vector")
     left = np.cross(up, d)
-    if np.linalg.norm(left) < 1e-12:
+    if np.linalg.norm(left) < 1e-12 * np.linalg.norm(up):  # the sine of their angle: a short `up` is as good
         raise ValueError("lookat 'up' is parallel to the viewing direction")
     left /= np.linalg.norm(left)
     new_up = np.cross(d, left)

@@ -40,6 +40,10 @@ def _load_unlocked(spec, what):
     module_name, _, class_name = spec.rpartition(":")
     if not module_name or not class_name:
         raise ProbvisError(f"{what}: expected a name ({', '.join(available_names())}) or module:Class, got '{spec}'")
+    if module_name in BUILTIN:  # `exact:shells=off`, as if options followed the name
+        raise ProbvisError(f"{what}: '{spec}' is not an estimator: '{module_name}' is a built-in one, whose options "
+                           f"are flags of their own (`probvis estimators {module_name}` lists them; in Python, "
+                           "visibility_options); module:Class names a plug-in")
     try:
         if module_name.endswith(".py"):
             path = Path(module_name).resolve()
@@ -176,12 +180,22 @@ def _check_declarations(cls, what):
                 raise ProbvisError(f"{where}: options '{flags[flag]}' and '{o.name}' both make the flag {flag}")
         if o.default is not None:
             try:
-                o.parse(o.default)
+                parsed = o.parse(o.default)
             except ProbvisError as exc:
                 raise ProbvisError(f"{where}: the default of option '{o.name}' is invalid: {exc}") from None
             except Exception as exc:  # the plug-in's own check failed on its default
                 raise ProbvisError(f"{where}: option '{o.name}': its check raised {type(exc).__name__} on the default "
                                    f"{shown(o.default, repr)}: {shown(exc)}") from None
+            if not (_DEFAULT_TYPES[o.type](o.default) and parsed == o.default):  # reaches the estimator as written
+                raise ProbvisError(f"{where}: the default of option '{o.name}' is {shown(o.default, repr)} (type "
+                                   f"{type(o.default).__name__}), not a value of the option's type: write {parsed!r}")
+
+
+# the Python values an option's default may be: it reaches the estimator as declared, unparsed
+_DEFAULT_TYPES = {bool: lambda d: isinstance(d, bool), int: lambda d: isinstance(d, int) and not isinstance(d, bool),
+                  float: lambda d: isinstance(d, (int, float)) and not isinstance(d, bool),
+                  str: lambda d: isinstance(d, str), Switch: lambda d: d in Switch.CHOICES,
+                  tuple: lambda d: isinstance(d, tuple)}
 
 
 def _estimator_class(name, what):
