@@ -20,8 +20,6 @@ SAMPLE_BYTES = 400  # per camera sample of a batch: rays, hits, interactions, ke
 PIXEL_BYTES = 3 * 8 * 2 + 5 * 8 + 2 * 8 + 3 * 4 * 2  # film sums, counts, the AOV images and the output image
 SPLAT_BYTES = 4 * 8  # per pixel of a splatting film: its weight sum and weighted variance
 TRIANGLE_BYTES = 72 + 72 + 24 + 4 + 4 + 72 + 8 + 2 * 128  # scene arrays, BVH-order copy, ids, nodes
-
-
 PARTS = ("film", "batch", "scene", "environment", "splat", "process", "kernels")  # what probvis counts itself
 
 

@@ -103,12 +103,12 @@ def checked_shaded(estimator, shaded, batch):
     return shaded
 
 
-
 def _refuse_missing(where, missing, per):
     """An AOV declared in `aovs` but not returned would be a silent zero image."""
     if missing:
         raise ProbvisError(f"{where} returned no AOV '{sorted(missing)[0]}', which the class declares in `aovs`: "
                            f"return one number per {per} under that name (or drop it from `aovs`)")
+
 
 @contextmanager
 def plugin_errors(cls, stage):
