@@ -129,6 +129,11 @@ CASES = [
     (["experiment", "--quick", "-o", ""], "-o needs a folder name (got an empty one)"),
     (["experiment", "--quick", "--cache", " "], "--cache needs a folder name (got an empty one)"),
     (["experiment", "--quick", "--cache", __file__], "test_bad_input.py' is a file, not a folder"),
+    (["render", "quad-shadow", "--visibility", "probvis", "--estimator", "adaptive", "--levels", "3"],
+     "levels does not apply to the adaptive estimator, which chooses its own probabilities and shifts on one A/B "
+     "split: leave it out"),
+    (["render", "quad-shadow", "--visibility", "probvis", "--estimator", "adaptive", "--cells", "2", "--shifts",
+      "0.2,0.3,0.5"], "cells and shifts do not apply to the adaptive estimator"),
 ]
 
 

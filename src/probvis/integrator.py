@@ -45,9 +45,17 @@ from .visibility import RenderPath, ShadingPoints, ShadowQuery, VisibilityEstima
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keeps progress and Ctrl-C prompt)
 TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
 COMPILE_TIME = "about half a minute"  # a first run's compilation on 2 cores (17-26 s exact, 33-36 s probvis)
-MEMORY_HINTS = {"film": "the resolution (-D res, resolution=)", "photons": "--photons",
-                "lookups": "--neighbours or --shadow-rays", "batch": "--spp or --shadow-rays",
-                "environment": "the environment map's size"}
+MEMORY_HINTS = {"film": "the resolution (-D res, resolution=)", "photons": "--photons", "lookups": "--neighbours or "
+                "--shadow-rays", "batch": "--spp or --shadow-rays", "environment": "the environment map's size"}
+
+
+def render_memory(scene, settings, estimator):
+    """Bytes by part (`memory.estimate`) a render with `estimator` (made, not prepared) will take."""
+    staged = type(estimator).render_path is VisibilityEstimator.render_path  # may need the slot buffers
+    rfilter = splat_filter(scene.camera, settings.filter_importance)
+    with plugin_errors(type(estimator), "memory_estimate"):
+        return memory.estimate(scene, settings, estimator, batch_pixels(scene, settings, staged), staged,
+                               splat_chunk(rfilter, scene.camera.width)[1] if rfilter is not None else 0)
 
 
 def batch_pixels(scene, settings, staged=True):
@@ -220,10 +228,10 @@ _warmed = set()
 
 
 def _cold_cache():
-    """Whether Numba's on-disk cache lacks the kernels (a first run, or a changed probvis)."""
+    """Whether Numba's on-disk cache lacks the kernels (a first run, or a changed probvis); under
+    NUMBA_DISABLE_JIT the kernels are plain functions: nothing to compile, no cache."""
     from .fused_exact import _shade_blocks
 
-    # under NUMBA_DISABLE_JIT the kernels are plain functions: nothing to compile, no cache
     index = getattr(getattr(getattr(_shade_blocks, "_cache", None), "_cache_file", None), "_index_path", None)
     return index is not None and not Path(index).exists()
 
@@ -234,7 +242,6 @@ class _CompileProgress(event.Listener):
 
     def __init__(self):
         from tqdm import tqdm
-
         self.bar = tqdm(desc="compiling kernels", unit=" kernels", leave=False)
         self.listener = event.install_listener("numba:compile", self)
 
@@ -361,15 +368,10 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
         cls = estimator_class(visibility)
         with plugin_errors(cls, "__init__"):
             estimator = cls(**options)
-    staged = type(estimator).render_path is VisibilityEstimator.render_path  # may need the slot buffers
-    rfilter = splat_filter(scene.camera, settings.filter_importance)
-    with plugin_errors(type(estimator), "memory_estimate"):
-        need = memory.estimate(scene, settings, estimator, batch_pixels(scene, settings, staged), staged,
-                               splat_chunk(rfilter, scene.camera.width)[1] if rfilter is not None else 0)
+    need = render_memory(scene, settings, estimator)
     if (type(estimator), repr(sorted(options.items()))) not in _warmed:
         need["kernels"] = memory.KERNEL_BYTES  # loading (or compiling) the kernels comes after the estimate
-    memory.check(need, {**{k: f"the options of visibility '{estimator.name}'" for k in need if k not in memory.PARTS},
-                        **MEMORY_HINTS})
+    memory.check(need, MEMORY_HINTS, estimator.name)
     with threadpool_limits(limits=threads):  # one budget: BLAS and OpenMP pools get no more than Numba
         with plugin_errors(type(estimator), "the render (prepare, classify, evaluate or shade)"):
             cpu_compile = time.process_time()

@@ -83,10 +83,13 @@ def peak_rss():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
-def check(parts, hints):
+def check(parts, hints, estimator=None):
     """Refuse (ProbvisError) when the estimate exceeds the available memory; `hints` maps a part to the option
-    that lowers it."""
+    that lowers it, and an estimator's own part (not in PARTS) is lowered by the options of `estimator` (its name)
+    where `hints` does not name one."""
     from .errors import ProbvisError
+
+    hints = {**{k: f"the options of visibility '{estimator}'" for k in parts if k not in PARTS and estimator}, **hints}
 
     need, have = sum(v for k, v in parts.items() if k not in ("process", "kernels")), available()
     if need > have:

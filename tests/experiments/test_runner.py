@@ -284,6 +284,16 @@ def test_reference_file_of_the_wrong_size_is_named(tmp_path):
         experiment(parse_experiment(doc), tmp_path / "r", progress=False, log=lambda m: None)
 
 
+
+def test_a_method_that_cannot_fit_in_memory_is_refused_before_any_render(tmp_path):
+    """It was refused only when its cells came up, after the reference's and every other method's renders, and named
+    the command line's --photons."""
+    methods = TINY["methods"][:2] + [{"name": "hungry", "visibility": "probvis", "options": {"photons": 10 ** 9}}]
+    with pytest.raises(ProbvisError, match=r"scene 'quad', method 'hungry', 1 shadow rays: this render needs about "
+                       r".* GiB \(photons .*\) but .* are available: lower options.photons"):
+        experiment(parse_experiment(dict(TINY, methods=methods)), tmp_path / "r", progress=False, log=lambda m: None)
+    assert not (tmp_path / "r").exists()
+
 @pytest.mark.parametrize("content", [b"garbage, not an image", None], ids=["garbage", "wrong-size"])
 def test_bad_references_are_found_before_any_render(tmp_path, content):
     from probvis.io import write_exr

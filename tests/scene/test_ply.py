@@ -244,3 +244,18 @@ def test_an_ascii_ply_without_faces_or_with_indices_out_of_range_says_so(tmp_pat
                     + faces)
     with pytest.raises(ProbvisError, match=f"mesh .*m.ply:? {message}" if "no" in message else f"m.ply: {message}"):
         shapes.load_mesh(path)
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian"])
+def test_a_face_element_without_an_index_list_is_named(tmp_path, fmt):
+    """It was said to be "truncated or malformed"; Mitsuba says the vertex_indices property is missing."""
+    from probvis.errors import ProbvisError
+
+    path = tmp_path / "m.ply"
+    head = (f"ply\nformat {fmt} 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 1\nproperty int a\nproperty int b\nproperty int c\nend_header\n")
+    body = ("0 0 0\n1 0 0\n0 1 0\n0 1 2\n".encode() if fmt == "ascii" else
+            np.array([0, 0, 0, 1, 0, 0, 0, 1, 0], "<f4").tobytes() + np.array([0, 1, 2], "<i4").tobytes())
+    path.write_bytes(head.encode() + body)
+    with pytest.raises(ProbvisError, match="m.ply: its face element has no vertex_indices \\(or vertex_index\\) list"):
+        shapes.load_mesh(path)

@@ -345,6 +345,35 @@ def plan(exp, scenes):
     return refs, cells
 
 
+MEMORY_HINTS = {"film": "resolution", "photons": "options.photons", "lookups": "options.neighbours or shadow_rays",
+                "batch": "spp or shadow_rays", "environment": "the environment map's size"}  # a study's keys
+
+
+def _check_memory(exp, scenes):
+    """Refuse, before the first render, a reference or cell whose render would not fit in memory: its render
+    would refuse it only when its turn came, after the others."""
+    from .. import memory
+    from ..integrator import render_memory
+    from ..plugin_checks import plugin_errors
+    from ..visibility import estimator_class
+
+    reference = MethodSpec("reference", exp.reference.visibility, {})
+    for spec in exp.scenes:
+        scene = scenes[spec.name]
+        renders = [(m, exp.spp, rays) for m in exp.methods for rays in exp.shadow_rays]
+        if spec.reference is None:
+            renders.append((reference, exp.reference.spp, exp.reference.shadow_rays))
+        for method, spp, rays in renders:
+            cls = estimator_class(method.visibility)
+            with plugin_errors(cls, "__init__"):
+                estimator = cls(**method.options)
+            try:
+                memory.check(render_memory(scene, scene.defaults.replace(spp=spp, shadow_rays=rays), estimator),
+                             MEMORY_HINTS, estimator.name)
+            except ProbvisError as exc:
+                raise ProbvisError(f"scene '{spec.name}', method '{method.name}', {rays} shadow rays: {exc}") from None
+
+
 def _reference_file(spec, scene):
     """A scene's reference image from its file: readable, of the scene's size, finite."""
     try:
@@ -377,6 +406,8 @@ def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log
     scenes = _load_scenes(exp)
     files = {spec.name: _reference_file(spec, scenes[spec.name]) for spec in exp.scenes
              if spec.reference is not None}  # checked before the first render
+    if not scheduler:  # local workers: this machine's memory
+        _check_memory(exp, scenes)
     new = [d for d in (Path(cache_dir), *Path(cache_dir).parents) if not d.exists()]  # folders this run makes
     cache = Cache(cache_dir)
     try:

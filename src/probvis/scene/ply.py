@@ -88,6 +88,8 @@ def read_ply(path):
         raise ProbvisError(f"mesh {path}: its vertex element has no {' or '.join(repr(c) for c in missing)} "
                            "property (a PLY mesh's vertices need x, y and z)")
     lists = [name for name, is_list, _ in face if is_list]
+    if "face" in elements and not lists:  # was "truncated or malformed" from the general reader
+        raise ProbvisError(f"mesh {path}: its face element has no vertex_indices (or vertex_index) list property")
     index = next((name for name in INDEX_NAMES if name in lists), lists[0] if len(lists) == 1 else None)
     if index is None or any(is_list for _, is_list, _ in vertex):
         return None

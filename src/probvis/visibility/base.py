@@ -104,7 +104,9 @@ class Option:
         return f"from {_show(lo)} to {_show(hi)}"
 
     def _convert(self, value):
-        bad = ProbvisError(f"{self.name} expects {self.describe_type()}, got {value!r}")
+        text = repr(value)
+        bad = ProbvisError(f"{self.name} expects {self.describe_type()}, got "
+                           f"{text if len(text) <= 60 else text[:50] + f'...({len(text)} characters)'}")
         if self.type is bool:
             if is_flag(value):
                 return bool(value)
@@ -155,7 +157,11 @@ def _number(value, kind, bad):
                 value = parse_float(value)
             except ValueError:
                 raise bad from None
-    if not isinstance(value, (int, float)) or not math.isfinite(value):
+    try:
+        finite = isinstance(value, (int, float)) and math.isfinite(value)
+    except OverflowError:  # an int beyond a float's range (10**400)
+        finite = False
+    if not finite:
         raise bad
     if kind is int:
         if value != int(value):

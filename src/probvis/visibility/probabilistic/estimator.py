@@ -59,8 +59,12 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
     def __init__(self, **options):
         super().__init__(**options)
         p = self.params
-        if p.estimator == "adaptive" and (p.levels != 1 or p.cells != 1 or p.probabilities or p.shifts):
-            raise ProbvisError("the adaptive estimator chooses its own probabilities and shifts, on one A/B split")
+        given = [name for name, value in (("levels", p.levels != 1), ("cells", p.cells != 1),
+                                          ("probabilities", p.probabilities), ("shifts", p.shifts)) if value]
+        if p.estimator == "adaptive" and given:
+            raise ProbvisError(f"{' and '.join(given)} {'does' if len(given) == 1 else 'do'} not apply to the adaptive "
+                               "estimator, which chooses its own probabilities and shifts on one A/B split: leave "
+                               f"{'it' if len(given) == 1 else 'them'} out, or choose another estimator")
         if p.shifts is not None and p.estimator != "shifted":
             raise ProbvisError("shifts apply to the shifted estimator only")
         if p.power != 8 and p.estimator != "power":
