@@ -188,9 +188,11 @@ def test_an_interrupt_inside_a_compiled_kernel_s_return_is_an_interrupt(monkeypa
     assert capsys.readouterr().err == "probvis: interrupted, nothing written\n"
 
 
-def test_ctrl_c_to_the_process_group_of_an_experiment(tmp_path):
-    """What Ctrl-C in a terminal sends: SIGINT to the driver and its Dask workers alike. One line, exit 130,
-    the finished renders kept."""
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGHUP])
+def test_ctrl_c_to_the_process_group_of_an_experiment(tmp_path, signum):
+    """What Ctrl-C in a terminal, or closing it, sends: SIGINT or SIGHUP to the driver and its Dask workers alike.
+    One line, exit 130, the finished renders kept (a hang-up killed multiprocessing's resource tracker, which came
+    back without its records and printed six tracebacks)."""
     study = tmp_path / "s.toml"
     study.write_text('spp = 1\nshadow_rays = [1, 2, 3, 4, 5, 6, 7, 8]\nseeds = [0, 1, 2, 3]\nresolution = [32, 32]\n'
                      '[[scenes]]\nname = "c"\nsource = "canopy"\n'
@@ -202,7 +204,7 @@ def test_ctrl_c_to_the_process_group_of_an_experiment(tmp_path):
     while time.time() < deadline and not list(cache.glob("*.json")):
         time.sleep(0.2)
     assert list(cache.glob("*.json")), "no render finished in time"
-    os.killpg(proc.pid, signal.SIGINT)
+    os.killpg(proc.pid, signum)
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     lines = [line for line in err.strip().splitlines() if not line.startswith("experiment '")
@@ -665,3 +667,16 @@ def test_a_mesh_given_as_the_scene_is_named_as_a_mesh(tmp_path, name):
     with pytest.raises(probvis.ProbvisError, match=re.escape(f"{name} is a mesh, not a scene: a scene is a Mitsuba "
                                                              "XML file that places it (a <shape type=")):
         probvis.load_scene(tmp_path / name)
+
+
+@pytest.mark.parametrize("visibility", ["occlusion-map", "probvis"])
+def test_one_neighbour_gives_a_radius_not_numpy_warnings(visibility):
+    """With --neighbours 1 (its minimum) the photon radius came from each probe photon's nearest one, itself:
+    0, then NumPy's divide-by-zero warnings and an occlusion map that told nothing."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = probvis.render("quad-shadow", spp=1, shadow_rays=2, defines={"res": 16}, visibility=visibility,
+                           visibility_options={"neighbours": 1})
+    assert np.isfinite(r.image).all() and r.stats["estimator"]["radius"] > 0

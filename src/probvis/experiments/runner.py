@@ -282,11 +282,16 @@ def _open_client(workers, scheduler):
                                f"{_one_line(shown(exc))}{hint}") from None
     # The embedded cluster is ours alone: its logs are muted (a worker closed mid-heartbeat at the end of an
     # interrupted run logs a traceback at ERROR); failed renders still reach the user through their futures.
-    # Ctrl-C in a terminal signals the whole process group: the workers ignore it (they inherit the ignored
-    # disposition) and the driver, which defers it to a safe point, shuts them down and says so once.
+    # Ctrl-C in a terminal, or a hang-up, signals the whole process group: the workers and multiprocessing's
+    # resource tracker ignore both (they inherit the ignored dispositions; a tracker killed by SIGHUP came back
+    # without its records and printed tracebacks) and the driver, which defers them to a safe point, shuts the
+    # workers down and says so once.
     main = threading.current_thread() is threading.main_thread()  # only there can Python set handlers
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGHUP)} if main else {}
     try:
+        from multiprocessing import resource_tracker
+
+        resource_tracker.ensure_running()  # started here, if not before, with the signals ignored
         with warnings.catch_warnings():  # "port 8787 in use": another cluster's status page; ours needs none
             warnings.filterwarnings("ignore", message="Port .* is already in use")
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
@@ -307,8 +312,8 @@ def _open_client(workers, scheduler):
         reason = str(cause).strip() or f"{type(cause).__name__} (no message)"
         raise ProbvisError(f"cannot start a local Dask cluster: {_one_line(reason)}{hint}") from None
     finally:
-        if main:
-            signal.signal(signal.SIGINT, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
     return Client(cluster), cluster
 
 

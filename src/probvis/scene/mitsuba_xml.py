@@ -915,8 +915,10 @@ class _Reader:
         if not _invertible_affine(m):
             self.fail(node, "the shape's to_world is singular or projective (a scale of 0 flattens it; a matrix's "
                             "last row must be 0 0 0 1): check its scale and matrix")
-        if kind in ("rectangle", "disk", "sphere", "cylinder") and np.linalg.det(m[:3, :3]) < 0:
-            flip = not flip  # analytic shapes orient by the normal transform, not by the mirrored winding
+        if kind in ("rectangle", "cube", "disk", "sphere", "cylinder") and np.linalg.det(m[:3, :3]) < 0:
+            # analytic shapes (and Mitsuba's cube, a mesh with its normals) orient by the normal transform, not by
+            # the mirrored winding
+            flip = not flip
         name = self.attr(node, "id", f"{kind}@{node.line}")
         try:
             kept = builder.add_mesh(name, kind, v, f, m, material, radiance, face_normals, vnormals, flip, uv)

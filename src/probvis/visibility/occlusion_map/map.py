@@ -71,11 +71,13 @@ class OcclusionMap:
             if tree is None or len(ids) <= 1:
                 continue
             probe = self.photons.position[ids[rng.choice(len(ids), min(len(ids), 4096), replace=False)]]
-            d, _ = tree.query(probe, k=min(self.k, len(ids)), workers=numba.get_num_threads())
+            # a probe is a photon of the tree: with one neighbour its nearest would be itself, at 0
+            d, _ = tree.query(probe, k=min(max(self.k, 2), len(ids)), workers=numba.get_num_threads())
             dists.append(d.reshape(len(probe), -1)[:, -1])
         if not dists:
             return 1.0
-        return RADIUS_SCALE * float(np.median(np.concatenate(dists)))
+        d = np.concatenate(dists)
+        return RADIUS_SCALE * float(np.median(d) if np.median(d) > 0 else d.max(initial=0.0) or 1.0)
 
     def neighbours(self, pos, e, k=None):
         """(m, k) ids of emitter e's photons nearest to each position within the radius, -1 where none."""
