@@ -1,7 +1,7 @@
 """User-facing errors: reported by the CLI as one line, without a traceback."""
 import errno
-import re
 import os
+import re
 
 
 class ProbvisError(Exception):
@@ -53,8 +53,6 @@ def checked_call(func):
 def is_path(value):
     """Whether `value` names a file: a string or any path-like object of one (`Path`, `PurePosixPath`, a class
     with `__fspath__`), not bytes."""
-    import os
-
     return isinstance(value, str) or isinstance(value, os.PathLike) and isinstance(os.fspath(value), str)
 
 

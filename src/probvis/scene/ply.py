@@ -115,7 +115,7 @@ def read_ply(path):
             rows = ply["face"].data[index]
             if len(rows) == 0:  # an empty object array: its dtype says nothing of the declared index type
                 raise ProbvisError(f"mesh {path} contains no triangles")
-            values = rows[0] if rows.dtype == object and len(rows) else rows
+            values = rows[0] if rows.dtype == object else rows
             if np.asarray(values).dtype.kind not in "iu":
                 raise ProbvisError(f"mesh {path}: the faces' '{index}' are {np.asarray(values).dtype} numbers; "
                                    "vertex indices are integers (a PLY list of int, uint, ...)")

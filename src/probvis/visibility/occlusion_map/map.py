@@ -77,7 +77,8 @@ class OcclusionMap:
         if not dists:
             return 1.0
         d = np.concatenate(dists)
-        return RADIUS_SCALE * float(np.median(d) if np.median(d) > 0 else d.max(initial=0.0) or 1.0)
+        typical = float(np.median(d))  # 0 only where most probes share their place with another photon
+        return RADIUS_SCALE * (typical if typical > 0 else float(d.max()) or 1.0)
 
     def neighbours(self, pos, e, k=None):
         """(m, k) ids of emitter e's photons nearest to each position within the radius, -1 where none."""
