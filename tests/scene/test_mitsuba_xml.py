@@ -130,6 +130,8 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
      "out of range"),
     ("<bsdf type='diffuse' id='a'/><bsdf type='diffuse' id='a'/>", "duplicate id 'a'"),
     ("<shape type='shapegroup' id='g'><shape type='instance'><ref id='g'/></shape></shape>", "nested instancing"),
+    ("<shape type='shapegroup' id='g'><shape type='rectangle'><emitter type='area'><rgb name='radiance' value='1'/>"
+     "</emitter></shape></shape>", "an emitter inside a shapegroup is not supported"),
     ("<shape type='rectangle'><boolean name='flip_normals' value='true'/><boolean name='flip_normals' value='false'/>"
      "</shape>", "parameter 'flip_normals' is given twice"),
     ("<shape type='cube' id='c'/><shape type='rectangle'><ref id='c'/></shape>", "id 'c' is a <shape>, not a bsdf"),

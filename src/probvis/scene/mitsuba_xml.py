@@ -825,6 +825,10 @@ class _Reader:
             for ch in objs:
                 if ch.attrs.get("type") in ("instance", "shapegroup"):
                     self.fail(ch, f"a {ch.attrs['type']} inside a shapegroup (nested instancing) is not supported")
+                for em in ch.children:
+                    if em.tag == "emitter":  # as Mitsuba's ShapeGroup: an instance's emitter is not sampled
+                        self.fail(em, "an emitter inside a shapegroup is not supported (Mitsuba refuses instancing "
+                                      "of emitters): give the emitting shape outside the shapegroup")
             self.define(node, "shapegroup", objs)
             return
         if kind == "instance":

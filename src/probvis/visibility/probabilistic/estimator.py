@@ -25,6 +25,7 @@ from .standard import standard as standard_decomposition
 GROUPINGS = {"solid-angle": GROUP_SOLID_ANGLE, "count": GROUP_COUNT, "random": GROUP_RANDOM}
 DECOMPOSITIONS = ("standard", "shifted", "power", "adaptive")
 MAX_REACH = 1e12  # the largest |estimate| of one segment allowed (as of a plug-in's): beyond, images overflow
+MAX_LEVELS = 5  # the shifted decomposition's reach at 5 levels is 2e11; at 6, no decomposition's is below 1e12
 MAX_POWER = 64  # (V_A + V_B)^n / (2^n - 2): beyond this the terms lose all precision
 
 
@@ -44,7 +45,7 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
         Option("power", int, 8, "exponent n of the power decomposition", minimum=2, maximum=MAX_POWER),
         Option("grouping", str, "solid-angle", "how a candidate list is split into A and B",
                choices=tuple(GROUPINGS)),
-        Option("levels", int, 1, "recursive subdivision depth (1: one A/B split)", minimum=1, maximum=8),
+        Option("levels", int, 1, "recursive subdivision depth (1: one A/B split)", minimum=1, maximum=MAX_LEVELS),
         Option("cells", int, 1, "groups along the ray whose estimates are multiplied (1: none)", minimum=1,
                maximum=8),
     ) + MAP_OPTIONS
