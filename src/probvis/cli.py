@@ -111,6 +111,17 @@ class _Once(argparse.Action):
         setattr(namespace, self.dest, values)
 
 
+class _Setting(argparse.Action):
+    """A flag setting one value: given twice with different values it is refused (argparse keeps the last)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = namespace.__dict__.setdefault("_given", {})
+        if self.dest in given and given[self.dest] != values:
+            raise ProbvisError(f"{option_string} given twice ({given[self.dest]}, {values}): give it once")
+        given[self.dest] = values
+        setattr(namespace, self.dest, values)
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with the project's one-line error format, and flags spelt out: the checks before parsing (which
     estimator `--visibility` names, a flag given twice) read the whole names, so `--vis` would slip past them."""
@@ -212,13 +223,13 @@ def _parser(estimator=None):
     r.add_argument("scene", help="Mitsuba XML file or built-in scene name (see `probvis scenes`)")
     r.add_argument("-o", "--output", action="append", metavar="OUT",
                    help="output image (.exr, .pfm, .png); repeat for several (default: SCENE.exr)")
-    r.add_argument("--spp", type=_positive, help="camera samples per pixel (wins over -D spp=...)")
-    r.add_argument("--shadow-rays", type=_positive, help="emitter samples (shadow rays) per camera sample (wins over "
+    r.add_argument("--spp", type=_positive, action=_Setting, help="camera samples per pixel (wins over -D spp=...)")
+    r.add_argument("--shadow-rays", type=_positive, action=_Setting, help="emitter samples (shadow rays) per camera sample (wins over "
                                                          "-D shadow_rays=...)")
     r.add_argument("-D", dest="defines", action="append", metavar="NAME=VALUE",
                    help="set a scene parameter (a <default> of an XML scene; res, spp, shadow_rays or seed of a "
                         "built-in one)")
-    r.add_argument("--seed", type=_non_negative, help="random seed (default: the scene's sampler seed)")
+    r.add_argument("--seed", type=_non_negative, action=_Setting, help="random seed (default: the scene's sampler seed)")
     r.add_argument("--strict", action="store_true", help="refuse appearance probvis would approximate (non-diffuse "
                                                          "BSDFs render as their nearest diffuse colour otherwise)")
     r.add_argument("--visibility", default="exact", metavar="NAME",
@@ -239,8 +250,8 @@ def _parser(estimator=None):
     r.add_argument("--stats", metavar="OUT.json", action=_Once, help="write the statistics as JSON")
     r.add_argument("--tests-image", metavar="OUT.exr", action=_Once,
                    help="write per-pixel ray-triangle and ray-node test counts")
-    r.add_argument("--threads", type=_positive, help="worker threads (default: all cores)")
-    r.add_argument("--exposure", type=_exposure, default=0.0, help="PNG exposure in stops (default 0)")
+    r.add_argument("--threads", type=_positive, action=_Setting, help="worker threads (default: all cores)")
+    r.add_argument("--exposure", type=_exposure, action=_Setting, default=0.0, help="PNG exposure in stops (default 0)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
 
     i = sub.add_parser("info", help="triangles, emitters, bounds and BVH statistics of a scene")
@@ -256,9 +267,9 @@ def _parser(estimator=None):
 
     t = sub.add_parser("tables", help="per decomposition: term values and variance in the four configurations")
     t.add_argument("--json", action="store_true", help="print JSON")
-    t.add_argument("--probabilities", type=_triple, metavar="P1,P2,P3", help="term probabilities (default 1/3)")
-    t.add_argument("--shifts", type=_triple, metavar="A,B,G", help="shifts of the shifted decomposition")
-    t.add_argument("--power", type=_int_at_least(2, MAX_POWER), default=8,
+    t.add_argument("--probabilities", type=_triple, action=_Setting, metavar="P1,P2,P3", help="term probabilities (default 1/3)")
+    t.add_argument("--shifts", type=_triple, action=_Setting, metavar="A,B,G", help="shifts of the shifted decomposition")
+    t.add_argument("--power", type=_int_at_least(2, MAX_POWER), action=_Setting, default=8,
                    help=f"exponent of the power decomposition, 2 to {MAX_POWER} (default 8)")
 
     e = sub.add_parser("experiment", help="run a study (TOML) on Dask and write a browsable report",
@@ -266,12 +277,12 @@ def _parser(estimator=None):
                                    "each on disk so an interrupted study resumes, and write a report folder.")
     e.add_argument("file", nargs="?", help="experiment TOML file (e.g. experiments/paper.toml)")
     e.add_argument("--quick", action="store_true", help="the built-in quick preset instead of a file")
-    e.add_argument("-o", "--output", metavar="DIR", help="report folder (default: experiment-NAME)")
-    e.add_argument("--cache", metavar="DIR", help="render cache folder (default: DIR/cache)")
-    e.add_argument("--seeds", type=_seed_list, metavar="S1,S2,...", help="render these seeds instead of the file's")
-    e.add_argument("--workers", type=_int_at_least(1, MAX_WORKERS), default=1,
+    e.add_argument("-o", "--output", metavar="DIR", action=_Setting, help="report folder (default: experiment-NAME)")
+    e.add_argument("--cache", metavar="DIR", action=_Setting, help="render cache folder (default: DIR/cache)")
+    e.add_argument("--seeds", type=_seed_list, action=_Setting, metavar="S1,S2,...", help="render these seeds instead of the file's")
+    e.add_argument("--workers", type=_int_at_least(1, MAX_WORKERS), action=_Setting, default=1,
                    help=f"LocalCluster worker processes (default 1, at most {MAX_WORKERS}: four per core)")
-    e.add_argument("--scheduler", metavar="ADDRESS", help="use the Dask scheduler at ADDRESS (tcp://host:port)")
+    e.add_argument("--scheduler", metavar="ADDRESS", action=_Setting, help="use the Dask scheduler at ADDRESS (tcp://host:port)")
     e.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.render_flags = set(r._option_string_actions)  # `render`'s own flags and the estimator's
     return p
