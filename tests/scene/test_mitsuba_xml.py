@@ -826,6 +826,17 @@ def test_a_parameter_name_with_other_characters_is_substituted_as_mitsuba_does(t
         probvis.load_scene(path)
 
 
+def test_a_declared_name_before_more_letters_is_substituted_as_mitsuba_does(tmp_path):
+    """Mitsuba replaces '$' + each declared name wherever it stands: '$f5' with f = 1 is 15 (it was 'undefined
+    parameter $f5', advising to declare f5), also when the value comes from -D; the longest declared name wins."""
+    body = sensor().replace('value="40"', 'value="$f5"') + LIGHT
+    path = write_scene(tmp_path / "s.xml", body, '<default name="f" value="1"/>')
+    assert probvis.load_scene(path).camera.fov_x == pytest.approx(15.0)
+    assert probvis.load_scene(path, f="2").camera.fov_x == pytest.approx(25.0)
+    path = write_scene(tmp_path / "t.xml", body, '<default name="f" value="1"/><default name="f5" value="30"/>')
+    assert probvis.load_scene(path).camera.fov_x == pytest.approx(30.0)
+
+
 def test_an_empty_define_name_is_refused():
     """An empty name joined the `$name` pattern and took over every parameter ('$res' read as '$' + 'res')."""
     with pytest.raises(ProbvisError, match="defines: a parameter name is empty"):

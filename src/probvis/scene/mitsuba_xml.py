@@ -161,7 +161,6 @@ def _invertible_affine(m):
 
 MAX_VALUE_CHARS = 1 << 20  # an attribute's value once its $parameters are substituted
 _VAR = re.compile(r"\$(\w+)")  # a parameter's name in a value, where every declared name is a word
-_WORD = re.compile(r"\w+")
 
 
 def _by_name(node):
@@ -203,7 +202,8 @@ class _Reader:
 
     # --- errors and values -------------------------------------------------------------------
     def fail(self, node, msg):
-        given = sorted({m.group(1) for v in node.attrs.values() for m in _VAR.finditer(v)} & set(self.overrides))
+        variables = self._variables()
+        given = sorted({m.group(1) for v in node.attrs.values() for m in variables.finditer(v)} & set(self.overrides))
         if given:  # the value came from the command line, not from the line named
             msg += f" (with {', '.join(f'-D {n}={self.overrides[n]}' for n in given)})"
         raise ProbvisError(f"{self.path}:{node.line}: <{node.tag}>: {msg}")
@@ -247,12 +247,13 @@ class _Reader:
         return variables.sub(sub, raw)
 
     def _variables(self):
-        """`$name` of any parameter, as Mitsuba substitutes it: declared names with other characters than letters,
-        digits and '_' ('my-fov') first, longest first, then any word (an undeclared one is named as such)."""
-        odd = sorted((n for n in {*self.defaults, *self.overrides} if not _WORD.fullmatch(n)), key=len, reverse=True)
-        if not odd:
+        """`$name` of any parameter, as Mitsuba substitutes it: a declared name wherever its text stands after a
+        '$', also before more letters ('$name_lod1' is `name` then '_lod1'), longest first; then any word (an
+        undeclared one is named as such)."""
+        declared = sorted({*self.defaults, *self.overrides}, key=len, reverse=True)
+        if not declared:
             return _VAR
-        return re.compile(r"\$(" + "|".join(map(re.escape, odd)) + r"|\w+)")
+        return re.compile(r"\$(" + "|".join(map(re.escape, declared)) + r"|\w+)")
 
     def check_attrs(self, node, allowed):
         extra = set(node.attrs) - set(allowed)
