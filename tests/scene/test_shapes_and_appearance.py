@@ -224,6 +224,25 @@ def test_sampled_spectra_reduce_to_mitsubas_rgb(tmp_path, spectrum):
         probvis.load_scene(bad)
 
 
+def test_a_single_value_spectrum_is_flat_emission_or_grey_reflectance_as_in_mitsuba(tmp_path):
+    """`<spectrum value="5"/>` on an emitter is a flat emission spectrum (illuminant E), whose RGB Mitsuba's RGB
+    variants read as (1.205, 0.948, 0.909) x 5, not a grey 5; on a reflectance it stays grey."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    body = """
+    <shape type="rectangle"><bsdf type="diffuse"><spectrum name="reflectance" value="0.5"/></bsdf></shape>
+    <shape type="rectangle"><transform name="to_world"><translate z="1"/></transform>
+        <emitter type="area"><spectrum name="radiance" value="5"/></emitter></shape>
+    <emitter type="point"><spectrum name="intensity" value="5"/></emitter>"""
+    scene = probvis.load_scene(write_scene(tmp_path / "flat.xml", sensor() + body))
+    theirs = mi.load_string('<emitter version="3.0.0" type="constant"><spectrum name="radiance" value="5"/>'
+                            '</emitter>')
+    emission = np.array(mi.traverse(theirs)["radiance.value"])
+    assert not np.allclose(emission, emission[0])
+    np.testing.assert_allclose(scene.emitter_radiance, [emission, emission], rtol=1e-3)
+    np.testing.assert_allclose(scene.reflectance[scene.tri_material[0]], 0.5)
+
+
 def test_vertex_normals_weigh_faces_by_their_angle_at_the_vertex():
     """Where a mesh has no normals: at a vertex, the unit sum of its faces' normals times their corner angles
     (here 90° in the z = 0 plane and 45° in the x = 0 plane); a vertex without faces gets zero."""

@@ -159,6 +159,10 @@ def _invertible_affine(m):
     return bool(size > 0 and abs(np.linalg.det(m[:3, :3] / size)) >= 1e-12 and np.all(m[3] == (0, 0, 0, 1)))
 
 
+_EMISSION_NAMES = ("radiance", "intensity", "irradiance")  # a spectrum's meaning: emission, else a reflectance
+# the sRGB of a flat emission spectrum of 1 over 360-830 nm (CIE illuminant E), what Mitsuba's RGB variants read
+# for <spectrum name="radiance" value="1"/>: (1.205, 0.948, 0.909)
+_EQUAL_ENERGY = spectrum_to_rgb(np.array([360.0, 830.0]), np.ones(2), reflectance=False)
 MAX_VALUE_CHARS = 1 << 20  # an attribute's value once its $parameters are substituted
 _VAR = re.compile(r"\$(\w+)")  # a parameter's name in a value, where every declared name is a word
 
@@ -317,6 +321,8 @@ class _Reader:
                 self.fail(node, "a spectrum is one value or wavelength:value pairs")
             if len(vals) not in (1, 3):
                 self.fail(node, f"expected 1 or 3 values, got '{raw}'")
+            if tag == "spectrum" and node.attrs.get("name") in _EMISSION_NAMES:
+                return vals[0] * _EQUAL_ENERGY  # as Mitsuba: a flat emission spectrum, not a grey RGB
             return np.array(vals, dtype=np.float64) * np.ones(3)
         self.fail(node, "unsupported property type")
 
@@ -335,7 +341,7 @@ class _Reader:
             self.fail(node, "a sampled spectrum needs two or more values at increasing wavelengths")
         if np.abs(v).max() > MAX_EMISSION:
             self.fail(node, f"spectrum value {np.abs(v).max():g} is out of range (at most {MAX_EMISSION:g})")
-        emission = node.attrs.get("name") in ("radiance", "intensity", "irradiance")
+        emission = node.attrs.get("name") in _EMISSION_NAMES
         if node.attrs.get("name") == "reflectance" and (np.any(v < 0) or np.any(v > 1)):
             self.fail(node, "reflectance must be within [0, 1] at every wavelength")
         rgb = spectrum_to_rgb(w, v, reflectance=not emission)
