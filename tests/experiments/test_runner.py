@@ -84,10 +84,11 @@ def test_resume_recomputes_nothing_then_only_what_is_missing(tiny_run, tmp_path)
     assert numbers(again) == numbers(results)
 
 
-@pytest.mark.parametrize("damage", ["nan-image", "empty-json", "other-size", "loop"])
+@pytest.mark.parametrize("damage", ["nan-image", "empty-json", "other-size", "loop", "other-stats"])
 def test_a_damaged_cache_entry_is_rendered_again(tiny_run, tmp_path, damage):
     """An edited entry was trusted (NaN pixels: relmse nan, exit 0) or failed late (a KeyError, a broadcasting
-    ValueError, 'folder does not exist' for a link that loops): each now reads as absent and is rendered again."""
+    ValueError, 'folder does not exist' for a link that loops, a KeyError traceback for stats of another shape
+    under the same digest): each now reads as absent and is rendered again."""
     import shutil
 
     from probvis.io import write_exr
@@ -103,6 +104,9 @@ def test_a_damaged_cache_entry_is_rendered_again(tiny_run, tmp_path, damage):
         meta.write_text("{}")
     elif damage == "other-size":
         write_exr(img, np.ones((5, 7, 3)))
+    elif damage == "other-stats":
+        record = json.loads(meta.read_text())
+        meta.write_text(json.dumps({"stats": {"x": 1}, "digest": record["digest"]}))
     else:
         img.unlink()
         img.symlink_to(img.name)

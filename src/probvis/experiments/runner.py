@@ -201,8 +201,9 @@ class Cache:
 
 
 def _digest(render):
-    """SHA-256 of a render's images as stored (float32) and their shapes."""
-    h = hashlib.sha256()
+    """SHA-256 of a render's stats (as JSON) and images as stored (float32) with their shapes: an entry whose
+    stats were edited or written by another version counts as damaged."""
+    h = hashlib.sha256(json.dumps(render.stats, sort_keys=True).encode())
     for a in (render.image, render.tests):
         a = np.ascontiguousarray(a, dtype=np.float32)
         h.update(repr(a.shape).encode())
