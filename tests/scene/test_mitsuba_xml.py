@@ -75,6 +75,43 @@ def test_a_mirrored_cube_faces_outward_like_mitsuba_s(tmp_path, mirror):
     n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
     assert np.all(np.einsum("ij,ij->i", n, t.mean(axis=1)) > 0)
 
+MIRROR = "<transform name='to_world'><scale x='-1'/><translate x='-1.2'/></transform>"
+
+
+@pytest.mark.parametrize("kind", ["sphere", "cylinder", "obj"])
+@pytest.mark.parametrize("where, inside_out", [("own", {"sphere": True, "cylinder": False, "obj": True}),
+                                               ("instance", {"sphere": False, "cylinder": False, "obj": False}),
+                                               ("both", {"sphere": True, "cylinder": False, "obj": True})])
+def test_mirrors_turn_shapes_inside_out_where_mitsuba_s_do(tmp_path, kind, where, inside_out):
+    """Mitsuba 3.9 (renders of each case, one-sided shapes lit from above): a shape's own mirroring to_world turns
+    a mesh and a sphere inside out, not a cylinder; an instance's mirror turns nothing inside out. probvis turned
+    mirrored instances and cylinders inside out (a mirrored cylinder emitter lit 4x too little). Geometric and
+    shading normals agree in every case."""
+    (tmp_path / "q.obj").write_text("v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3\nf 1 3 4\n")
+    own = "<transform name='to_world'><scale y='-1'/></transform>" if where in ("own", "both") else ""
+    shape = {"sphere": f"<shape type='sphere'>{own}</shape>",
+             "cylinder": f"<shape type='cylinder'><point name='p0' y='-1'/><point name='p1' y='1'/>{own}</shape>",
+             "obj": f"<shape type='obj'><string name='filename' value='q.obj'/>{own}</shape>"}[kind]
+    if where == "own":
+        body = shape
+    else:
+        body = (f"<shape type='shapegroup' id='g'>{shape}</shape><shape type='instance'><ref id='g'/>{MIRROR}"
+                "</shape>")
+    light = "<emitter type='point'><point name='position' z='5'/></emitter>"
+    s = probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + light + body))
+    t, vn = s.triangles, s.vertex_normals
+    geometric = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    assert np.all(np.einsum("ij,ij->i", geometric, vn.mean(axis=1)) > 0)
+    centre = t.reshape(-1, 3).mean(axis=0)
+    out = t.mean(axis=1) - centre
+    if kind == "cylinder":
+        out[:, 1] = 0.0
+    elif kind == "obj":
+        out = np.array([0.0, 0.0, 1.0])
+    facing = np.einsum("ij,ij->i", vn.mean(axis=1), out * np.ones_like(geometric))
+    assert np.all(facing < 0) if inside_out[kind] else np.all(facing > 0)
+
+
 def test_obj_mesh_relative_path_and_twosided(tmp_path):
     (tmp_path / "m").mkdir()
     (tmp_path / "m" / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\nf 1 1 2\n")

@@ -926,10 +926,19 @@ class _Reader:
         if not _invertible_affine(m):
             self.fail(node, "the shape's to_world is singular or projective (a scale of 0 flattens it; a matrix's "
                             "last row must be 0 0 0 1): check its scale and matrix")
-        if kind in ("rectangle", "cube", "disk", "sphere", "cylinder") and np.linalg.det(m[:3, :3]) < 0:
-            # analytic shapes (and Mitsuba's cube, a mesh with its normals) orient by the normal transform, not by
-            # the mirrored winding
+        # Which side faces out under a mirroring transform, as in Mitsuba: an instance's mirror never turns a
+        # shape inside out (normals go by its inverse transpose), so the winding it reverses is reversed back; a
+        # shape's own mirror turns meshes and spheres inside out, not the other analytic shapes (Mitsuba's cube
+        # is a mesh with its own normals). The vertex normals given with a sphere or cylinder are transformed as
+        # normals, so their winding alone is reversed back (and a sphere's flipped with its normals)
+        outer_mirror = outer is not None and np.linalg.det(outer[:3, :3]) < 0
+        own_mirror = (np.linalg.det(m[:3, :3]) < 0) != outer_mirror
+        if kind in ("rectangle", "cube", "disk", "sphere") and own_mirror:
             flip = not flip
+        if outer_mirror != (kind in ("cylinder", "sphere") and own_mirror):
+            f = f[:, ::-1]
+            if uv is not None and np.ndim(uv) == 3:
+                uv = uv[:, ::-1]
         name = self.attr(node, "id", f"{kind}@{node.line}")
         try:
             kept = builder.add_mesh(name, kind, v, f, m, material, radiance, face_normals, vnormals, flip, uv)
