@@ -2,6 +2,7 @@
 
 Anything outside the subset raises `ProbvisError` naming the element, the file and the line.
 """
+import functools
 import os
 import re
 import warnings
@@ -160,9 +161,15 @@ def _invertible_affine(m):
 
 
 _EMISSION_NAMES = ("radiance", "intensity", "irradiance")  # a spectrum's meaning: emission, else a reflectance
-# the sRGB of a flat emission spectrum of 1 over 360-830 nm (CIE illuminant E), what Mitsuba's RGB variants read
-# for <spectrum name="radiance" value="1"/>: (1.205, 0.948, 0.909)
-_EQUAL_ENERGY = spectrum_to_rgb(np.array([360.0, 830.0]), np.ones(2), reflectance=False)
+
+
+@functools.cache
+def _equal_energy():
+    """The sRGB of a flat emission spectrum of 1 over 360-830 nm (CIE illuminant E), what Mitsuba's RGB variants
+    read for <spectrum name="radiance" value="1"/>: (1.205, 0.948, 0.909). Its tables load on first use."""
+    return spectrum_to_rgb(np.array([360.0, 830.0]), np.ones(2), reflectance=False)
+
+
 MAX_VALUE_CHARS = 1 << 20  # an attribute's value once its $parameters are substituted
 _VAR = re.compile(r"\$(\w+)")  # a parameter's name in a value, where every declared name is a word
 
@@ -322,7 +329,7 @@ class _Reader:
             if len(vals) not in (1, 3):
                 self.fail(node, f"expected 1 or 3 values, got '{raw}'")
             if tag == "spectrum" and node.attrs.get("name") in _EMISSION_NAMES:
-                return vals[0] * _EQUAL_ENERGY  # as Mitsuba: a flat emission spectrum, not a grey RGB
+                return vals[0] * _equal_energy()  # as Mitsuba: a flat emission spectrum, not a grey RGB
             return np.array(vals, dtype=np.float64) * np.ones(3)
         self.fail(node, "unsupported property type")
 
