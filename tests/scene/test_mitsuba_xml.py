@@ -874,6 +874,36 @@ def test_a_declared_name_before_more_letters_is_substituted_as_mitsuba_does(tmp_
     assert probvis.load_scene(path).camera.fov_x == pytest.approx(30.0)
 
 
+def test_alias_path_spectrum_files_and_a_named_emitter_load_as_in_mitsuba(tmp_path):
+    """Valid Mitsuba 3 that probvis refused: `<alias>` (read as a duplicate id), `<path>` (a folder searched for
+    files), a `<spectrum filename>` (.spd lines) and `name` on a nested emitter; each gives the scene that its
+    spelt-out equivalent gives."""
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "q.obj").write_text("v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3\nf 1 3 4\n")
+    (tmp_path / "r.spd").write_text("# wavelength value\n400 0.2\n550 0.8  # green\n\n700 0.4\n")
+    body = sensor() + """<path value="sub"/><bsdf type="diffuse" id="a">
+        <spectrum name="reflectance" filename="r.spd"/></bsdf><alias id="a" as="b"/>
+        <shape type="obj"><string name="filename" value="q.obj"/><ref id="b"/></shape>
+        <shape type="rectangle"><transform name="to_world"><translate z="2"/></transform>
+        <emitter type="area" name="emitter"><rgb name="radiance" value="1"/></emitter></shape>"""
+    scene = probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+    spelt = body.replace('filename="r.spd"', 'value="400:0.2, 550:0.8, 700:0.4"').replace('<path value="sub"/>', "")
+    spelt = spelt.replace('value="q.obj"', 'value="sub/q.obj"').replace(' name="emitter"', "")
+    spelt = spelt.replace('<alias id="a" as="b"/>', "").replace('<ref id="b"/>', '<ref id="a"/>')
+    expected = probvis.load_scene(write_scene(tmp_path / "t.xml", spelt))
+    np.testing.assert_array_equal(scene.triangles, expected.triangles)
+    np.testing.assert_array_equal(scene.reflectance[scene.tri_material], expected.reflectance[expected.tri_material])
+    assert not np.allclose(scene.reflectance[scene.tri_material[0]], scene.reflectance[scene.tri_material[0]][0])
+    for bad, message in [('<alias id="zz" as="c"/>', "alias of unknown id 'zz'"),
+                         ('<alias id="a" as="a"/>', "duplicate id 'a'"),
+                         ('<path value="nowhere"/>', "folder .*nowhere' not found"),
+                         ('<bsdf type="diffuse" id="x"><spectrum name="reflectance" filename="bad.spd"/></bsdf>',
+                          r"bad.spd:2: expected a wavelength and a value, got '500 0.5 1'")]:
+        (tmp_path / "bad.spd").write_text("400 0.5\n500 0.5 1\n")
+        with pytest.raises(ProbvisError, match=message):
+            probvis.load_scene(write_scene(tmp_path / "u.xml", body + bad))
+
+
 def test_an_empty_define_name_is_refused():
     """An empty name joined the `$name` pattern and took over every parameter ('$res' read as '$' + 'res')."""
     with pytest.raises(ProbvisError, match="defines: a parameter name is empty"):

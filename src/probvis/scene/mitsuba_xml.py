@@ -185,7 +185,7 @@ def _unique_ids(root, fail):
     seen, todo = {}, [root]
     while todo:
         node = todo.pop()
-        key = node.attrs.get("id") if node.tag != "ref" else None
+        key = node.attrs.get("as") if node.tag == "alias" else node.attrs.get("id") if node.tag != "ref" else None
         if key is not None and "$" not in key:
             if key in seen:
                 first, later = sorted((seen[key], node), key=lambda n: n.line)
@@ -209,6 +209,7 @@ class _Reader:
         self.id_defined = {}  # the element that defined each id
         self.referenced = set()  # ids a <ref> resolved
         self.images = {}  # decoded image files by (resolved path, raw)
+        self.search_paths = []  # the folders of <path> elements, searched before the scene's
         self.root = None  # the document's tree, once parsed
 
     # --- errors and values -------------------------------------------------------------------
@@ -302,6 +303,9 @@ class _Reader:
             if "value" in node.attrs:
                 return np.array(self.numbers(node, self.attr(node, "value"), (1, 3))) * np.ones(3)
             return np.array([self.number(node, a, "0") for a in "xyz"])
+        if tag == "spectrum" and "filename" in node.attrs:
+            self.check_attrs(node, ("name", "filename"))
+            return self.sampled_spectrum(node, self.spectrum_file(node))
         self.check_attrs(node, ("name", "value"))
         raw = self.attr(node, "value")
         try:
@@ -332,6 +336,28 @@ class _Reader:
                 return vals[0] * _equal_energy()  # as Mitsuba: a flat emission spectrum, not a grey RGB
             return np.array(vals, dtype=np.float64) * np.ones(3)
         self.fail(node, "unsupported property type")
+
+    def spectrum_file(self, node):
+        """A spectrum file's `wavelength value` lines (Mitsuba's .spd; '#' starts a comment) as `w:v` pairs."""
+        path = self.input_file(node, self.attr(node, "filename"))
+        if not path.is_file():
+            self.fail(node, missing_file(path, "spectrum file") if not path.exists() else
+                      f"spectrum file {path} is not a regular file")
+        if path.stat().st_size > MAX_VALUE_CHARS:
+            self.fail(node, f"spectrum file {path} is larger than {MAX_VALUE_CHARS:,} bytes: not a spectrum")
+        pairs = []
+        try:
+            lines = path.read_text(encoding="utf-8").splitlines()
+        except (OSError, UnicodeDecodeError) as exc:
+            self.fail(node, f"cannot read spectrum file {path}: {getattr(exc, 'strerror', None) or exc}")
+        for number, line in enumerate(lines, 1):
+            words = line.split("#", 1)[0].split()
+            if not words:
+                continue
+            if len(words) != 2:
+                self.fail(node, f"{path}:{number}: expected a wavelength and a value, got '{line.strip()}'")
+            pairs.append(":".join(words))
+        return ", ".join(pairs)
 
     def sampled_spectrum(self, node, raw):
         """RGB of `wavelength:value` pairs, as Mitsuba's RGB variants reduce them (emission for radiance,
@@ -691,10 +717,10 @@ class _Reader:
             value = _IORS[value.lower()]
         return value
 
-    def define(self, node, kind, value):
-        """Name `value` (a `kind`) by the node's id, its parameters substituted (unique in the file: `_unique_ids`,
-        and here for ids made of parameters)."""
-        key = self.attr(node, "id")
+    def define(self, node, kind, value, key=None):
+        """Name `value` (a `kind`) by the node's id (or `key`, an alias), its parameters substituted (unique in the
+        file: `_unique_ids`, and here for ids made of parameters)."""
+        key = self.attr(node, "id") if key is None else key
         first = self.id_defined.setdefault(key, node)
         if first is not node:  # an element read again (a shapegroup's) defines its id again
             self.fail(node, f"duplicate id '{key}' (first defined on line {first.line})")
@@ -722,7 +748,7 @@ class _Reader:
         return val
 
     def emitter_radiance(self, node):
-        self.check_attrs(node, ("type", "id"))
+        self.check_attrs(node, ("type", "id", "name"))
         kind = self.attr(node, "type")
         if kind != "area":
             self.fail(node, f"unsupported emitter type '{kind}' (supported: area, attached to a shape)")
@@ -1235,6 +1261,8 @@ class _Reader:
         if not name.strip():
             self.fail(node, "the filename is empty")
         path = Path(name) if Path(name).is_absolute() else self.path.parent / name
+        if not Path(name).is_absolute():
+            path = next((folder / name for folder in self.search_paths if (folder / name).exists()), path)
         self.inputs.append(path)
         return path
 
@@ -1281,6 +1309,20 @@ class _Reader:
                 self.shape(ch, builder)
             elif ch.tag == "emitter":
                 self.delta_emitter(ch, builder)
+            elif ch.tag == "alias":
+                self.check_attrs(ch, ("id", "as"))
+                source = self.attr(ch, "id")
+                if source not in self.ids:
+                    later = self.id_nodes.get(source)
+                    self.fail(ch, f"alias of unknown id '{source}'" if later is None else
+                              f"id '{source}' is defined after this alias (line {later.line}): move it above")
+                self.define(ch, self.ids[source][0], self.ids[source][1], key=self.attr(ch, "as"))
+            elif ch.tag == "path":
+                self.check_attrs(ch, ("value",))
+                folder = self.path.parent / self.attr(ch, "value")
+                if not folder.is_dir():
+                    self.fail(ch, f"folder '{folder}' not found (a <path> names a folder searched for files)")
+                self.search_paths.insert(0, folder)  # as Mitsuba's resolver: the latest first
             elif ch.tag == "include":
                 self.fail(ch, "<include> is not supported by probvis: paste the included file's elements here")
             else:
