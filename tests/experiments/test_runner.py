@@ -500,3 +500,19 @@ def test_a_reference_equal_to_a_render_gives_a_report(tmp_path):
     doc = json.loads((tmp_path / "rep" / "results.json").read_text())
     assert "| q | exact |" in (tmp_path / "rep" / "results.md").read_text()
     assert json.dumps(doc, allow_nan=False)
+
+
+def test_a_worker_s_warnings_are_said_by_the_driver(tmp_path):
+    """A warning raised in a worker process was printed there as Python's two-line warning (file, line and source);
+    it now travels with the render's stats and the driver says it once, naming scene and method."""
+    from tests.conftest import sensor, write_scene
+
+    below = ('<shape type="rectangle"/><emitter type="directional"><vector name="direction" z="1"/>'
+             '<rgb name="irradiance" value="2"/></emitter>')
+    path = write_scene(tmp_path / "dark.xml", sensor() + below)
+    study = {"name": "dark", "spp": 1, "shadow_rays": [1], "seeds": [0], "resolution": [8, 8],
+             "reference": {"spp": 2, "shadow_rays": 2}, "scenes": [{"name": "q", "source": str(path)}],
+             "methods": [{"name": "ex", "visibility": "exact"}]}
+    with pytest.warns(UserWarning, match=r"^q / ex: the image is black") as caught:
+        experiment(parse_experiment(study), tmp_path / "r", progress=False, log=lambda m: None)
+    assert sum("q / ex: the image is black" in str(w.message) for w in caught) == 1

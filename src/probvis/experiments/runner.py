@@ -73,9 +73,21 @@ def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, tim
     """Worker side: render one task as `timing` says (`Timing`: repeats, fewer once they took long enough),
     keeping every repeat's seconds without compilation in stats["seconds"]["repeats"], and without the scene
     load and BVH too in ["repeats_render"], each from its own render) and return what the driver stores."""
+    times, render_times = [], []
+    with warnings.catch_warnings(record=True) as caught:  # said by the driver, as the CLI says its own
+        warnings.simplefilter("always")
+        r = _repeats(scene, (visibility, options, spp, shadow_rays, seed, threads), timing, times, render_times)
+    r.stats["warnings"] = list(dict.fromkeys(str(w.message).strip().splitlines()[0] for w in caught
+                                             if str(w.message).strip()))
+    r.stats["seconds"]["repeats"], r.stats["seconds"]["repeats_render"] = times, render_times
+    return r.stats, r.image.astype(np.float32), r.aovs["triangle_tests"].astype(np.float32)
+
+
+def _repeats(scene, task, timing, times, render_times):
+    """The renders of `render_task`, appending their seconds to `times` and `render_times`; the last render."""
     from ..integrator import render
 
-    times, render_times = [], []
+    visibility, options, spp, shadow_rays, seed, threads = task
     for _ in range(timing.repeats):
         try:
             r = render(scene, spp=spp, shadow_rays=shadow_rays, seed=seed, visibility=visibility,
@@ -90,8 +102,7 @@ def render_task(scene, visibility, options, spp, shadow_rays, seed, threads, tim
         render_times.append(times[-1] - sec["load"] - sec["bvh"])
         if sum(times) >= timing.enough_seconds:
             break
-    r.stats["seconds"]["repeats"], r.stats["seconds"]["repeats_render"] = times, render_times
-    return r.stats, r.image.astype(np.float32), r.aovs["triangle_tests"].astype(np.float32)
+    return r
 
 
 MAX_FINGERPRINT_FILES = 2000  # Python files hashed for a plug-in's fingerprint
@@ -517,6 +528,8 @@ def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, c
                 except ProbvisError as exc:
                     failures.append(f"{t.scene} / {t.method.name} / {t.shadow_rays} shadow rays: {exc}")
                 else:
+                    for message in stats.get("warnings", ()):  # once per scene, method and text
+                        warnings.warn(f"{t.scene} / {t.method.name}: {message}", stacklevel=1)
                     cache.store(t.key, Render(stats, image, tests))
                 bar.update(1)
     if failures:
