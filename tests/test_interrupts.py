@@ -43,3 +43,21 @@ def test_a_second_signal_acts_at_once():
             os.kill(os.getpid(), signal.SIGINT)
             reached.append(2)
     assert reached == [1]
+
+
+def test_a_deferred_signal_whose_interrupt_was_swallowed_is_still_a_stop():
+    """A study's SIGTERM (to the driver alone) while its report was written: the deferral's KeyboardInterrupt was
+    swallowed by a library and the study ended with status 0; the stop is now remembered until the command's
+    last safe point."""
+    from probvis.interrupts import check_stop, reset_stop
+
+    reset_stop()
+    try:
+        with deferred_interrupts():
+            os.kill(os.getpid(), signal.SIGTERM)
+    except KeyboardInterrupt:
+        pass  # a library's `except BaseException`
+    with pytest.raises(KeyboardInterrupt):
+        check_stop()
+    reset_stop()
+    check_stop()

@@ -586,6 +586,7 @@ def _cmd_experiment(args):
     command = "probvis " + shlex.join(args.argv)
     try:  # `main` made SIGTERM and SIGHUP stop as Ctrl-C does
         _, index, run = experiment(exp, out, args.cache, args.workers, args.scheduler, not args.quiet, command)
+        check_stop()  # a stop that a library swallowed (while the cluster started, or the report was written)
     except KeyboardInterrupt:
         cache = Path(args.cache or out / "cache")
         kept = cache.is_dir() and any(cache.glob("*.json"))

@@ -37,6 +37,7 @@ def deferred_interrupts(signals=None):
         insisted = bool(pending)
         pending.append(signum)
         _received.append(signum)
+        _since_reset.append(signum)  # for `check_stop`: the block's KeyboardInterrupt may be swallowed
         if _compiling() or insisted:  # Numba's compiler is Python code, no kernel runs: stop now, not after
             raise KeyboardInterrupt  # minutes; a second signal: the batch does not end (a plug-in stuck in it)
 
@@ -55,6 +56,7 @@ def deferred_interrupts(signals=None):
 
 
 _received = []  # the stop signals the latest deferral recorded
+_since_reset = []  # every stop signal since the command started (`reset_stop`), deferred or not
 _requested = []  # stop signals `stop_now` raised on: remembered, since a plug-in's `except BaseException` may eat one
 
 
@@ -62,12 +64,14 @@ def stop_now(signum, frame):
     """A stop signal's handler outside a deferral: KeyboardInterrupt at once, and remembered, so that every later
     safe point (`deferred_interrupts`, `check_stop`) stops too if the code it interrupted swallowed it."""
     _requested.append(signum)
+    _since_reset.append(signum)
     raise KeyboardInterrupt
 
 
 def check_stop():
-    """KeyboardInterrupt if a stop signal arrived since `reset_stop` (at a safe point: before writing outputs)."""
-    if _requested or _received:
+    """KeyboardInterrupt if a stop signal arrived since `reset_stop` (at a command's safe points: before writing
+    outputs, at its end), whether or not the code it interrupted swallowed the KeyboardInterrupt."""
+    if _since_reset:
         raise KeyboardInterrupt
 
 
@@ -75,6 +79,7 @@ def reset_stop():
     """Forget earlier stop signals: a new command starts (the API may run several in one process)."""
     _requested.clear()
     _received.clear()
+    _since_reset.clear()
 
 
 def interrupt_received():
