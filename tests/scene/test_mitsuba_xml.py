@@ -112,6 +112,19 @@ def test_mirrors_turn_shapes_inside_out_where_mitsuba_s_do(tmp_path, kind, where
     assert np.all(facing < 0) if inside_out[kind] else np.all(facing > 0)
 
 
+def test_a_negative_sphere_radius_turns_it_inside_out_as_in_mitsuba(tmp_path):
+    """Mitsuba flips a sphere's normals for a negative radius (its render of a one-sided sphere of radius -0.4 lit
+    from above: 0.0456, against 0.0532 for 0.4); probvis refused it."""
+    light = "<emitter type='point'><point name='position' z='5'/></emitter>"
+    body = sensor() + light + "<shape type='sphere'><float name='radius' value='-0.4'/></shape>"
+    s = probvis.load_scene(write_scene(tmp_path / "s.xml", body))
+    t = s.triangles
+    assert np.allclose(np.linalg.norm(t, axis=2), 0.4)
+    geometric = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    assert np.all(np.einsum("ij,ij->i", geometric, t.mean(axis=1)) < 0)
+    assert np.all(np.einsum("ij,ij->i", s.vertex_normals.mean(axis=1), t.mean(axis=1)) < 0)
+
+
 def test_obj_mesh_relative_path_and_twosided(tmp_path):
     (tmp_path / "m").mkdir()
     (tmp_path / "m" / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\nf 1 1 2\n")
@@ -396,7 +409,7 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
     ("<emitter type='spot'><transform name='to_world'><lookat origin='0, 0, 1e300' target='0, 0, 0'/></transform>"
      "</emitter>", "<lookat>: lookat's origin and target must lie within ±1e+30"),
     ("<shape type='sphere'><float name='radius' value='1e100'/></shape>",
-     "<shape>: sphere radius must be positive and at most 1e+30, got 1e+100"),
+     "<shape>: sphere radius must be non-zero and at most 1e+30 in size, got 1e+100"),
     ("<shape type='rectangle'><bsdf type='dielectric'><string name='int_ior' value='kryptonite'/></bsdf></shape>",
      "<string>: unknown material 'kryptonite' for int_ior (Mitsuba's: vacuum, helium"),
     ("<shape type='rectangle'><bsdf type='roughconductor'><string name='material' value='unobtainium'/></bsdf>"

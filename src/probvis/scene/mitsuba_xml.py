@@ -950,8 +950,8 @@ class _Reader:
         else:
             v, f, vnormals = shp.uv_sphere()
             r = props.get("radius", 1.0)
-            if not 0 < r <= MAX_COORDINATE:
-                self.fail(node, f"sphere radius must be positive and at most {MAX_COORDINATE:g}, got {r:g}")
+            if not 0 < abs(r) <= MAX_COORDINATE:  # negative: turned inside out, as Mitsuba flips its normals
+                self.fail(node, f"sphere radius must be non-zero and at most {MAX_COORDINATE:g} in size, got {r:g}")
             m = self.round_sphere(node, m @ tf.translate(props.get("center", np.zeros(3))) @ tf.scale([r, r, r]))
             face_normals = False
         if kind in ("disk", "sphere", "cylinder"):
