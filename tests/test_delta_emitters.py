@@ -39,6 +39,15 @@ def test_point_and_spot_lights_match_mitsuba(scene_file):
     assert_matches_mitsuba(scene_file, shadow_rays=1)
 
 
+def test_a_beam_wider_than_the_cutoff_matches_mitsuba(tmp_path, scene_file):
+    """Mitsuba renders a spot whose beam_width exceeds its cutoff_angle at full intensity up to the cutoff; probvis
+    refused it."""
+    wide = tmp_path / "wide.xml"
+    wide.write_text(scene_file.read_text().replace('name="beam_width" value="12"', 'name="beam_width" value="40"'))
+    assert 'value="40"' in wide.read_text()
+    assert_matches_mitsuba(wide, shadow_rays=1)
+
+
 @pytest.mark.parametrize("visibility, options", [
     ("occlusion-map", {"photons": 20000}),
     ("occlusion-map", {"photons": 20000, "penumbra": "list"}),
@@ -60,7 +69,7 @@ def test_occlusion_map_with_point_lights_is_unbiased(scene_file, visibility, opt
 @pytest.mark.parametrize("spot, message", [
     ('<float name="cutoff_angle" value="0"/>', "cutoff_angle must be in [0.001, 90]"),
     ('<float name="cutoff_angle" value="95"/>', "cutoff_angle must be in [0.001, 90]"),
-    ('<float name="cutoff_angle" value="20"/><float name="beam_width" value="30"/>', "beam_width must be in"),
+    ('<float name="cutoff_angle" value="20"/><float name="beam_width" value="-1"/>', "beam_width must be at least 0"),
 ])
 def test_bad_spot_lights_are_named(tmp_path, spot, message):
     body = sensor() + f"""<shape type="rectangle"/><emitter type="spot">{spot}</emitter>"""

@@ -817,8 +817,9 @@ class _Reader:
         if not MIN_CUTOFF <= cutoff <= 90.0:
             why = " (a narrower cone carries no power in double precision)" if cutoff < MIN_CUTOFF else ""
             self.fail(node, f"cutoff_angle must be in [{MIN_CUTOFF:g}, 90] degrees, got {cutoff:g}{why}")
-        if not 0.0 <= beam <= cutoff:
-            self.fail(node, f"beam_width must be in [0, cutoff_angle], got {beam:g}")
+        if not beam >= 0.0:
+            self.fail(node, f"beam_width must be at least 0 degrees, got {beam:g}")
+        beam = min(beam, cutoff)  # wider: full intensity up to the cutoff, as in Mitsuba's falloff
         axis = tf.tamed(m[:3, :3] @ np.array([0.0, 0.0, 1.0]))
         if not np.linalg.norm(axis) > 0 or not np.all(np.isfinite(axis)):
             self.fail(node, "the spot light's to_world is singular: it maps its +z axis to no direction")
