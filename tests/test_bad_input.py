@@ -93,7 +93,7 @@ CASES = [
      "give q or min_q, not both"),
     (["render", "quad-shadow", "-D", "res=8", "-D", "res=64"], "-D res given twice (8, 64): give it once"),
     (["render", "quad-shadow", "--spp", "2", "--spp", "3"], "--spp given twice (2, 3): give it once"),
-    (["render", "quad-shadow", "-D", "seed=-5"], r"parameter seed \(-D seed=, seed=\) must be a whole number from 0"),
+    (["render", "quad-shadow", "-D", "seed=-5"], "parameter seed (-D seed=, seed=) must be a whole number from 0"),
     (["render", "quad-shadow", "--exposure", "1", "--exposure=2"], "--exposure given twice (1.0, 2.0)"),
     (["render", "quad-shadow", "--seed", "1", "--seed", "2"], "--seed given twice"),
     (["experiment", "--quick", "-o", "a", "--output", "b"], "--output given twice (a, b)"),
