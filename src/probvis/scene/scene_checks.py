@@ -59,6 +59,13 @@ def check_scene(scene):
                                ("emitter_axis", (e, 3), "f"), ("emitter_cone", (e, 4), "f"),
                                *((("tri_uv", (n, 3, 2), "f"),) if scene.tri_uv is not None else ())):
         a = getattr(scene, name)
+        base, row = (("emitter_radiance", "emitter") if name.startswith("emitter") else
+                     ("reflectance", "material") if name in ("reflectance", "twosided", "material_texture") else
+                     ("triangles", "triangle"))
+        if (isinstance(a, np.ndarray) and a.ndim == len(shape) and a.shape[1:] == shape[1:] and a.shape[0] != shape[0]
+                and name != base):  # one of a family of arrays changed alone
+            raise ProbvisError(f"scene.{name} has {a.shape[0]} rows where scene.{base} has {shape[0]}: the arrays "
+                               f"with a row per {row} change together")
         if not isinstance(a, np.ndarray) or a.shape != shape or a.dtype.kind not in kinds:
             raise ProbvisError(f"scene.{name} must be a {' x '.join(map(str, shape))} array of "
                                f"{dict(f='floats', iu='integers', b='booleans')[kinds]}, got "
