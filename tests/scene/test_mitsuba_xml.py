@@ -906,6 +906,11 @@ def test_alias_path_spectrum_files_and_a_named_emitter_load_as_in_mitsuba(tmp_pa
     expected = probvis.load_scene(write_scene(tmp_path / "t.xml", spelt))
     np.testing.assert_array_equal(scene.triangles, expected.triangles)
     np.testing.assert_array_equal(scene.reflectance[scene.tri_material], expected.reflectance[expected.tri_material])
+    # a <path> after the files it finds, and an alias of a shape (which nothing can refer to), as Mitsuba loads them
+    later = body.replace('<path value="sub"/>', "").replace('<shape type="obj">', '<shape type="obj" id="m">')
+    later += '<alias id="m" as="n"/><path value="sub"/>'
+    np.testing.assert_array_equal(probvis.load_scene(write_scene(tmp_path / "v.xml", later)).triangles,
+                                  expected.triangles)
     assert not np.allclose(scene.reflectance[scene.tri_material[0]], scene.reflectance[scene.tri_material[0]][0])
     for bad, message in [('<alias id="zz" as="c"/>', "alias of unknown id 'zz'"),
                          ('<alias id="a" as="a"/>', "duplicate id 'a'"),

@@ -1257,6 +1257,17 @@ class _Reader:
         out[:3, :3] = (u @ vt) * radius
         return out
 
+    def _search_paths(self, root):
+        """The scene's `<path>` folders, searched for every file it names (wherever the element stands, as in
+        Mitsuba), the latest first as Mitsuba's resolver prepends them, then the scene's folder."""
+        for ch in root.children:
+            if ch.tag == "path":
+                self.check_attrs(ch, ("value",))
+                folder = self.path.parent / self.attr(ch, "value")
+                if not folder.is_dir():
+                    self.fail(ch, f"folder '{folder}' not found (a <path> names a folder searched for files)")
+                self.search_paths.insert(0, folder)
+
     def input_file(self, node, name):
         """The file a scene parameter names, relative to the scene file's folder, recorded among the inputs."""
         if not name.strip():
@@ -1275,6 +1286,7 @@ class _Reader:
         if "version" in root.attrs and not re.fullmatch(r"\d+(\.\d+){0,2}", root.attrs["version"].strip()):
             self.fail(root, f"version must be a version number such as 3.0.0, got '{root.attrs['version']}'")
         self.id_nodes = _unique_ids(root, self.fail)
+        self._search_paths(root)
         builder = SceneBuilder(self.path.stem, str(self.path))
         camera, spp, seed, shadow_rays = None, 4, 0, 1
         integrator_line = None
@@ -1313,17 +1325,16 @@ class _Reader:
             elif ch.tag == "alias":
                 self.check_attrs(ch, ("id", "as"))
                 source = self.attr(ch, "id")
-                if source not in self.ids:
-                    later = self.id_nodes.get(source)
-                    self.fail(ch, f"alias of unknown id '{source}'" if later is None else
-                              f"id '{source}' is defined after this alias (line {later.line}): move it above")
-                self.define(ch, self.ids[source][0], self.ids[source][1], key=self.attr(ch, "as"))
+                target = self.id_nodes.get(source)
+                if target is None:
+                    self.fail(ch, f"alias of unknown id '{source}'")
+                if source in self.ids:
+                    self.define(ch, self.ids[source][0], self.ids[source][1], key=self.attr(ch, "as"))
+                elif target.line > ch.line:
+                    self.fail(ch, f"id '{source}' is defined after this alias (line {target.line}): move it above")
+                # else an object nothing can refer to (a shape, an emitter): its alias names nothing usable
             elif ch.tag == "path":
-                self.check_attrs(ch, ("value",))
-                folder = self.path.parent / self.attr(ch, "value")
-                if not folder.is_dir():
-                    self.fail(ch, f"folder '{folder}' not found (a <path> names a folder searched for files)")
-                self.search_paths.insert(0, folder)  # as Mitsuba's resolver: the latest first
+                pass  # read before the rest (`_search_paths`)
             elif ch.tag == "include":
                 self.fail(ch, "<include> is not supported by probvis: paste the included file's elements here")
             else:
