@@ -513,7 +513,9 @@ def test_a_worker_s_warnings_are_said_by_the_driver(tmp_path):
     study = {"name": "dark", "spp": 1, "shadow_rays": [1], "seeds": [0], "resolution": [8, 8],
              "reference": {"spp": 2, "shadow_rays": 2}, "scenes": [{"name": "q", "source": str(path)}],
              "methods": [{"name": "ex", "visibility": "exact"}]}
-    with pytest.warns(UserWarning, match=r"^q / (ex|reference): the image is black") as caught:
+    with pytest.warns(UserWarning, match=r"^(q / (ex|reference): the|scene q: the reference) image is black") as caught:
         experiment(parse_experiment(study), tmp_path / "r", progress=False, log=lambda m: None)
     for name in ("ex", "reference"):
         assert sum(f"q / {name}: the image is black" in str(w.message) for w in caught) == 1
+    assert sum("scene q: the reference image is black, so every method's relMSE is 0" in str(w.message)
+               for w in caught) == 1

@@ -457,6 +457,10 @@ def _run(exp, scenes, files, cache, workers, scheduler, progress, log):
         out.reference_noise[t.scene] = r.stats.get("noise_relmse") or 0.0  # None: one sample, noise unknown
     for t in cells:
         out.renders[t.key] = cache.load(t.key)
+    for name, image in out.reference_images.items():
+        if not np.any(image):  # every relMSE is then 0 and every efficiency infinite: numbers that say nothing
+            warnings.warn(f"scene {name}: the reference image is black, so every method's relMSE is 0 and its "
+                          "efficiency infinite in the report: check the scene's emitters and camera", stacklevel=1)
     return out
 
 
