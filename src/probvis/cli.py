@@ -223,13 +223,15 @@ def _parser(estimator=None):
     r.add_argument("scene", help="Mitsuba XML file or built-in scene name (see `probvis scenes`)")
     r.add_argument("-o", "--output", action="append", metavar="OUT",
                    help="output image (.exr, .pfm, .png); repeat for several (default: SCENE.exr)")
-    r.add_argument("--spp", type=_positive, action=_Setting, help="camera samples per pixel (wins over -D spp=...)")
-    r.add_argument("--shadow-rays", type=_positive, action=_Setting, help="emitter samples (shadow rays) per camera sample (wins over "
-                                                         "-D shadow_rays=...)")
+    r.add_argument("--spp", type=_positive, action=_Setting,
+                   help="camera samples per pixel (wins over -D spp=...)")
+    r.add_argument("--shadow-rays", type=_positive, action=_Setting,
+                   help="emitter samples (shadow rays) per camera sample (wins over -D shadow_rays=...)")
     r.add_argument("-D", dest="defines", action="append", metavar="NAME=VALUE",
                    help="set a scene parameter (a <default> of an XML scene; res, spp, shadow_rays or seed of a "
                         "built-in one)")
-    r.add_argument("--seed", type=_non_negative, action=_Setting, help="random seed (default: the scene's sampler seed)")
+    r.add_argument("--seed", type=_non_negative, action=_Setting,
+                   help="random seed (default: the scene's sampler seed)")
     r.add_argument("--strict", action="store_true", help="refuse appearance probvis would approximate (non-diffuse "
                                                          "BSDFs render as their nearest diffuse colour otherwise)")
     r.add_argument("--visibility", default="exact", metavar="NAME",
@@ -251,7 +253,8 @@ def _parser(estimator=None):
     r.add_argument("--tests-image", metavar="OUT.exr", action=_Once,
                    help="write per-pixel ray-triangle and ray-node test counts")
     r.add_argument("--threads", type=_positive, action=_Setting, help="worker threads (default: all cores)")
-    r.add_argument("--exposure", type=_exposure, action=_Setting, default=0.0, help="PNG exposure in stops (default 0)")
+    r.add_argument("--exposure", type=_exposure, action=_Setting, default=0.0,
+                   help="PNG exposure in stops (default 0)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
 
     i = sub.add_parser("info", help="triangles, emitters, bounds and BVH statistics of a scene")
@@ -267,8 +270,10 @@ def _parser(estimator=None):
 
     t = sub.add_parser("tables", help="per decomposition: term values and variance in the four configurations")
     t.add_argument("--json", action="store_true", help="print JSON")
-    t.add_argument("--probabilities", type=_triple, action=_Setting, metavar="P1,P2,P3", help="term probabilities (default 1/3)")
-    t.add_argument("--shifts", type=_triple, action=_Setting, metavar="A,B,G", help="shifts of the shifted decomposition")
+    t.add_argument("--probabilities", type=_triple, action=_Setting, metavar="P1,P2,P3",
+                   help="term probabilities (default 1/3)")
+    t.add_argument("--shifts", type=_triple, action=_Setting, metavar="A,B,G",
+                   help="shifts of the shifted decomposition")
     t.add_argument("--power", type=_int_at_least(2, MAX_POWER), action=_Setting, default=8,
                    help=f"exponent of the power decomposition, 2 to {MAX_POWER} (default 8)")
 
@@ -279,10 +284,12 @@ def _parser(estimator=None):
     e.add_argument("--quick", action="store_true", help="the built-in quick preset instead of a file")
     e.add_argument("-o", "--output", metavar="DIR", action=_Setting, help="report folder (default: experiment-NAME)")
     e.add_argument("--cache", metavar="DIR", action=_Setting, help="render cache folder (default: DIR/cache)")
-    e.add_argument("--seeds", type=_seed_list, action=_Setting, metavar="S1,S2,...", help="render these seeds instead of the file's")
+    e.add_argument("--seeds", type=_seed_list, action=_Setting, metavar="S1,S2,...",
+                   help="render these seeds instead of the file's")
     e.add_argument("--workers", type=_int_at_least(1, MAX_WORKERS), action=_Setting, default=1,
                    help=f"LocalCluster worker processes (default 1, at most {MAX_WORKERS}: four per core)")
-    e.add_argument("--scheduler", metavar="ADDRESS", action=_Setting, help="use the Dask scheduler at ADDRESS (tcp://host:port)")
+    e.add_argument("--scheduler", metavar="ADDRESS", action=_Setting,
+                   help="use the Dask scheduler at ADDRESS (tcp://host:port)")
     e.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.render_flags = set(r._option_string_actions)  # `render`'s own flags and the estimator's
     return p
