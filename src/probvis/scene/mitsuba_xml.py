@@ -1257,16 +1257,15 @@ class _Reader:
         out[:3, :3] = (u @ vt) * radius
         return out
 
-    def _search_paths(self, root):
-        """The scene's `<path>` folders, searched for every file it names (wherever the element stands, as in
-        Mitsuba), the latest first as Mitsuba's resolver prepends them, then the scene's folder."""
-        for ch in root.children:
-            if ch.tag == "path":
-                self.check_attrs(ch, ("value",))
-                folder = self.path.parent / self.attr(ch, "value")
-                if not folder.is_dir():
-                    self.fail(ch, f"folder '{folder}' not found (a <path> names a folder searched for files)")
-                self.search_paths.insert(0, folder)
+    def _search_path(self, node):
+        """A `<path>` folder, searched for every file the scene names (wherever the element stands, as in Mitsuba;
+        one made of parameters from where it stands), the latest first as Mitsuba's resolver prepends them, then
+        the scene's folder."""
+        self.check_attrs(node, ("value",))
+        folder = self.path.parent / self.attr(node, "value")
+        if not folder.is_dir():
+            self.fail(node, f"folder '{folder}' not found (a <path> names a folder searched for files)")
+        self.search_paths.insert(0, folder)
 
     def input_file(self, node, name):
         """The file a scene parameter names, relative to the scene file's folder, recorded among the inputs."""
@@ -1286,7 +1285,9 @@ class _Reader:
         if "version" in root.attrs and not re.fullmatch(r"\d+(\.\d+){0,2}", root.attrs["version"].strip()):
             self.fail(root, f"version must be a version number such as 3.0.0, got '{root.attrs['version']}'")
         self.id_nodes = _unique_ids(root, self.fail)
-        self._search_paths(root)
+        for ch in root.children:
+            if ch.tag == "path" and "$" not in ch.attrs.get("value", ""):
+                self._search_path(ch)
         builder = SceneBuilder(self.path.stem, str(self.path))
         camera, spp, seed, shadow_rays = None, 4, 0, 1
         integrator_line = None
@@ -1334,7 +1335,8 @@ class _Reader:
                     self.fail(ch, f"id '{source}' is defined after this alias (line {target.line}): move it above")
                 # else an object nothing can refer to (a shape, an emitter): its alias names nothing usable
             elif ch.tag == "path":
-                pass  # read before the rest (`_search_paths`)
+                if "$" in ch.attrs.get("value", ""):  # the others were read before the rest
+                    self._search_path(ch)
             elif ch.tag == "include":
                 self.fail(ch, "<include> is not supported by probvis: paste the included file's elements here")
             else:
