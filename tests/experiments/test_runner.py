@@ -84,11 +84,13 @@ def test_resume_recomputes_nothing_then_only_what_is_missing(tiny_run, tmp_path)
     assert numbers(again) == numbers(results)
 
 
-@pytest.mark.parametrize("damage", ["nan-image", "empty-json", "other-size", "loop", "other-stats"])
+@pytest.mark.parametrize("damage", ["nan-image", "empty-json", "other-size", "loop", "other-stats", "no-seconds",
+                                    "seconds-text"])
 def test_a_damaged_cache_entry_is_rendered_again(tiny_run, tmp_path, damage):
     """An edited entry was trusted (NaN pixels: relmse nan, exit 0) or failed late (a KeyError, a broadcasting
     ValueError, 'folder does not exist' for a link that loops, a KeyError traceback for stats of another shape
-    under the same digest): each now reads as absent and is rendered again."""
+    under the same digest, stats without a number the tables read or with one of another type, under a digest
+    made again to match): each now reads as absent and is rendered again."""
     import shutil
 
     from probvis.io import write_exr
@@ -107,6 +109,13 @@ def test_a_damaged_cache_entry_is_rendered_again(tiny_run, tmp_path, damage):
     elif damage == "other-stats":
         record = json.loads(meta.read_text())
         meta.write_text(json.dumps({"stats": {"x": 1}, "digest": record["digest"]}))
+    elif damage in ("no-seconds", "seconds-text"):
+        stored = Cache(cache).load(victim.key)  # edited, then given a digest that matches again
+        if damage == "no-seconds":
+            del stored.stats["seconds"]["total"]
+        else:
+            stored.stats["seconds"]["total"] = "fast"
+        meta.write_text(json.dumps({"stats": stored.stats, "digest": runner._digest(stored)}))
     else:
         img.unlink()
         img.symlink_to(img.name)

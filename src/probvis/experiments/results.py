@@ -9,6 +9,38 @@ from . import metrics
 
 
 UNSTEADY = 0.25  # seeds' render times differing by more than this share of their median: a busy machine
+# what the tables read from a render's stats: numbers, optional lists of numbers, optional tables
+_NUMBERS = ("seconds.total", "seconds.compile", "seconds.load", "seconds.bvh", "seconds.prepare", "seconds.render",
+            "camera_rays", "shadow_rays", "negative_estimate_share", "negative_pixels.negative_pixel_share",
+            "intersection_tests.node", "intersection_tests.triangle", "intersection_tests.shadow.node",
+            "intersection_tests.shadow.triangle")
+_NUMBER_LISTS = ("seconds.repeats", "seconds.repeats_render")
+_TABLES = ("bvh", "estimator", "estimator.tests", "estimator.tests.proxy", "estimator.tests.shells",
+           "estimator.verification")
+_NUMBER_TABLES = ("estimator.seconds", "estimator.memory_bytes")
+
+
+def _at(stats, path):
+    """The value at a dotted path of nested dicts, None where the path ends early."""
+    for key in path.split("."):
+        stats = stats.get(key) if isinstance(stats, dict) else None
+    return stats
+
+
+def _number(x):
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def stats_readable(stats):
+    """Whether a render's stats hold what the tables read, of the types they read (a cache entry written by
+    another version of probvis, or edited, may not)."""
+    def optional(path, kind, each=None):
+        x = _at(stats, path)
+        return x is None or (isinstance(x, kind) and (each is None or all(map(each, x))))
+
+    return (isinstance(stats, dict) and all(_number(_at(stats, p)) for p in _NUMBERS)
+            and all(optional(p, list, _number) for p in _NUMBER_LISTS) and all(optional(p, dict) for p in _TABLES)
+            and all(optional(p, dict) and all(map(_number, (_at(stats, p) or {}).values())) for p in _NUMBER_TABLES))
 
 
 @dataclass
@@ -81,7 +113,8 @@ def cell_row(task, render, reference, baseline_name, counted="total"):
         "options": json.dumps(task.method.options, sort_keys=True, default=list),
         "baseline": task.method.name == baseline_name, "shadow_rays": task.shadow_rays, "spp": task.spp,
         "seed": task.seed, "seconds": seconds, "cpu_seconds": cpu, "seconds_repeats": repeats,
-        "repeats_disagree": (max(repeats) - seconds) / seconds > UNSTEADY if seconds > 0 else False, "seconds_phases": phases(s, task.method.visibility),
+        "repeats_disagree": (max(repeats) - seconds) / seconds > UNSTEADY if seconds > 0 else False,
+        "seconds_phases": phases(s, task.method.visibility),
         "camera_rays": s["camera_rays"],
         "shadow_rays_traced": s["shadow_rays"], "triangle_tests": tests,
         "node_tests": s["intersection_tests"]["shadow"]["node"],

@@ -32,6 +32,7 @@ from ..io.image import read_exr, write_exr
 from ..scene import open_scene
 from ..scene.scene import MAX_EMISSION
 from .config import MethodSpec, Timing
+from .results import stats_readable
 
 
 @dataclass(frozen=True)
@@ -161,7 +162,8 @@ def task_key(scene_hash, method, spp, shadow_rays, seed, timing=Timing(), finger
 class Cache:
     """Renders on disk: `<key>.json` (the stats and a digest of the images, written last: its presence marks a
     finished render) beside `<key>.exr` (image) and `<key>-tests.exr`. An entry that does not read back as
-    stored (edited, truncated, a link that loops) counts as absent: its render is made again."""
+    stored (edited, truncated, a link that loops) or whose stats lack what the tables read counts as absent: its
+    render is made again."""
 
     def __init__(self, folder):
         self.folder = Path(folder)
@@ -194,7 +196,7 @@ class Cache:
             render = Render(record["stats"], read_exr(img)[..., :3], read_exr(tests, channel="Y"))
         except (OSError, ValueError, KeyError, TypeError, ProbvisError):
             return None
-        if not isinstance(render.stats, dict) or record.get("digest") != _digest(render):
+        if not stats_readable(render.stats) or record.get("digest") != _digest(render):
             return None
         return render
 
