@@ -85,12 +85,12 @@ def test_resume_recomputes_nothing_then_only_what_is_missing(tiny_run, tmp_path)
 
 
 @pytest.mark.parametrize("damage", ["nan-image", "empty-json", "other-size", "loop", "other-stats", "no-seconds",
-                                    "seconds-text"])
+                                    "seconds-text", "seconds-nan"])
 def test_a_damaged_cache_entry_is_rendered_again(tiny_run, tmp_path, damage):
     """An edited entry was trusted (NaN pixels: relmse nan, exit 0) or failed late (a KeyError, a broadcasting
     ValueError, 'folder does not exist' for a link that loops, a KeyError traceback for stats of another shape
     under the same digest, stats without a number the tables read or with one of another type, under a digest
-    made again to match): each now reads as absent and is rendered again."""
+    made again to match; a NaN duration): each now reads as absent and is rendered again."""
     import shutil
 
     from probvis.io import write_exr
@@ -109,12 +109,12 @@ def test_a_damaged_cache_entry_is_rendered_again(tiny_run, tmp_path, damage):
     elif damage == "other-stats":
         record = json.loads(meta.read_text())
         meta.write_text(json.dumps({"stats": {"x": 1}, "digest": record["digest"]}))
-    elif damage in ("no-seconds", "seconds-text"):
+    elif damage in ("no-seconds", "seconds-text", "seconds-nan"):
         stored = Cache(cache).load(victim.key)  # edited, then given a digest that matches again
         if damage == "no-seconds":
             del stored.stats["seconds"]["total"]
         else:
-            stored.stats["seconds"]["total"] = "fast"
+            stored.stats["seconds"]["total"] = "fast" if damage == "seconds-text" else float("nan")
         meta.write_text(json.dumps({"stats": stored.stats, "digest": runner._digest(stored)}))
     else:
         img.unlink()

@@ -9,7 +9,8 @@ from . import metrics
 
 
 UNSTEADY = 0.25  # seeds' render times differing by more than this share of their median: a busy machine
-# what the tables read from a render's stats: numbers, optional lists of numbers, optional tables
+# what the tables read from a render's stats: numbers (counts, shares, durations), optional lists of numbers,
+# optional tables
 _NUMBERS = ("seconds.total", "seconds.compile", "seconds.load", "seconds.bvh", "seconds.prepare", "seconds.render",
             "camera_rays", "shadow_rays", "negative_estimate_share", "negative_pixels.negative_pixel_share",
             "intersection_tests.node", "intersection_tests.triangle", "intersection_tests.shadow.node",
@@ -28,7 +29,8 @@ def _at(stats, path):
 
 
 def _number(x):
-    return isinstance(x, (int, float)) and not isinstance(x, bool)
+    """A count, share or duration as stats hold it: finite and not negative."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and 0 <= x < float("inf")
 
 
 def stats_readable(stats):
