@@ -199,6 +199,9 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
      "parameter '$late' is declared on line"),
     ("<default name='a' value='$a'/>", "parameter '$a' refers to itself"),
     ("<default name='a' value='$b'/><default name='b' value='1'/>", "parameter '$b' is declared on line"),
+    ("<default name='n' value='2'/><shape type='sphere'><float name='radius' value='$$n'/></shape>",
+     "'$$n' has a '$' that starts no parameter's name"),
+    ("<shape type='sphere'><float name='radius' value='4$'/></shape>", "'4$' has a '$' that starts no parameter's"),
     ("<default name='' value='3'/>", "a <default> needs a parameter name (it is empty)"),
     ("<shape type='rectangle'><bsdf type='diffuse'><rgb name='reflectance' value='0.5'/>\n"
      "<texture type='checkerboard' name='reflectance'/></bsdf></shape>", "parameter 'reflectance' is given twice"),

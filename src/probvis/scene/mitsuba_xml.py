@@ -251,6 +251,9 @@ class _Reader:
             self.fail(node, f"undefined parameter '${name}' (declare it with <default> or pass -D {name}=...)")
 
         variables = self._variables()
+        if "$" in variables.sub("", raw):  # Mitsuba: "undefined parameter: $"
+            self.fail(node, f"attribute '{key}': '{raw}' has a '$' that starts no parameter's name (a "
+                            "parameter is written $name; Mitsuba's values cannot hold a '$' otherwise)")
         size = len(raw) + sum(len(self.overrides.get(m.group(1), self.defaults.get(m.group(1), ""))) - len(m.group(0))
                               for m in variables.finditer(raw))
         if size > MAX_VALUE_CHARS:  # parameters made of parameters grow exponentially ("billion laughs")
