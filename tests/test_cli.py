@@ -141,6 +141,19 @@ def test_unknown_define_on_an_xml_scene_is_a_warning(tmp_path, capsys):
     assert len(err) == 1 and "-D spp: the scene declares no such parameter" in err[0]
 
 
+@pytest.mark.parametrize("define, warned", [("a=0.5", True), ("ab=0.5", False)])
+def test_a_define_that_no_value_reads_is_a_warning(tmp_path, capsys, define, warned):
+    """`$ab` reads the parameter `ab`, not `a` then 'b': `-D a` changes nothing, which Mitsuba refuses."""
+    xml = write_scene(tmp_path / "w.xml", "<default name='a' value='0.1'/><default name='ab' value='0.9'/>" + sensor()
+                      + """<shape type="rectangle"><bsdf type="diffuse"><rgb name="reflectance" value="$ab"/></bsdf>
+        </shape><shape type="rectangle"><transform name="to_world"><scale value="0.3"/><rotate x="1" angle="180"/>
+            <translate z="1"/></transform><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""")
+    assert main(["render", str(xml), "-D", define, "-o", str(tmp_path / "w.exr"), "-q"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ([f"probvis: warning: {xml}: -D a: the scene declares it but no value reads it ($name reads the "
+                    "longest declared name), so the image is the same without"] if warned else [])
+
+
 def test_estimators_lists_every_estimator_with_its_options(capsys):
     assert main(["estimators", "--json"]) == 0
     listed = {d["name"]: d for d in json.loads(capsys.readouterr().out)}

@@ -1354,6 +1354,12 @@ class _Reader:
         if unused:
             warnings.warn(f"{self.path}: -D {', '.join(unused)}: the scene declares no such parameter "
                           f"(its parameters: {', '.join(sorted(self.defaults)) or 'none'})", stacklevel=2)
+        unread = sorted(set(self.overrides) - self.used - set(unused))
+        if unread:  # Mitsuba refuses them ("unused parameters"); the scene renders as written
+            warnings.warn(f"{self.path}: -D {', '.join(unread)}: the scene declares "
+                          f"{'it' if len(unread) == 1 else 'them'} but no value reads "
+                          f"{'it' if len(unread) == 1 else 'them'} ($name reads the longest declared name), so the "
+                          "image is the same without", stacklevel=2)
         builder.inputs = tuple(dict.fromkeys(Path(os.path.realpath(p)) for p in self.inputs))
         try:
             return builder.build(camera, RenderSettings(spp, shadow_rays, seed))
