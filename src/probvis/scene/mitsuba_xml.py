@@ -990,22 +990,24 @@ class _Reader:
 
     def cylinder_frame(self, node, props):
         """Object-to-shape transform of Mitsuba's cylinder from p0 to p1 with a radius (the unit cylinder's z
-        axis along p1 - p0, x and y as Mitsuba's frame of that axis)."""
+        axis along p1 - p0, x and y as Mitsuba's frame of that axis). A negative radius turns the frame half a
+        turn about the axis, as Mitsuba's scale by it does: the same surface, facing out."""
         p0, p1 = props.get("p0", np.zeros(3)), props.get("p1", np.array([0.0, 0.0, 1.0]))
         r = props.get("radius", 1.0)
         for name, p in (("p0", p0), ("p1", p1)):
             if not np.all(np.abs(p) <= MAX_COORDINATE):
                 self.fail(node, f"a cylinder's {name} ({', '.join(f'{v:g}' for v in p)}) lies beyond "
                                 f"±{MAX_COORDINATE:g}: rescale the scene")
-        if not r <= MAX_COORDINATE:
-            self.fail(node, f"a cylinder's radius must be at most {MAX_COORDINATE:g}, got {r:g}: rescale the scene")
+        if not abs(r) <= MAX_COORDINATE:
+            self.fail(node, f"a cylinder's radius must be at most {MAX_COORDINATE:g} in size, got {r:g}: rescale the "
+                            "scene")
         axis = np.asarray(p1, float) - np.asarray(p0, float)
         length = float(np.linalg.norm(axis))
-        if not (r > 0 and length > 0):
-            self.fail(node, "a cylinder needs a positive radius and p0 != p1")
-        if (length / r if r >= length else (r / length) ** 2) < 1e-12:
+        if not (r != 0 and length > 0):
+            self.fail(node, "a cylinder needs a non-zero radius and p0 != p1")
+        if (length / abs(r) if abs(r) >= length else (r / length) ** 2) < 1e-12:
             self.fail(node, f"a cylinder of radius {r:g} from p0 to p1 {length:g} apart is too "
-                            f"{'flat' if r >= length else 'thin'} to hold any area in double precision: move p0 and "
+                            f"{'flat' if abs(r) >= length else 'thin'} to hold any area in double precision: move p0 and "
                             "p1 apart or change the radius")
         z = axis / length
         # Mitsuba's Frame3f(z): Duff et al.'s orthonormal basis, which fixes where the uv's phi starts
