@@ -134,7 +134,8 @@ def test_a_negative_cylinder_radius_is_the_same_cylinder_as_in_mitsuba(tmp_path)
         return s.triangles[s.shapes[1].first_triangle:]
 
     pos, neg = cylinder(0.3), cylinder(-0.3)
-    assert np.allclose(np.sort(np.round(pos.reshape(-1, 3), 9), axis=0), np.sort(np.round(neg.reshape(-1, 3), 9), axis=0))
+    corners = [np.sort(np.round(c.reshape(-1, 3), 9), axis=0) for c in (pos, neg)]
+    assert np.allclose(*corners)
     t = neg
     out = t.mean(axis=1) * np.array([1.0, 1.0, 0.0])
     assert np.all(np.einsum("ij,ij->i", np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), out) > 0)

@@ -1007,8 +1007,8 @@ class _Reader:
             self.fail(node, "a cylinder needs a non-zero radius and p0 != p1")
         if (length / abs(r) if abs(r) >= length else (r / length) ** 2) < 1e-12:
             self.fail(node, f"a cylinder of radius {r:g} from p0 to p1 {length:g} apart is too "
-                            f"{'flat' if abs(r) >= length else 'thin'} to hold any area in double precision: move p0 and "
-                            "p1 apart or change the radius")
+                            f"{'flat' if abs(r) >= length else 'thin'} to hold any area in double precision: move p0 "
+                            "and p1 apart or change the radius")
         z = axis / length
         # Mitsuba's Frame3f(z): Duff et al.'s orthonormal basis, which fixes where the uv's phi starts
         sign = 1.0 if z[2] >= 0.0 else -1.0
