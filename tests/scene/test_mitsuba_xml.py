@@ -1,4 +1,5 @@
 """Reading Mitsuba XML: transforms as Mitsuba composes them, defaults, semantics, and clear errors."""
+import importlib.util
 import re
 import warnings
 
@@ -1041,10 +1042,7 @@ def test_errors_name_the_command_line_parameter_a_value_came_from(tmp_path):
         probvis.load_scene(path, fov="wide")
 
 
-def test_include_and_unused_film_formats_are_named(tmp_path):
-    path = write_scene(tmp_path / "s.xml", sensor() + LIGHT + "<include filename='more.xml'/>")
-    with pytest.raises(ProbvisError, match="<include> is not supported by probvis: paste the included file's"):
-        probvis.load_scene(path)
+def test_unused_film_formats_are_named(tmp_path):
     body = sensor().replace("<rfilter", "<string name='pixel_format' value='rgba'/><rfilter", 1)
     with pytest.warns(UserWarning, match="hdrfilm's pixel_format 'rgba' not used: probvis writes RGB float32"):
         probvis.load_scene(write_scene(tmp_path / "t.xml", body + LIGHT))
@@ -1052,6 +1050,60 @@ def test_include_and_unused_film_formats_are_named(tmp_path):
         warnings.simplefilter("error")  # Mitsuba's defaults, and float32 components, are what probvis writes
         body = sensor().replace("<rfilter", "<string name='component_format' value='float32'/><rfilter", 1)
         probvis.load_scene(write_scene(tmp_path / "u.xml", body + LIGHT))
+
+
+MATERIAL = "<bsdf type='diffuse' id='m'><rgb name='reflectance' value='$refl'/></bsdf>"
+FLOOR = "<shape type='rectangle'><transform name='to_world'><scale value='2'/></transform>{bsdf}</shape>"
+
+
+@pytest.mark.parametrize("case", ["top", "in-shape", "root-element", "nested"])
+def test_an_included_file_reads_as_if_pasted_in_as_in_mitsuba(tmp_path, case):
+    """Mitsuba replaces an <include> by the included <scene>'s elements, or by its root element, looked for beside
+    the including file: its render equals the pasted scene's, and so does probvis's (probvis refused <include>)."""
+    (tmp_path / "sub").mkdir()
+    head = "<default name='refl' value='0.3'/>" + sensor() + LIGHT
+    pasted = write_scene(tmp_path / "pasted.xml", head + MATERIAL + FLOOR.format(bsdf="<ref id='m'/>"))
+    wrap = "<scene version='3.0.0'>{}</scene>"
+    if case == "top":
+        (tmp_path / "sub" / "m.xml").write_text(wrap.format(MATERIAL))
+        body = "<include filename='sub/m.xml'/>" + FLOOR.format(bsdf="<ref id='m'/>")
+    elif case == "in-shape":
+        (tmp_path / "sub" / "m.xml").write_text(wrap.format(MATERIAL.replace(" id='m'", "")))
+        body = FLOOR.format(bsdf="<include filename='sub/m.xml'/>")
+    elif case == "root-element":
+        (tmp_path / "sub" / "m.xml").write_text(MATERIAL.replace("<bsdf ", "<bsdf version='3.0.0' "))
+        body = "<include filename='sub/m.xml'/>" + FLOOR.format(bsdf="<ref id='m'/>")
+    else:  # sub/a.xml includes b.xml beside it
+        (tmp_path / "sub" / "a.xml").write_text(wrap.format("<include filename='b.xml'/>"))
+        (tmp_path / "sub" / "b.xml").write_text(wrap.format(MATERIAL))
+        body = "<include filename='sub/a.xml'/>" + FLOOR.format(bsdf="<ref id='m'/>")
+    included = write_scene(tmp_path / "s.xml", head + body)
+    assert np.array_equal(probvis.render(included, spp=2).image, probvis.render(pasted, spp=2).image)
+    assert tmp_path / "sub" / "m.xml" in probvis.load_scene(included).inputs or case == "nested"
+    if importlib.util.find_spec("mitsuba") is not None:
+        import mitsuba as mi
+
+        mi.set_variant("scalar_rgb")
+        assert np.array_equal(*(np.array(mi.render(mi.load_file(str(f)), seed=1, spp=4)) for f in (included, pasted)))
+
+
+@pytest.mark.parametrize("files, body, message", [
+    ({}, "<include filename='none.xml'/>", r"s.xml:\d+: <include>: included file 'none.xml' not found"),
+    ({"a.xml": "<scene version='3.0.0'><include filename='s.xml'/></scene>"}, "<include filename='a.xml'/>",
+     r"a.xml:1: <include>: 's.xml' includes itself \(s.xml -> a.xml -> s.xml\)"),
+    ({}, "<include filename='$f.xml'/>", r"s.xml:\d+: <include>: an <include> filename made of parameters"),
+    ({}, "<include filename='a.xml' other='1'/>", r"s.xml:\d+: <include>: an <include> takes one attribute"),
+    ({"a.xml": "<scene version='3.0.0'>\n\n<shape type='rectangle'><float name='nope' value='1'/></shape></scene>"},
+     "<include filename='a.xml'/>", r"a.xml:3: <float>: unsupported parameter 'nope'"),
+    ({"a.xml": "<scene version='3.0.0'><bsdf type='diffuse' id='m'/></scene>"},
+     "<bsdf type='diffuse' id='m'/><include filename='a.xml'/>", r"a.xml:1: <bsdf>: duplicate id 'm' \(first "
+                                                                  r"defined on .*s.xml:\d+\)"),
+])
+def test_an_include_that_cannot_be_read_names_its_file_and_line(tmp_path, files, body, message):
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    with pytest.raises(ProbvisError, match=message):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + LIGHT + body))
 
 
 @pytest.mark.parametrize("transform, radius", [('<scale x="4" y="1" z="1"/>', 0.8),  # 0.2 times x's 4

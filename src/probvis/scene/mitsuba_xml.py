@@ -52,6 +52,8 @@ class Node:
     attrs: dict
     line: int
     children: list = field(default_factory=list)
+    file: Path = None  # the file it was read from, where that is not the scene file itself (an <include>)
+    order: int = 0  # its place in the document once includes are in place: what "defined after" compares
 
 
 class _TreeBuilder(xml.sax.ContentHandler):
@@ -108,6 +110,72 @@ def parse_tree(path):
     if handler.root is None:
         raise ProbvisError(f"{path}: empty XML document")
     return handler.root
+
+
+MAX_INCLUDES = 15  # <include> within <include>, as deep as Mitsuba's parser allows
+
+
+def _depth(node):
+    return 1 + max((_depth(ch) for ch in node.children), default=0)
+
+
+def with_includes(root, path, fail):
+    """The document with each `<include filename=.../>` replaced, as Mitsuba's parser does, by the included file's
+    elements: the children of its `<scene>`, or its root element itself. The file is looked for beside the file
+    that includes it, then beside the scene file; its elements keep their own file and line for messages. Then
+    every element is numbered in document order."""
+    scene_folder = Path(path).parent
+
+    def expand(node, file, chain, depth):
+        out = []
+        for ch in node.children:
+            if ch.tag != "include":
+                expand(ch, file, chain, depth + 1)
+                out.append(ch)
+                continue
+            extra = set(ch.attrs) - {"filename"}
+            if extra or "filename" not in ch.attrs:
+                fail(ch, "an <include> takes one attribute, filename" if extra else "missing attribute 'filename'")
+            name = ch.attrs["filename"]
+            if "$" in name:
+                fail(ch, f"an <include> filename made of parameters ('{name}') is not supported: write the file's name")
+            here = Path(file).parent if file is not None else scene_folder
+            target = next((f / name for f in (here, scene_folder) if (f / name).is_file()), here / name)
+            if not target.is_file():
+                fail(ch, f"included file '{name}' not found (looked beside {'this file and ' if file else ''}"
+                         f"the scene file{f', {here}' if file else ''})")
+            if target.resolve() in chain:
+                fail(ch, f"'{name}' includes itself ({' -> '.join(p.name for p in chain + [target])})")
+            if len(chain) > MAX_INCLUDES:
+                fail(ch, f"includes nested more than {MAX_INCLUDES} deep")
+            included = parse_tree(target)
+            elements = included.children if included.tag == "scene" else [included]
+            included.attrs.pop("version", None)
+            for e in elements:
+                if depth + _depth(e) > MAX_NESTING:
+                    fail(ch, f"with '{name}' included here, elements nest more than {MAX_NESTING} deep")
+                _set_file(e, target)
+            holder = Node("scene", {}, included.line, elements, target)
+            expand(holder, target, chain + [target.resolve()], depth)
+            out.extend(holder.children)
+        node.children = out
+
+    expand(root, None, [Path(path).resolve()], 1)
+    for i, node in enumerate(_document_order(root)):
+        node.order = i
+    return root
+
+
+def _set_file(node, file):
+    node.file = file
+    for ch in node.children:
+        _set_file(ch, file)
+
+
+def _document_order(node):
+    yield node
+    for ch in node.children:
+        yield from _document_order(ch)
 
 
 _APPROXIMATED_BSDFS = {"plastic", "roughplastic", "conductor", "roughconductor", "dielectric", "thindielectric",
@@ -179,7 +247,7 @@ def _by_name(node):
     return {ch.attrs.get("name"): ch for ch in node.children if ch.tag in _PROPERTY_TAGS}
 
 
-def _unique_ids(root, fail):
+def _unique_ids(root, fail, line_of):
     """Every `id` of the file once, as Mitsuba requires; the element of each id. Ids made of parameters
     (`id="$name"`) are checked as their elements define them (`_Reader.define`)."""
     seen, todo = {}, [root]
@@ -188,8 +256,8 @@ def _unique_ids(root, fail):
         key = node.attrs.get("as") if node.tag == "alias" else node.attrs.get("id") if node.tag != "ref" else None
         if key is not None and "$" not in key:
             if key in seen:
-                first, later = sorted((seen[key], node), key=lambda n: n.line)
-                fail(later, f"duplicate id '{key}' (first defined on line {first.line})")
+                first, later = sorted((seen[key], node), key=lambda n: n.order)
+                fail(later, f"duplicate id '{key}' (first defined on {line_of(first, later)})")
             seen[key] = node
         todo.extend(node.children)
     return seen
@@ -203,7 +271,7 @@ class _Reader:
         self.approximated = set()  # plugin types already warned about
         self.overrides = {k: str(v) for k, v in overrides.items()}
         self.defaults = {}
-        self.default_lines = {}  # the line of each <default>
+        self.default_nodes = {}  # the element of each <default>
         self.used = set()  # overridden parameters the scene refers to
         self.ids = {}
         self.id_defined = {}  # the element that defined each id
@@ -218,7 +286,15 @@ class _Reader:
         given = sorted({m.group(1) for v in node.attrs.values() for m in variables.finditer(v)} & set(self.overrides))
         if given:  # the value came from the command line, not from the line named
             msg += f" (with {', '.join(f'-D {n}={self.overrides[n]}' for n in given)})"
-        raise ProbvisError(f"{self.path}:{node.line}: <{node.tag}>: {msg}")
+        raise ProbvisError(f"{self.where(node)}: <{node.tag}>: {msg}")
+
+    def where(self, node):
+        """file:line of an element (the included file's, for an element an <include> brought)."""
+        return f"{node.file or self.path}:{node.line}"
+
+    def line_of(self, target, node):
+        """Where `target` stands, as seen from `node`: its line, or file:line where it is in another file."""
+        return f"line {target.line}" if target.file == node.file else self.where(target)
 
     def checked(self, node, fn, *args):
         """fn(*args), its ProbvisError located at the node's line."""
@@ -246,8 +322,8 @@ class _Reader:
             if later is node:
                 self.fail(node, f"parameter '${name}' refers to itself")
             if later is not None:
-                self.fail(node, f"parameter '${name}' is declared on line {later.line}, after this use: move its "
-                                "<default> above")
+                self.fail(node, f"parameter '${name}' is declared on {self.line_of(later, node)}, after this use: "
+                                "move its <default> above")
             self.fail(node, f"undefined parameter '${name}' (declare it with <default> or pass -D {name}=...)")
 
         variables = self._variables()
@@ -386,7 +462,7 @@ class _Reader:
                             f"{'emission' if emission else 'reflectance'} would be black (give the spectrum in "
                             "nanometres over the visible range)")
         if emission and np.all(v >= 0) and np.any(rgb < 0):
-            warnings.warn(f"{self.path}:{node.line}: this emission spectrum lies outside the sRGB gamut (RGB "
+            warnings.warn(f"{self.where(node)}: this emission spectrum lies outside the sRGB gamut (RGB "
                           f"{', '.join(f'{c:.3g}' for c in rgb)}): its negative components are clamped to 0",
                           stacklevel=2)
             rgb = np.maximum(rgb, 0.0)
@@ -493,7 +569,7 @@ class _Reader:
                 refl = texture.mean() if texture is not None else np.full(3, 0.5)
                 if texture is not None and texture.image is not None and (texture.image.min() < 0
                                                                             or texture.image.max() > 1):
-                    warnings.warn(f"{self.path}:{ch.line}: the reflectance texture has values from "
+                    warnings.warn(f"{self.where(ch)}: the reflectance texture has values from "
                                   f"{texture.image.min():g} to {texture.image.max():g}, outside [0, 1]: those texels "
                                   "reflect negative light or more than they receive (Mitsuba renders them as given)",
                                   stacklevel=2)
@@ -531,7 +607,7 @@ class _Reader:
         if what not in self.approximated:
             self.approximated.add(what)
             note = "appearance approximated; visibility is exact" if exact_visibility else "visibility approximated"
-            warnings.warn(f"{self.path}:{node.line}: {what} {how} ({note})", stacklevel=2)
+            warnings.warn(f"{self.where(node)}: {what} {how} ({note})", stacklevel=2)
 
     def loose_params(self, node, kind):
         """The simple properties of a BSDF probvis approximates and its nested objects; a name that is not one of
@@ -726,7 +802,7 @@ class _Reader:
         key = self.attr(node, "id") if key is None else key
         first = self.id_defined.setdefault(key, node)
         if first is not node:  # an element read again (a shapegroup's) defines its id again
-            self.fail(node, f"duplicate id '{key}' (first defined on line {first.line})")
+            self.fail(node, f"duplicate id '{key}' (first defined on {self.line_of(first, node)})")
         self.ids[key] = (kind, value)
 
     def ref_kind(self, node):
@@ -742,7 +818,8 @@ class _Reader:
                 self.fail(node, f"reference to unknown id '{key}'")
             group = target.tag == "shape" and target.attrs.get("type") == "shapegroup"
             if target.tag == kind or (group and kind == "shapegroup"):
-                self.fail(node, f"id '{key}' is defined after this reference (line {target.line}): move it above")
+                self.fail(node, f"id '{key}' is defined after this reference ({self.line_of(target, node)}): move it "
+                                "above")
             self.fail(node, f"id '{key}' is a <{target.tag}>, not a {kind}")
         k, val = self.ids[key]
         if k != kind:
@@ -985,7 +1062,7 @@ class _Reader:
             self.fail(node, "an area emitter on a shape without area (every triangle degenerate) emits nothing: "
                             "check the shape's size and to_world")
         if kept == 0:
-            warnings.warn(f"{self.path}:{node.line}: shape '{kind}' has no area (all {len(f)} of its triangles are "
+            warnings.warn(f"{self.where(node)}: shape '{kind}' has no area (all {len(f)} of its triangles are "
                           "degenerate once transformed): it is left out; check its size and to_world", stacklevel=2)
 
     def cylinder_frame(self, node, props):
@@ -1048,7 +1125,7 @@ class _Reader:
                 if st not in _SAMPLERS:
                     self.fail(ch, f"unsupported sampler type '{st}'")
                 if st != "independent":
-                    warnings.warn(f"{self.path}:{ch.line}: sampler '{st}' rendered with probvis's independent "
+                    warnings.warn(f"{self.where(ch)}: sampler '{st}' rendered with probvis's independent "
                                   "sampler (same expected image, different noise)", stacklevel=2)
                 lines = _by_name(ch)
                 sp, _ = self.params(ch, {"sample_count": ("integer",), "seed": ("integer",),
@@ -1159,7 +1236,7 @@ class _Reader:
                        ("file_format", ("openexr", "exr")))  # what Mitsuba writes by default, and probvis
             unused = [f"{key} '{props[key]}'" for key, same in written if props.get(key, same[0]).lower() not in same]
             if unused:
-                warnings.warn(f"{self.path}:{node.line}: hdrfilm's {' and '.join(unused)} not used: probvis writes RGB "
+                warnings.warn(f"{self.where(node)}: hdrfilm's {' and '.join(unused)} not used: probvis writes RGB "
                               "float32 images in the format of the output's extension (-o out.exr, .pfm, .png)",
                               stacklevel=2)
             for k, ch in enumerate(objs):
@@ -1216,7 +1293,7 @@ class _Reader:
                 lost = "no light" if depth == 0 else "no direct illumination"
                 self.fail(node, f"max_depth {depth} renders {lost} in Mitsuba; probvis renders direct illumination "
                                 "(max_depth 2, or a 'direct' integrator)")
-            warnings.warn(f"{self.path}:{node.line}: integrator '{kind}' rendered as its direct-illumination "
+            warnings.warn(f"{self.where(node)}: integrator '{kind}' rendered as its direct-illumination "
                           "component (probvis renders direct illumination only; one emitter sample per camera "
                           "sample unless --shadow-rays says otherwise)", stacklevel=2)
             return 1
@@ -1235,7 +1312,7 @@ class _Reader:
         if props.get("bsdf_samples", 0) < 0:
             self.fail(lines["bsdf_samples"], f"bsdf_samples must not be negative, got {props['bsdf_samples']}")
         if props.get("bsdf_samples", 0) != 0:  # only when the file asks for them: a default is no request
-            warnings.warn(f"{self.path}:{node.line}: bsdf_samples ignored: probvis samples emitters only "
+            warnings.warn(f"{self.where(node)}: bsdf_samples ignored: probvis samples emitters only "
                           "(same expected image)", stacklevel=2)
         sr = props.get("emitter_samples", base)
         if not 1 <= sr <= MAX_SHADOW_RAYS:
@@ -1255,7 +1332,7 @@ class _Reader:
         radius = stretch[0, 0]
         if np.allclose(stretch, radius * np.eye(3), rtol=0.0, atol=1e-6 * sig.max()):
             return m
-        warnings.warn(f"{self.path}:{node.line}: the sphere's to_world has a non-uniform scale or a shear: rendered "
+        warnings.warn(f"{self.where(node)}: the sphere's to_world has a non-uniform scale or a shear: rendered "
                       f"round, of radius {radius:.6g}, as Mitsuba renders it (an ellipsoid is a mesh: obj or ply)",
                       stacklevel=2)
         out = m.copy()
@@ -1286,10 +1363,12 @@ class _Reader:
         self.root = root = parse_tree(self.path)
         if root.tag != "scene":
             self.fail(root, "the root element must be <scene>")
+        with_includes(root, self.path, self.fail)
+        self.inputs += list(dict.fromkeys(n.file for n in _document_order(root) if n.file is not None))
         self.check_attrs(root, ("version",))
         if "version" in root.attrs and not re.fullmatch(r"\d+(\.\d+){0,2}", root.attrs["version"].strip()):
             self.fail(root, f"version must be a version number such as 3.0.0, got '{root.attrs['version']}'")
-        self.id_nodes = _unique_ids(root, self.fail)
+        self.id_nodes = _unique_ids(root, self.fail, self.line_of)
         for ch in root.children:
             if ch.tag == "path" and "$" not in ch.attrs.get("value", ""):
                 self._search_path(ch)
@@ -1304,11 +1383,11 @@ class _Reader:
                     self.fail(ch, "a <default> needs a parameter name (it is empty)")
                 if "value" not in ch.attrs:
                     self.fail(ch, f"missing attribute 'value' of parameter '{name}'")
-                if name in self.default_lines:  # Mitsuba keeps the first
-                    warnings.warn(f"{self.path}:{ch.line}: <default> of '{name}' declared again (first on line "
-                                  f"{self.default_lines[name]}, whose value is kept)", stacklevel=2)
+                if name in self.default_nodes:  # Mitsuba keeps the first
+                    warnings.warn(f"{self.where(ch)}: <default> of '{name}' declared again (first on "
+                                  f"{self.line_of(self.default_nodes[name], ch)}, whose value is kept)", stacklevel=2)
                     continue
-                self.default_lines[name] = ch.line
+                self.default_nodes[name] = ch
                 # `$b` in a default: the parameters known so far (none needed where -D gives the parameter)
                 self.defaults[name] = ch.attrs["value"] if name in self.overrides else self.attr(ch, "value")
             elif ch.tag == "integrator":
@@ -1336,8 +1415,9 @@ class _Reader:
                     self.fail(ch, f"alias of unknown id '{source}'")
                 if source in self.ids:
                     self.define(ch, self.ids[source][0], self.ids[source][1], key=self.attr(ch, "as"))
-                elif target.line > ch.line:
-                    self.fail(ch, f"id '{source}' is defined after this alias (line {target.line}): move it above")
+                elif target.order > ch.order:
+                    self.fail(ch, f"id '{source}' is defined after this alias ({self.line_of(target, ch)}): move it "
+                                  "above")
                 # else an object nothing can refer to (a shape, an emitter): its alias names nothing usable
             elif ch.tag == "path":
                 if "$" in ch.attrs.get("value", ""):  # the others were read before the rest
