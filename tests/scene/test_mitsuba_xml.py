@@ -8,7 +8,7 @@ import pytest
 
 import probvis
 from probvis import ProbvisError
-from probvis.scene import shapes, transform as tf
+from probvis.scene import mitsuba_xml, shapes, transform as tf
 from tests.conftest import sensor, write_scene
 
 LIGHT = """<shape type="rectangle"><transform name="to_world"><translate z="2"/></transform>
@@ -1104,6 +1104,16 @@ def test_an_include_that_cannot_be_read_names_its_file_and_line(tmp_path, files,
         (tmp_path / name).write_text(text)
     with pytest.raises(ProbvisError, match=message):
         probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + LIGHT + body))
+
+
+def test_files_that_include_each_other_many_times_over_are_refused(tmp_path, monkeypatch):
+    """Ten includes of a file that includes the next ten times, six deep: a million elements from a few kilobytes."""
+    monkeypatch.setattr(mitsuba_xml, "MAX_INCLUDED", 5_000)
+    for i in range(6):
+        inner = f"<include filename='l{i + 1}.xml'/>" * 10 if i < 5 else "<bsdf type='diffuse'/>" * 10
+        (tmp_path / f"l{i}.xml").write_text(f"<scene version='3.0.0'>{inner}</scene>")
+    with pytest.raises(ProbvisError, match=r"l4.xml:1: <include>: the includes bring more than 5,000 elements"):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + LIGHT + "<include filename='l0.xml'/>"))
 
 
 @pytest.mark.parametrize("transform, radius", [('<scale x="4" y="1" z="1"/>', 0.8),  # 0.2 times x's 4

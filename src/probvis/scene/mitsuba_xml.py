@@ -113,10 +113,16 @@ def parse_tree(path):
 
 
 MAX_INCLUDES = 15  # <include> within <include>, as deep as Mitsuba's parser allows
+MAX_INCLUDED = 100_000  # elements brought in by includes in all: files that include each other many times over
+# would otherwise multiply a few kilobytes into gigabytes
 
 
 def _depth(node):
     return 1 + max((_depth(ch) for ch in node.children), default=0)
+
+
+def _size(node):
+    return 1 + sum(_size(ch) for ch in node.children)
 
 
 def with_includes(root, path, fail):
@@ -125,6 +131,7 @@ def with_includes(root, path, fail):
     that includes it, then beside the scene file; its elements keep their own file and line for messages. Then
     every element is numbered in document order."""
     scene_folder = Path(path).parent
+    brought = [0]
 
     def expand(node, file, chain, depth):
         out = []
@@ -154,7 +161,11 @@ def with_includes(root, path, fail):
             for e in elements:
                 if depth + _depth(e) > MAX_NESTING:
                     fail(ch, f"with '{name}' included here, elements nest more than {MAX_NESTING} deep")
+                brought[0] += _size(e)
                 _set_file(e, target)
+            if brought[0] > MAX_INCLUDED:
+                fail(ch, f"the includes bring more than {MAX_INCLUDED:,} elements in all (files included many "
+                         "times over?)")
             holder = Node("scene", {}, included.line, elements, target)
             expand(holder, target, chain + [target.resolve()], depth)
             out.extend(holder.children)
