@@ -12,7 +12,7 @@ import probvis
 from probvis.cli import main
 from probvis.errors import ProbvisError
 from probvis import film as film_module
-from probvis.film import FILTER_GAUSSIAN, FILTER_TENT, Film, SplatFilter
+from probvis.film import FILTER_CUBIC, FILTER_GAUSSIAN, FILTER_LANCZOS, FILTER_TENT, Film, SplatFilter
 from probvis.shading import N_COUNTS
 from tests.conftest import mitsuba_image, relmse, write_scene
 
@@ -20,7 +20,12 @@ CROP = ('<integer name="crop_offset_x" value="5"/><integer name="crop_offset_y" 
         '<integer name="crop_width" value="30"/><integer name="crop_height" value="20"/>')
 FILTERS = ['<rfilter type="box"/>', '<rfilter type="tent"/>',
            '<rfilter type="tent"><float name="radius" value="1.6"/></rfilter>', "",  # no rfilter: a Gaussian
-           '<rfilter type="gaussian"><float name="stddev" value="0.8"/></rfilter>']
+           '<rfilter type="gaussian"><float name="stddev" value="0.8"/></rfilter>', '<rfilter type="mitchell"/>',
+           '<rfilter type="mitchell"><float name="B" value="0"/><float name="C" value="1"/></rfilter>',
+           '<rfilter type="catmullrom"/>', '<rfilter type="lanczos"/>',
+           '<rfilter type="lanczos"><integer name="lobes" value="2"/></rfilter>']
+FILTER_IDS = ["box", "tent", "tent-1.6", "default", "gaussian-0.8", "mitchell", "mitchell-0-1", "catmullrom",
+              "lanczos", "lanczos-2"]
 
 
 def film_scene(tmp_path, rfilter, crop=""):
@@ -41,11 +46,12 @@ def film_scene(tmp_path, rfilter, crop=""):
 
 
 @pytest.mark.parametrize("crop", ["", CROP], ids=["whole", "crop"])
-@pytest.mark.parametrize("rfilter", FILTERS, ids=["box", "tent", "tent-1.6", "default", "gaussian-0.8"])
+@pytest.mark.parametrize("rfilter", FILTERS, ids=FILTER_IDS)
 def test_noise_and_mean_match_mitsuba_at_equal_samples(tmp_path, rfilter, crop):
     """At 16 spp our error against Mitsuba's converged image is at most 1.3x Mitsuba's own at 16 spp (two
     seeds each), and the image means agree within 1%; filter importance sampling is told apart where the filter
-    is wider than a pixel (the comparison bites)."""
+    is wider than a pixel (the comparison bites), and refused for filters with negative lobes, which it cannot
+    draw from (Mitchell and Netravali's cubics and Lanczos's sinc, which probvis refused)."""
     path = film_scene(tmp_path, rfilter, crop)
     ref = mitsuba_image(path, 2048, 100)
     theirs = np.mean([relmse(mitsuba_image(path, 16, s), ref) for s in (1, 2)])
@@ -55,7 +61,10 @@ def test_noise_and_mean_match_mitsuba_at_equal_samples(tmp_path, rfilter, crop):
     for r in renders:
         np.testing.assert_allclose(r.image.reshape(-1, 3).mean(0), ref.reshape(-1, 3).mean(0), rtol=0.01)
     assert renders[0].stats["film"]["splatting"] == ("box" not in rfilter)
-    if "box" not in rfilter:
+    if any(kind in rfilter for kind in ("mitchell", "catmullrom", "lanczos")):
+        with pytest.raises(ProbvisError, match="filter has negative lobes: render without it"):
+            probvis.render(path, spp=16, seed=1, filter_importance=True)
+    elif "box" not in rfilter:
         fis = probvis.render(path, spp=16, seed=1, filter_importance=True)
         assert not fis.stats["film"]["splatting"]
         assert relmse(fis.image, ref) > 2 * theirs
@@ -83,8 +92,18 @@ def test_images_do_not_depend_on_the_thread_count(tmp_path):
 
 
 def _weight(f, x):
+    x = abs(x)
     if f.kind == FILTER_TENT:
-        return max(0.0, 1.0 - abs(x) / f.radius)
+        return max(0.0, 1.0 - x / f.radius)
+    if f.kind == FILTER_CUBIC:  # Mitchell and Netravali's (1988) eq. 8
+        b, c = f.b, f.c
+        if x < 1:
+            return ((12 - 9 * b - 6 * c) * x ** 3 + (-18 + 12 * b + 6 * c) * x ** 2 + (6 - 2 * b)) / 6
+        if x < 2:
+            return ((-b - 6 * c) * x ** 3 + (6 * b + 30 * c) * x ** 2 + (-12 * b - 48 * c) * x + (8 * b + 24 * c)) / 6
+        return 0.0
+    if f.kind == FILTER_LANCZOS:
+        return float(np.sinc(x) * np.sinc(x / f.radius)) if x <= f.radius else 0.0
     return max(0.0, math.exp(f.alpha * x * x) - f.bias)
 
 
@@ -99,8 +118,11 @@ def wvar_ref_of(f, xy, var, width, height):
 
 
 @pytest.mark.parametrize("f", [SplatFilter(FILTER_TENT, 1.0, 0.0, 0.0), SplatFilter(FILTER_TENT, 2.3, 0.0, 0.0),
-                               SplatFilter(FILTER_GAUSSIAN, 2.0, -2.0, math.exp(-8.0))], ids=["tent", "tent-2.3",
-                                                                                          "gaussian"])
+                               SplatFilter(FILTER_GAUSSIAN, 2.0, -2.0, math.exp(-8.0)),
+                               SplatFilter(FILTER_CUBIC, 2.0, 0.0, 0.0, 1 / 3, 1 / 3),
+                               SplatFilter(FILTER_CUBIC, 2.0, 0.0, 0.0, 0.0, 0.5),
+                               SplatFilter(FILTER_LANCZOS, 3.0, 0.0, 0.0)],
+                         ids=["tent", "tent-2.3", "gaussian", "mitchell", "catmullrom", "lanczos"])
 @pytest.mark.parametrize("chunk_bytes", [None, 1], ids=["whole", "pixel-chunks"])
 def test_splat_kernel_is_the_definition_over_batches_that_split_rows(f, chunk_bytes, monkeypatch):
     """The film's splat, fed in batches that end mid-row (and in chunks of one pixel), against every sample
@@ -155,6 +177,10 @@ def test_bad_filter_importance_is_refused(value):
     ('<rfilter type="tent"><float name="radius" value="100"/></rfilter>', "at most 32 pixels"),
     ('<rfilter type="gaussian"><float name="stddev" value="9"/></rfilter>', "at most 8 pixels"),
     ('<rfilter type="gaussian"><float name="stddev" value="0"/></rfilter>', "must be positive"),
+    ('<rfilter type="lanczos"><integer name="lobes" value="0"/></rfilter>', "lobes must be from 1 to 32, got 0"),
+    ('<rfilter type="mitchell"><float name="B" value="1e9"/></rfilter>', "B and C must be within ±100"),
+    ('<rfilter type="catmullrom"><float name="B" value="1"/></rfilter>', "unsupported parameter 'B'"),
+    ('<rfilter type="sinc"/>', "unsupported rfilter 'sinc' \\(supported: box, tent, gaussian, mitchell"),
 ])
 def test_filters_beyond_the_film_s_reach_are_refused(tmp_path, rfilter, message):
     with pytest.raises(ProbvisError, match=message):

@@ -47,7 +47,8 @@ class CameraParams(NamedTuple):
 
 
 def filter_table(kind, radius, stddev):
-    """(CDF over FILTER_BINS equal bins of [-r, r], r) of a separable Mitsuba filter; box: (empty, 0.5)."""
+    """(CDF over FILTER_BINS equal bins of [-r, r], r) of a separable Mitsuba filter that is nowhere negative;
+    box: (empty, 0.5)."""
     if kind == "box":
         return np.zeros(0), 0.5
     if kind == "tent":
@@ -58,8 +59,10 @@ def filter_table(kind, radius, stddev):
         r = 4.0 * stddev  # Mitsuba's radius, where its Gaussian is shifted down to zero
         x = (np.arange(FILTER_BINS) + 0.5) / FILTER_BINS * 2 * r - r
         f = np.maximum(0.0, np.exp(-x * x / (2 * stddev * stddev)) - math.exp(-r * r / (2 * stddev * stddev)))
-    else:
-        raise ProbvisError(f"unknown reconstruction filter '{kind}' (box, tent, gaussian)")
+    else:  # Mitchell and Netravali's cubics, Lanczos's sinc
+        raise ProbvisError(f"filter importance sampling (--filter-importance) draws camera samples from the "
+                           f"reconstruction filter, and the scene's {kind} filter has negative lobes: render without "
+                           "it (the film splats each sample over the filter, as Mitsuba does)")
     cdf = np.concatenate([[0.0], np.cumsum(f)])
     return cdf / cdf[-1], float(r)
 
@@ -69,9 +72,8 @@ def camera_params(cam, filter_importance=False):
     reconstruction filter (otherwise uniform in the pixel, for the film to splat)."""
     fw, fh = cam.film_size
     tan_x = float(np.tan(np.radians(cam.fov_x) / 2.0))
-    cdf, radius = filter_table(cam.rfilter, cam.filter_radius, cam.filter_stddev)
-    if not filter_importance:
-        cdf = np.zeros(0)
+    cdf, radius = filter_table(cam.rfilter, cam.filter_radius, cam.filter_stddev) if filter_importance else \
+        (np.zeros(0), float(cam.filter_extent))
     return CameraParams(np.ascontiguousarray(cam.to_world, dtype=np.float64), tan_x, tan_x * fh / fw,
                         int(cam.width), int(cam.height), float(cam.near_clip), float(cam.far_clip), int(fw), int(fh),
                         int(cam.crop_x), int(cam.crop_y), float(cam.principal_x), float(cam.principal_y),

@@ -39,20 +39,23 @@ def pixel_moments(radiance, spp):
     return img, m2
 
 
-FILTER_TENT, FILTER_GAUSSIAN = 1, 2
+FILTER_TENT, FILTER_GAUSSIAN, FILTER_CUBIC, FILTER_LANCZOS = 1, 2, 3, 4
 SPLAT_CHUNK_BYTES = 1 << 20  # the per-pixel blocks of one splat call, to stay in cache: batches go in chunks
 SPLAT_MIN_ROWS = 8  # ... of at least this many times the filter's reach in rows, so that the rows a chunk
 # reaches beyond its own (the reach above and below) add at most a quarter to its second pass
 
 
 class SplatFilter(NamedTuple):
-    """A reconstruction filter that splats (Mitsuba's `tent` and `gaussian`, radius 4 stddev, shifted down to
-    zero there), as the `splat` kernel takes it."""
+    """A reconstruction filter that splats, as the `splat` kernel takes it: Mitsuba's `tent`, `gaussian` (radius
+    4 stddev, shifted down to zero there), Mitchell and Netravali's cubic (`mitchell`, and `catmullrom`: B = 0,
+    C = 1/2; radius 2) and `lanczos` (its lobes as radius), the last two with negative lobes."""
 
-    kind: int  # FILTER_TENT or FILTER_GAUSSIAN
+    kind: int  # FILTER_TENT, FILTER_GAUSSIAN, FILTER_CUBIC or FILTER_LANCZOS
     radius: float
     alpha: float  # Gaussian: -1 / (2 stddev^2)
     bias: float  # Gaussian: its value at the radius
+    b: float = 0.0  # cubic: Mitchell and Netravali's B
+    c: float = 0.0  # cubic: their C
 
 
 def splat_chunk(rfilter, width):
@@ -72,6 +75,11 @@ def splat_filter(camera, filter_importance=False):
     radius = float(camera.filter_extent)
     if camera.rfilter == "tent":
         return SplatFilter(FILTER_TENT, radius, 0.0, 0.0)
+    if camera.rfilter in ("mitchell", "catmullrom"):
+        b, c = (camera.filter_b, camera.filter_c) if camera.rfilter == "mitchell" else (0.0, 0.5)
+        return SplatFilter(FILTER_CUBIC, radius, 0.0, 0.0, float(b), float(c))
+    if camera.rfilter == "lanczos":
+        return SplatFilter(FILTER_LANCZOS, radius, 0.0, 0.0)
     alpha = -1.0 / (2.0 * camera.filter_stddev ** 2)
     return SplatFilter(FILTER_GAUSSIAN, radius, alpha, math.exp(alpha * radius * radius))
 
@@ -92,6 +100,27 @@ def _filter_rows(f, d0, out):
         for k in range(n_k):
             for s in range(n):
                 out[k, s] = max(0.0, 1.0 - abs(d0[s] + k) * inv)
+        return
+    if f.kind == FILTER_CUBIC:  # Mitchell and Netravali (1988), as Mitsuba evaluates it
+        b, c = f.b, f.c
+        i3, i2, i0 = (12.0 - 9.0 * b - 6.0 * c) / 6.0, (-18.0 + 12.0 * b + 6.0 * c) / 6.0, (6.0 - 2.0 * b) / 6.0
+        o3, o2, o1, o0 = (-b - 6.0 * c) / 6.0, (6.0 * b + 30.0 * c) / 6.0, (-12.0 * b - 48.0 * c) / 6.0, \
+            (8.0 * b + 24.0 * c) / 6.0
+        for k in range(n_k):
+            for s in range(n):
+                x = abs(d0[s] + k)
+                inner = (i3 * x + i2) * x * x + i0
+                outer = ((o3 * x + o2) * x + o1) * x + o0
+                out[k, s] = inner if x < 1.0 else (outer if x < 2.0 else 0.0)
+        return
+    if f.kind == FILTER_LANCZOS:  # sinc(x) sinc(x / lobes) within the lobes
+        r = f.radius
+        for k in range(n_k):
+            for s in range(n):
+                x = abs(d0[s] + k)
+                x1 = math.pi * x
+                x2 = x1 / r
+                out[k, s] = 1.0 if x < 1e-7 else (math.sin(x1) * math.sin(x2) / (x1 * x2) if x <= r else 0.0)
         return
     r2, a = f.radius * f.radius, f.alpha / 16.0
     c = _EXP_TAYLOR
@@ -248,7 +277,8 @@ class Film:
         """Per pixel: the (weighted) mean of the samples' radiance."""
         if self.rfilter is None:
             return self.image
-        inv = np.divide(1.0, self.weight, out=np.zeros_like(self.weight), where=self.weight > 0)[:, None]
+        # a filter with negative lobes may leave a pixel's weights summing below 0: divided as Mitsuba divides
+        inv = np.divide(1.0, self.weight, out=np.zeros_like(self.weight), where=self.weight != 0)[:, None]
         return self.image * inv
 
     def noise_relmse(self):

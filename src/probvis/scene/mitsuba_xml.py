@@ -21,7 +21,8 @@ from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import MAX_COORDINATE, MAX_EMISSION, SceneBuilder
-from .sensor import MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV, MIN_FILTER_REACH, Camera, camera_problem
+from .sensor import (FILTERS, MAX_CUBIC_PARAMETER, MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV, MIN_FILTER_REACH, Camera,
+                     camera_problem)
 from .serialized import load_serialized
 from .spectrum import spectrum_to_rgb
 
@@ -1270,10 +1271,23 @@ class _Reader:
         if kind == "box":
             self.params(node, {})
             return {"rfilter": "box"}
+        if kind in ("mitchell", "catmullrom"):  # Mitsuba's B and C, 1/3 by default; Catmull-Rom's fixed
+            props, _ = self.params(node, {"B": ("float",), "C": ("float",)} if kind == "mitchell" else {})
+            b, c = props.get("B", 1.0 / 3.0), props.get("C", 1.0 / 3.0)
+            if not (abs(b) <= MAX_CUBIC_PARAMETER and abs(c) <= MAX_CUBIC_PARAMETER):
+                self.fail(node, f"a mitchell filter's B and C must be within ±{MAX_CUBIC_PARAMETER:g}, got {b:g} and "
+                                f"{c:g} (1/3 each by default)")
+            return {"rfilter": kind, "filter_b": b, "filter_c": c}
+        if kind == "lanczos":
+            props, _ = self.params(node, {"lobes": ("integer",)})
+            lobes = props.get("lobes", 3)
+            if not 1 <= lobes <= MAX_FILTER_RADIUS:
+                self.fail(node, f"a lanczos filter's lobes must be from 1 to {MAX_FILTER_RADIUS:g}, got {lobes}")
+            return {"rfilter": kind, "filter_radius": float(lobes)}
         # Mitsuba's parameter of each filter, its default, and the Camera field it sets
         known = {"tent": ("radius", 1.0, "filter_radius"), "gaussian": ("stddev", 0.5, "filter_stddev")}
         if kind not in known:
-            self.fail(node, f"unsupported rfilter '{kind}' (supported: box, tent, gaussian)")
+            self.fail(node, f"unsupported rfilter '{kind}' (supported: {', '.join(FILTERS)})")
         name, default, field_name = known[kind]
         props, _ = self.params(node, {name: ("float",)})
         value = props.get(name, default)

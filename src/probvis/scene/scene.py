@@ -140,7 +140,8 @@ class Scene:
         c = self.camera
         h.update(repr((float(c.fov_x), int(c.width), int(c.height), float(c.near_clip), float(c.far_clip),
                        c.film_size, c.crop_x, c.crop_y, c.principal_x, c.principal_y, c.aperture_radius,
-                       c.focus_distance, c.rfilter, c.filter_radius, c.filter_stddev)).encode())
+                       c.focus_distance, c.rfilter, c.filter_radius, c.filter_stddev)
+                      + ((c.filter_b, c.filter_c) if c.rfilter == "mitchell" else ())).encode())
         return h.hexdigest()
 
     def validate(self):

@@ -11,6 +11,8 @@ from ..errors import is_number
 MAX_FILM_SIDE = 1 << 15  # pixels along a film's side
 MAX_FILTER_RADIUS = 32.0  # pixels a film's reconstruction filter may reach (splatting cost grows with its square)
 MIN_FILTER_REACH = 0.25  # pixels: a tent or 4σ below this leaves three quarters of the samples out
+FILTERS = ("box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos")  # Mitsuba 3's reconstruction filters
+MAX_CUBIC_PARAMETER = 100.0  # |B|, |C| of a mitchell filter: its weights grow with them (1/3 by default)
 MAX_PRINCIPAL_OFFSET = 1e3  # film sizes: beyond, the view's axis is within a thousandth of a radian of the film plane
 MAX_FOV = 179.5  # degrees across the film: wider, a perspective image shrinks the scene to a few pixels at its centre
 MAX_APERTURE_RATIO = 1e3  # lens radius per focus distance: beyond, every ray leaves the lens nearly along its plane
@@ -22,7 +24,8 @@ class Camera:
     the world. `width` x `height` is the image rendered: the film's crop window at (`crop_x`, `crop_y`) of a film
     of `film_width` x `film_height` (None: the whole film). `principal_x`, `principal_y` shift the principal
     point by a fraction of the film size; `aperture_radius` > 0 makes a thin lens focused at `focus_distance`;
-    `rfilter` is the reconstruction filter ("box", "tent" with `filter_radius`, "gaussian" with `filter_stddev`)."""
+    `rfilter` is the reconstruction filter: "box", "tent" with `filter_radius`, "gaussian" with `filter_stddev`,
+    "mitchell" with `filter_b` and `filter_c`, "catmullrom", or "lanczos" with `filter_radius` lobes."""
 
     to_world: np.ndarray
     fov_x: float
@@ -41,11 +44,15 @@ class Camera:
     rfilter: str = "box"
     filter_radius: float = 1.0
     filter_stddev: float = 0.5
+    filter_b: float = 1.0 / 3.0
+    filter_c: float = 1.0 / 3.0
 
     @property
     def filter_extent(self):
-        """The reconstruction filter's radius in pixels (Mitsuba's: 0.5 for the box, 4 stddev for a Gaussian)."""
-        return {"box": 0.5, "tent": self.filter_radius}.get(self.rfilter, 4.0 * self.filter_stddev)
+        """The reconstruction filter's radius in pixels (Mitsuba's: 0.5 for the box, 4 stddev for a Gaussian, 2
+        for the cubics, the lobes for Lanczos)."""
+        return {"box": 0.5, "tent": self.filter_radius, "lanczos": self.filter_radius, "mitchell": 2.0,
+                "catmullrom": 2.0}.get(self.rfilter, 4.0 * self.filter_stddev)
 
     @property
     def film_size(self):
@@ -72,11 +79,16 @@ def camera_problem(c):
             finite = False
         if not finite:
             return f"camera.{f.name} must be finite, got {value!r}"
-    if c.rfilter not in ("box", "tent", "gaussian") or not (
+    if c.rfilter not in FILTERS or not (
             MIN_FILTER_REACH <= c.filter_radius <= MAX_FILTER_RADIUS
             and MIN_FILTER_REACH <= 4 * c.filter_stddev <= MAX_FILTER_RADIUS):
-        return (f"camera.rfilter must be box, tent or gaussian, with a filter_radius and 4 filter_stddev from "
+        return (f"camera.rfilter must be one of {', '.join(FILTERS)}, with a filter_radius and 4 filter_stddev from "
                 f"{MIN_FILTER_REACH:g} to {MAX_FILTER_RADIUS:g} pixels")
+    if c.rfilter == "lanczos" and c.filter_radius != int(c.filter_radius):
+        return f"a lanczos filter's lobes (camera.filter_radius) must be a whole number, got {c.filter_radius!r}"
+    if not (abs(c.filter_b) <= MAX_CUBIC_PARAMETER and abs(c.filter_c) <= MAX_CUBIC_PARAMETER):
+        return (f"camera.filter_b and filter_c (a mitchell filter's B and C) must be within "
+                f"±{MAX_CUBIC_PARAMETER:g}, got {c.filter_b!r} and {c.filter_c!r}")
     m = c.to_world
     if not isinstance(m, np.ndarray) or m.shape != (4, 4) or m.dtype.kind not in "fiu" \
             or not np.all(np.isfinite(m)) or not np.all(m[3] == (0, 0, 0, 1)) \
