@@ -66,6 +66,12 @@ CASES = {
                                               '</transform></texture>', '<scale value="0.6"/><rotate x="1" angle="70"/>'
                                                                         '<rotate z="1" angle="20"/>'
                                                                         '<translate x="-0.6" y="-0.7"/>'),
+    "bitmap-bmp": textured("rectangle", '<texture type="bitmap" name="reflectance">'
+                               '<string name="filename" value="pic.bmp"/></texture>'),
+    "bitmap-tga": textured("rectangle", '<texture type="bitmap" name="reflectance">'
+                               '<string name="filename" value="pic.tga"/></texture>'),
+    "bitmap-ppm": textured("rectangle", '<texture type="bitmap" name="reflectance">'
+                               '<string name="filename" value="pic.ppm"/></texture>'),
     "bitmap-disk": textured("disk", '<texture type="bitmap" name="reflectance"><string name="filename" '
                                     'value="pic.exr"/></texture>', '<rotate z="1" angle="-30"/>'),
     "bitmap-cylinder": textured("cylinder", '<texture type="bitmap" name="reflectance"><string name="filename" '
@@ -86,6 +92,12 @@ def folder(tmp_path_factory):
     d = tmp_path_factory.mktemp("textures")
     write_exr(d / "pic.exr", picture())
     iio.imwrite(d / "pic.png", (picture() * 255).astype(np.uint8))
+    from PIL import Image
+
+    eight = (picture() * 255).astype(np.uint8)  # Mitsuba reads BMP, TGA and PPM too, sRGB-encoded like PNG
+    Image.fromarray(eight).save(d / "pic.bmp")
+    Image.fromarray(eight).save(d / "pic.tga")
+    Image.fromarray(eight).save(d / "pic.ppm")
     (d / "quad.obj").write_text(QUAD_OBJ)
     (d / "quad.ply").write_text(QUAD_PLY)
     return d

@@ -209,13 +209,14 @@ def _hdr_size(path):
 
 # Pillow modes read as another: 1-bit as 8-bit grey, CMYK and other colour spaces as RGB (their fourth channel
 # is not alpha)
+_PILLOW_FORMATS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".ppm")  # 8 or 16 bits, sRGB-encoded, as Mitsuba reads them
 _PILLOW_MODES = {"1": "L", "CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB"}
 
 
 def read_linear_rgb(path, raw=False):
     """An image file as linear RGB (h, w, 3) float64, as Mitsuba's bitmap loader gives it: EXR, HDR and PFM as
-    stored, PNG and JPEG decoded from sRGB (unless `raw`); grey images are repeated over the channels and alpha
-    dropped.
+    stored, PNG, JPEG, BMP, TGA and PPM decoded from sRGB (unless `raw`); grey images are repeated over the
+    channels and alpha dropped.
     Raises `ProbvisError` naming the file when it is missing or unreadable."""
     path = Path(path)
     if not path.exists():
@@ -251,7 +252,7 @@ def read_linear_rgb(path, raw=False):
         if img is None:
             raise ProbvisError(f"cannot read Radiance HDR image {path}" + (f" ({reason[:300]})" if reason else ""))
         img = img[..., ::-1] if img.ndim == 3 else img
-    elif ext in (".png", ".jpg", ".jpeg"):
+    elif ext in _PILLOW_FORMATS:
         import imageio.v3 as iio
 
         from PIL import Image
@@ -284,7 +285,8 @@ def read_linear_rgb(path, raw=False):
         img = data.astype(np.float64) / np.iinfo(data.dtype).max
         img = img if raw else srgb_to_linear(img)
     else:
-        raise ProbvisError(f"{path}: unsupported image format '{ext}' (supported: .exr, .hdr, .pfm, .png, .jpg)")
+        raise ProbvisError(f"{path}: unsupported image format '{ext}' (supported: .exr, .hdr, .pfm, "
+                           f"{', '.join(_PILLOW_FORMATS)})")
     img = np.asarray(img, dtype=np.float64)
     if img.ndim == 2:
         img = img[..., None]
