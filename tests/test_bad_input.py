@@ -645,7 +645,7 @@ def test_a_scene_changed_beyond_what_the_reader_accepts_is_refused(tmp_path):
                             (lambda s: setattr(s, "triangles", s.triangles * 1e200), "scene.triangles must lie"),
                             (lambda s: setattr(s, "camera", dataclasses.replace(s.camera, rfilter="gaussian",
                                                                                 filter_stddev=1e-300)),
-                             "camera.rfilter must be box, tent or gaussian")):
+                             "camera.rfilter must be one of box, tent, gaussian, mitchell")):
         scene = probvis.load_scene(path)
         change(scene)
         with pytest.raises(ProbvisError, match=message):
