@@ -309,6 +309,11 @@ def test_more_shadow_rays_per_pixel_than_a_batch_can_interrupt_are_refused():
     (lambda s: setattr(s, "camera", None), "scene.camera must be a Camera, got NoneType"),
     (lambda s: s.triangles.__setitem__((0, 0, 0), np.nan), "scene.triangles must be finite"),
     (lambda s: setattr(s, "triangles", s.triangles[:, :2]), "scene.triangles must be a 6 x 3 x 3 array of floats"),
+    (lambda s: setattr(s, "triangles", s.triangles.astype(">f8")), "array of floats (32 or 64 bits) in the "
+                                                                    "machine's byte order, got (6, 3, 3) >f8"),
+    (lambda s: setattr(s, "triangles", s.triangles.astype(np.float16)), "byte order, got (6, 3, 3) float16"),
+    (lambda s: setattr(s, "tri_material", s.tri_material.astype(">i8")), "scene.tri_material must be a 6 array of "
+                                                                          "integers in the machine's byte order"),
     (lambda s: setattr(s, "triangles", s.triangles[:0]),
      "scene.vertex_normals has 6 rows where scene.triangles has 0: the arrays with a row per triangle change"),
     (lambda s: setattr(s, "twosided", s.twosided[:0]), "scene.twosided has 0 rows where scene.reflectance has"),
@@ -330,7 +335,7 @@ def test_more_shadow_rays_per_pixel_than_a_batch_can_interrupt_are_refused():
     (lambda s: setattr(s.camera, "width", 2 ** 70), "width must be a whole number from 1 to 32768, got 1180591620717"),
     (lambda s: setattr(s.camera, "fov_x", 2 ** 64), "field of view must be above 0 and at most"),
     (lambda s: setattr(s.camera, "principal_x", 10 ** 400), "camera.principal_x must be finite, got 1000"),
-    (lambda s: setattr(s.camera, "filter_radius", 1e6), "camera.rfilter must be box, tent or gaussian"),
+    (lambda s: setattr(s.camera, "filter_radius", 1e6), "camera.rfilter must be one of box, tent, gaussian"),
     (lambda s: setattr(s, "emitter_radiance", s.emitter_radiance * 1e300), "scene.emitter_radiance must be at most"),
     (lambda s: setattr(s, "vertex_normals", s.vertex_normals * 0.0), "scene.vertex_normals must not be zero"),
 ])

@@ -66,10 +66,12 @@ def check_scene(scene):
                 and name != base):  # one of a family of arrays changed alone
             raise ProbvisError(f"scene.{name} has {a.shape[0]} rows where scene.{base} has {shape[0]}: the arrays "
                                f"with a row per {row} change together")
-        if not isinstance(a, np.ndarray) or a.shape != shape or a.dtype.kind not in kinds:
+        if not isinstance(a, np.ndarray) or a.shape != shape or a.dtype.kind not in kinds or not a.dtype.isnative \
+                or (kinds == "f" and a.dtype.itemsize not in (4, 8)):  # half, long double, other byte order: no kernel
             raise ProbvisError(f"scene.{name} must be a {' x '.join(map(str, shape))} array of "
-                               f"{dict(f='floats', iu='integers', b='booleans')[kinds]}, got "
-                               f"{getattr(a, 'shape', type(a).__name__)} {getattr(a, 'dtype', '')}".rstrip())
+                               f"{dict(f='floats (32 or 64 bits)', iu='integers', b='booleans')[kinds]} in the "
+                               f"machine's byte order, got {getattr(a, 'shape', type(a).__name__)} "
+                               f"{getattr(a, 'dtype', '')}".rstrip())
     for name in ("triangles", "vertex_normals", "emitter_radiance", "emitter_position", "emitter_axis",
                  "emitter_cone"):
         if not np.all(np.isfinite(getattr(scene, name))):
