@@ -70,6 +70,24 @@ def test_noise_and_mean_match_mitsuba_at_equal_samples(tmp_path, rfilter, crop):
         assert relmse(fis.image, ref) > 2 * theirs
 
 
+@pytest.mark.parametrize("rfilter, counted", [('<rfilter type="tent"><float name="radius" value="0.1"/></rfilter>',
+                                                "4.0%"),
+                                               ('<rfilter type="gaussian"><float name="stddev" value="0.05"/>'
+                                                '</rfilter>', "16.0%")])
+@pytest.mark.filterwarnings("ignore:.*reach a pixel centre and count")
+def test_a_filter_narrower_than_a_pixel_counts_the_samples_it_reaches_as_mitsuba(tmp_path, rfilter, counted):
+    """A filter reaching less than half a pixel counts only the samples near a pixel centre, and Mitsuba renders
+    it so (a noisy image, not a black one): at equal samples our error against its converged image is its own
+    at most 1.3 times; probvis refused such filters as black."""
+    with pytest.warns(UserWarning, match=f"{counted} of the camera samples reach a pixel centre and count"):
+        path = film_scene(tmp_path, rfilter)
+        probvis.load_scene(path)
+    ref = mitsuba_image(path, 2048, 100)
+    theirs = np.mean([relmse(mitsuba_image(path, 16, s), ref) for s in (1, 2)])
+    ours = np.mean([relmse(probvis.render(path, spp=16, seed=s).image, ref) for s in (1, 2)])
+    assert ours <= 1.3 * theirs
+
+
 def test_noise_estimate_follows_the_measured_error(tmp_path):
     """The stats' noise_relmse of a splatted render (each sample's own-pixel variance, weighted by w²) is within
     a factor 2 of its measured error against Mitsuba's converged image, as a box filter's is."""

@@ -361,8 +361,8 @@ def test_truncated_ply_empty_texture_and_a_plain_direct_integrator(tmp_path):
 
 
 @pytest.mark.parametrize("old, new, message", [
-    ('<rfilter type="box"/>', '<rfilter type="tent"><float name="radius" value="0.01"/></rfilter>',
-     "tent radius 0.01 reaches 0.01 pixels: 100% of the camera samples would reach no pixel centre"),
+    ('<rfilter type="box"/>', '<rfilter type="tent"><float name="radius" value="0.001"/></rfilter>',
+     "tent radius 0.001 reaches 0.001 pixels: only 4e-06 of the camera samples would reach a pixel centre"),
     ('<rfilter type="box"/>', '<rfilter type="gaussian"><float name="stddev" value="1e-5"/></rfilter>',
      "gaussian stddev 1e-05 reaches 4e-05 pixels"),
     ('<transform name="to_world">', '<transform name="to_world"><scale value="1e-12"/>',

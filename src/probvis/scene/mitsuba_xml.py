@@ -1295,10 +1295,15 @@ class _Reader:
         if not 0 < value <= most:
             self.fail(node, f"{kind} {name} must be positive and at most {most:g} pixels, got {value:g}")
         reach = value if kind == "tent" else 4 * value  # a Gaussian reaches 4 stddev
-        if reach < MIN_FILTER_REACH:  # within `reach` of a pixel centre on both axes: (2 reach)² of the samples
-            self.fail(node, f"{kind} {name} {value:g} reaches {reach:g} pixels: {1 - (2 * reach) ** 2:.0%} of the "
-                            f"camera samples would reach no pixel centre and the image would be almost black (use at "
-                            f"least {MIN_FILTER_REACH if kind == 'tent' else MIN_FILTER_REACH / 4:g}, or a box filter)")
+        counted = min(1.0, 2 * reach) ** 2  # within `reach` of a pixel centre on both axes: (2 reach)² of them
+        if reach < MIN_FILTER_REACH:
+            self.fail(node, f"{kind} {name} {value:g} reaches {reach:g} pixels: only {counted:.2g} of the camera "
+                            f"samples would reach a pixel centre and count (use at least "
+                            f"{MIN_FILTER_REACH if kind == 'tent' else MIN_FILTER_REACH / 4:g}, or a box filter)")
+        if counted < 1.0:  # as in Mitsuba: the image divides by the weights the samples that count bring
+            warnings.warn(f"{self.where(node)}: {kind} {name} {value:g} reaches {reach:g} pixels: {counted:.1%} of the "
+                          "camera samples reach a pixel centre and count (as in Mitsuba), so the image is noisier "
+                          "than a box filter's", stacklevel=2)
         return {"rfilter": kind, field_name: value}
 
     def integrator(self, node):
