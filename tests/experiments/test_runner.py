@@ -528,3 +528,11 @@ def test_a_worker_s_warnings_are_said_by_the_driver(tmp_path):
         assert sum(f"q / {name}: the image is black" in str(w.message) for w in caught) == 1
     assert sum("scene q: the reference image is black, so every method's relMSE is 0" in str(w.message)
                for w in caught) == 1
+
+
+def test_a_cache_under_a_dangling_link_names_the_link(tmp_path):
+    """A report folder that is a link to nowhere said "File exists"."""
+    (tmp_path / "rep").symlink_to(tmp_path / "nowhere")
+    with pytest.raises(ProbvisError, match=r"cannot create cache folder '.*rep/cache': '.*rep' is a symbolic link to "
+                                           r"'.*nowhere', which does not exist"):
+        Cache(tmp_path / "rep" / "cache")

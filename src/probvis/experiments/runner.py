@@ -171,7 +171,10 @@ class Cache:
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise ProbvisError(f"cannot create cache folder '{self.folder}': {exc.strerror or exc}") from None
+            dangling = next((p for p in (self.folder, *self.folder.parents) if p.is_symlink() and not p.exists()), None)
+            why = (f"'{dangling}' is a symbolic link to '{os.readlink(dangling)}', which does not exist" if dangling
+                   else exc.strerror or exc)
+            raise ProbvisError(f"cannot create cache folder '{self.folder}': {why}") from None
 
     def _paths(self, key):
         return self.folder / f"{key}.json", self.folder / f"{key}.exr", self.folder / f"{key}-tests.exr"
