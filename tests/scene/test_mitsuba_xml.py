@@ -126,6 +126,41 @@ def test_a_negative_sphere_radius_turns_it_inside_out_as_in_mitsuba(tmp_path):
     assert np.all(np.einsum("ij,ij->i", s.vertex_normals.mean(axis=1), t.mean(axis=1)) < 0)
 
 
+@pytest.mark.parametrize("old, new, warned", [
+    ('<float name="fov"', '<float name="shutter_open" value="0.2"/><float name="shutter_close" value="0.7"/>'
+                          '<float name="fov"', None),
+    ('<rgb name="radiance" value="1"/>', '<rgb name="radiance" value="1"/><float name="sampling_weight" value="3"/>',
+     "sampling_weight ignored: probvis samples emitters by their power"),
+    ('<shape type="cube"/>', '<shape type="cube"><boolean name="face_normals" value="true"/></shape>', None),
+    ('</sensor>', '</sensor><sensor type="perspective"><float name="fov" value="90"/></sensor>',
+     "a second <sensor>: probvis renders the first, as Mitsuba does"),
+])
+def test_what_mitsuba_accepts_and_does_not_change_the_image_is_accepted(tmp_path, old, new, warned):
+    """A sensor's shutter times (a static scene), an emitter's sampling weight (the noise, not the expectation), a
+    cube's face_normals (its faces are flat) and a second sensor (Mitsuba renders the first) were refused."""
+    body = sensor() + LIGHT + '<shape type="cube"/>'
+    assert old in body
+    plain = probvis.render(write_scene(tmp_path / "a.xml", body), spp=2).image
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        changed = probvis.render(write_scene(tmp_path / "b.xml", body.replace(old, new, 1)), spp=2).image
+    said = [str(w.message) for w in caught if "rendered" not in str(w.message)]
+    assert (len(said) == 1 and warned in said[0]) if warned else not said
+    assert np.array_equal(plain, changed)
+
+
+@pytest.mark.parametrize("body, message", [
+    ("<shape type='rectangle'><emitter type='area'><texture type='bitmap' name='radiance'><string name='filename' "
+     "value='x.png'/></texture></emitter></shape>", "<texture>: an emitter's radiance given as a texture is not "
+                                                    "supported by probvis: give an <rgb> or <spectrum>"),
+    ("<emitter type='point'><float name='sampling_weight' value='-1'/></emitter>",
+     "<float>: sampling_weight must be from 0 to 1e+30, got -1"),
+])
+def test_emitter_parameters_probvis_does_not_take_are_named(tmp_path, body, message):
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + LIGHT + body))
+
+
 def test_a_negative_cylinder_radius_is_the_same_cylinder_as_in_mitsuba(tmp_path):
     """Mitsuba scales its cylinder's frame by the radius: a negative one turns it half a turn about its axis, the
     same surface facing out (its render lit by a point light: 0.04628 for 0.3 and -0.3); probvis refused it."""
@@ -634,12 +669,17 @@ def test_a_second_film_is_refused(tmp_path):
      "<integer>: seed must be from 0 to"),
     (('name="emitter_samples" value="4"', 'name="emitter_samples" value="2000000000"'),
      "<integer>: emitter_samples must be from 1 to 65536, got 2000000000"),
+    (('name="emitter_samples" value="4"', 'name="emitter_samples" value="0"'),
+     "<integer>: emitter_samples must be from 1 to 65536, got 0 (probvis samples emitters only)"),
 ])
 def test_what_mitsuba_refuses_in_a_sensor_is_named(tmp_path, edit, message):
     """A second sampler or filter (the last one won), and Python-only number syntax (underscores, other scripts'
     digits: accepted by int() and float(), not by Mitsuba's parser)."""
     body = sensor().replace(*edit, 1)
-    with pytest.raises(ProbvisError, match=re.escape(message)):
+    if "emitter_samples" in message:  # with BSDF samples asked for, which probvis warns it does not take
+        body = body.replace('name="bsdf_samples" value="0"', 'name="bsdf_samples" value="4"')
+    with pytest.raises(ProbvisError, match=re.escape(message)), warnings.catch_warnings():
+        warnings.simplefilter("error")  # the error alone: bsdf_samples was warned of first, a second line
         probvis.load_scene(write_scene(tmp_path / "bad.xml", body + LIGHT))
 
 

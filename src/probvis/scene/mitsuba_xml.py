@@ -113,6 +113,7 @@ def parse_tree(path):
     return handler.root
 
 
+_SAMPLING_WEIGHT = {"sampling_weight": ("float",)}  # every emitter's: see `_Reader.sampling_weight`
 MAX_INCLUDES = 15  # <include> within <include>, as deep as Mitsuba's parser allows
 MAX_INCLUDED = 100_000  # elements brought in by includes in all: files that include each other many times over
 # would otherwise multiply a few kilobytes into gigabytes
@@ -540,9 +541,10 @@ class _Reader:
             self.fail(ch, f"parameter '{name}' is given twice (first on line {lines[name]})")
         lines[name] = ch.line
 
-    def params(self, node, allowed_props, allowed_objects=(), unnamed=None):
+    def params(self, node, allowed_props, allowed_objects=(), unnamed=None, unknown=None):
         """Split children into a {name: value} dict and a list of nested objects, rejecting anything else and any
-        name given twice (a nested object without a name counts as `unnamed`, the one it stands for)."""
+        name given twice (a nested object without a name counts as `unnamed`, the one it stands for); `unknown(ch)`,
+        if given, may refuse an element with a message of its own first."""
         props, objects, lines = {}, [], {}
         for ch in node.children:
             if ch.tag in _PROPERTY_TAGS:
@@ -559,8 +561,28 @@ class _Reader:
                     self.once(ch, name, lines)
                 objects.append(ch)
             else:
+                if unknown is not None:
+                    unknown(ch)
                 self.fail(ch, f"unsupported element inside <{node.tag}>")
         return props, objects
+
+    def textured_emission(self, ch):
+        """A texture given as an emitter's radiance or intensity, which probvis does not take."""
+        if ch.tag == "texture":
+            self.fail(ch, f"an emitter's {ch.attrs.get('name', 'radiance')} given as a texture is not supported by "
+                          "probvis: give an <rgb> or <spectrum> (a textured area light could be split into shapes of "
+                          "one colour each)")
+
+    def sampling_weight(self, node, props):
+        """Mitsuba's emitter `sampling_weight`: how often the emitter is sampled, which changes the noise and not
+        the expected image. probvis samples emitters by power, so it is checked and left aside, with a warning."""
+        if "sampling_weight" in props:
+            w = props["sampling_weight"]
+            if not 0 <= w <= MAX_EMISSION:
+                self.fail(_by_name(node)["sampling_weight"], f"sampling_weight must be from 0 to {MAX_EMISSION:g}, "
+                                                             f"got {w:g}")
+            warnings.warn(f"{self.where(node)}: sampling_weight ignored: probvis samples emitters by their power "
+                          "(the same expected image)", stacklevel=2)
 
     # --- plugins -----------------------------------------------------------------------------
     def bsdf(self, node):
@@ -844,7 +866,9 @@ class _Reader:
         kind = self.attr(node, "type")
         if kind != "area":
             self.fail(node, f"unsupported emitter type '{kind}' (supported: area, attached to a shape)")
-        props, _ = self.params(node, {"radiance": ("rgb", "spectrum", "float")})
+        props, _ = self.params(node, {"radiance": ("rgb", "spectrum", "float"), **_SAMPLING_WEIGHT},
+                               unknown=self.textured_emission)
+        self.sampling_weight(node, props)
         if "radiance" not in props:
             self.fail(node, "area emitter needs a 'radiance'")
         rad = self.emission(node, "radiance", props["radiance"])
@@ -876,7 +900,8 @@ class _Reader:
             return
         if kind == "directional":
             props, _ = self.params(node, {"irradiance": ("rgb", "spectrum", "float"), "direction": ("vector",),
-                                          "to_world": ("transform",)})
+                                          "to_world": ("transform",), **_SAMPLING_WEIGHT})
+            self.sampling_weight(node, props)
             if "direction" in props and "to_world" in props:
                 self.fail(node, "give either 'direction' or 'to_world', not both")
             d = tf.tamed(props.get("direction", props.get("to_world", np.eye(4))[:3, :3] @ np.array([0.0, 0.0, 1.0])))
@@ -885,12 +910,13 @@ class _Reader:
                 self.fail(node, "a directional emitter needs a non-zero direction")
             builder.add_directional_emitter(e, d)
             return
-        allowed = {"intensity": ("rgb", "spectrum", "float"), "to_world": ("transform",)}
+        allowed = {"intensity": ("rgb", "spectrum", "float"), "to_world": ("transform",), **_SAMPLING_WEIGHT}
         if kind == "point":
             allowed["position"] = ("point",)
         else:
             allowed |= {"cutoff_angle": ("float",), "beam_width": ("float",)}
-        props, _ = self.params(node, allowed)
+        props, _ = self.params(node, allowed, unknown=self.textured_emission)
+        self.sampling_weight(node, props)
         intensity = self.emission(node, "intensity", props.get("intensity", np.ones(3)))
         m = props.get("to_world", np.eye(4))
         if not np.all(m[3] == (0, 0, 0, 1)):
@@ -920,12 +946,15 @@ class _Reader:
     def environment(self, node, kind, builder):
         """A top-level `envmap` (image file, scale, to_world) or `constant` (radiance) emitter."""
         if kind == "constant":
-            props, _ = self.params(node, {"radiance": ("rgb", "spectrum", "float")})
+            props, _ = self.params(node, {"radiance": ("rgb", "spectrum", "float"), **_SAMPLING_WEIGHT},
+                                   unknown=self.textured_emission)
+            self.sampling_weight(node, props)
             rad = self.emission(node, "radiance", props.get("radiance", np.ones(3)))
             image, m, scale = np.ones((2, 1, 3)), None, rad  # the radiance as the scale: lit points' closed form
         else:
             props, _ = self.params(node, {"filename": ("string",), "scale": ("float",), "to_world": ("transform",),
-                                          "mis_compensation": ("boolean",)})
+                                          "mis_compensation": ("boolean",), **_SAMPLING_WEIGHT})
+            self.sampling_weight(node, props)
             if "filename" not in props:
                 self.fail(node, "envmap needs a 'filename'")
             path = self.input_file(node, props["filename"])
@@ -986,7 +1015,9 @@ class _Reader:
             allowed |= {"center": ("point",), "radius": ("float",)}
         elif kind == "cylinder":
             allowed |= {"p0": ("point",), "p1": ("point",), "radius": ("float",)}
-        elif kind not in ("rectangle", "cube", "disk"):
+        elif kind == "cube":  # a mesh in Mitsuba, whose faces are flat already
+            allowed |= {"face_normals": ("boolean",)}
+        elif kind not in ("rectangle", "disk"):
             self.fail(node, f"unsupported shape type '{kind}' (supported: obj, ply, serialized, rectangle, cube, disk, "
                             "cylinder, sphere, shapegroup, instance)")
         props, objs = self.params(node, allowed, ("bsdf", "ref", "emitter"))
@@ -1115,7 +1146,7 @@ class _Reader:
             self.fail(node, f"unsupported sensor type '{kind}' (supported: perspective, thinlens)")
         allowed = {"fov": ("float",), "focal_length": ("string",), "fov_axis": ("string",),
                    "to_world": ("transform",), "near_clip": ("float",), "far_clip": ("float",),
-                   "srf": ("spectrum", "rgb")}
+                   "srf": ("spectrum", "rgb"), "shutter_open": ("float",), "shutter_close": ("float",)}
         if kind == "perspective":  # focus_distance is read by every projective camera; a pinhole ignores it
             allowed.update(principal_point_offset_x=("float",), principal_point_offset_y=("float",),
                            focus_distance=("float",))
@@ -1341,13 +1372,13 @@ class _Reader:
                                                           f"got {base}")
         if props.get("bsdf_samples", 0) < 0:
             self.fail(lines["bsdf_samples"], f"bsdf_samples must not be negative, got {props['bsdf_samples']}")
-        if props.get("bsdf_samples", 0) != 0:  # only when the file asks for them: a default is no request
-            warnings.warn(f"{self.where(node)}: bsdf_samples ignored: probvis samples emitters only "
-                          "(same expected image)", stacklevel=2)
         sr = props.get("emitter_samples", base)
         if not 1 <= sr <= MAX_SHADOW_RAYS:
             self.fail(lines.get("emitter_samples", node), f"emitter_samples must be from 1 to {MAX_SHADOW_RAYS}, "
-                                                          f"got {sr}")
+                                                          f"got {sr} (probvis samples emitters only)")
+        if props.get("bsdf_samples", 0) != 0:  # only when the file asks for them: a default is no request
+            warnings.warn(f"{self.where(node)}: bsdf_samples ignored: probvis samples emitters only "
+                          "(same expected image)", stacklevel=2)
         return sr
 
     def round_sphere(self, node, m):
@@ -1426,9 +1457,12 @@ class _Reader:
                 integrator_line = ch.line
                 shadow_rays = self.integrator(ch)
             elif ch.tag == "sensor":
+                first = self.sensor(ch)  # every sensor is read and checked, as Mitsuba loads them all
                 if camera is not None:
-                    self.fail(ch, "only one sensor is supported")
-                camera, spp, seed = self.sensor(ch)
+                    warnings.warn(f"{self.where(ch)}: a second <sensor>: probvis renders the first, as Mitsuba does "
+                                  "by default", stacklevel=2)
+                    continue
+                camera, spp, seed = first
             elif ch.tag in ("bsdf", "texture"):
                 if "id" not in ch.attrs:
                     self.fail(ch, f"a top-level {ch.tag} needs an 'id'")
