@@ -72,6 +72,10 @@ CASES = {
                                '<string name="filename" value="pic.tga"/></texture>'),
     "bitmap-ppm": textured("rectangle", '<texture type="bitmap" name="reflectance">'
                                '<string name="filename" value="pic.ppm"/></texture>'),
+    "bitmap-exr-grey": textured("rectangle", '<texture type="bitmap" name="reflectance">'
+                                     '<string name="filename" value="pic-grey.exr"/></texture>'),
+    "bitmap-exr-layer": textured("rectangle", '<texture type="bitmap" name="reflectance">'
+                                     '<string name="filename" value="pic-layer.exr"/></texture>'),
     "bitmap-disk": textured("disk", '<texture type="bitmap" name="reflectance"><string name="filename" '
                                     'value="pic.exr"/></texture>', '<rotate z="1" angle="-30"/>'),
     "bitmap-cylinder": textured("cylinder", '<texture type="bitmap" name="reflectance"><string name="filename" '
@@ -92,6 +96,13 @@ def folder(tmp_path_factory):
     d = tmp_path_factory.mktemp("textures")
     write_exr(d / "pic.exr", picture())
     iio.imwrite(d / "pic.png", (picture() * 255).astype(np.uint8))
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for kind, channels in (("grey", {"Y": np.ascontiguousarray(picture()[..., 0])}),  # Mitsuba: luminance, grey
+                           ("layer", {"diffuse": picture()})):  # diffuse.R, .G, .B: Mitsuba reads the layer
+        with OpenEXR.File(header, channels) as f:
+            f.write(str(d / f"pic-{kind}.exr"))
     from PIL import Image
 
     eight = (picture() * 255).astype(np.uint8)  # Mitsuba reads BMP, TGA and PPM too, sRGB-encoded like PNG

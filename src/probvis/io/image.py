@@ -191,7 +191,14 @@ def _exr_pixels(path, channel, said):
             return np.array(ch["RGBA"].pixels, dtype=np.float32)[..., :3]
         if all(c in ch for c in "RGB"):
             return np.stack([np.array(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
-        raise ProbvisError(f"{path}: no RGB channels (found {', '.join(ch)})")
+        if "Y" in ch or "YA" in ch:  # luminance alone: grey, as Mitsuba reads it
+            y = np.array(ch["Y" if "Y" in ch else "YA"].pixels, dtype=np.float32)
+            return np.repeat((y if y.ndim == 2 else y[..., 0])[..., None], 3, axis=-1)
+        layers = [k for k in ch if np.ndim(ch[k].pixels) == 3 and np.shape(ch[k].pixels)[2] in (3, 4)]
+        if len(layers) == 1:  # one layer's R, G, B ("diffuse.R", ...): that layer, as Mitsuba reads it
+            return np.array(ch[layers[0]].pixels, dtype=np.float32)[..., :3]
+        raise ProbvisError(f"{path}: no RGB channels (found {', '.join(ch)}" +
+                           (": more than one layer, and probvis reads one)" if layers else ")"))
 
 
 def srgb_to_linear(v):
