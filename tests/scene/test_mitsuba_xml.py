@@ -126,6 +126,29 @@ def test_a_negative_sphere_radius_turns_it_inside_out_as_in_mitsuba(tmp_path):
     assert np.all(np.einsum("ij,ij->i", s.vertex_normals.mean(axis=1), t.mean(axis=1)) < 0)
 
 
+@pytest.mark.parametrize("origin, target, mitsuba", [  # Mitsuba 3.9.1's sensor world_transform of each
+    ("0,0,4", "0,0,0", [[0, 1, 0, 0], [1, 0, 0, 0], [0, 0, -1, 4]]),
+    ("0,1.5,0", "0,-1,0", [[0, 1, 0, 0], [0, 0, -1, 1.5], [-1, 0, 0, 0]]),
+    ("1,2,3", "0,0,0", [[-0.0793, 0.9604, -0.2673, 1], [0.8414, -0.0793, -0.5345, 2], [-0.5345, -0.2673, -0.8018, 3]]),
+])
+def test_a_lookat_without_up_is_turned_as_mitsuba_turns_it(tmp_path, origin, target, mitsuba):
+    """Without `up`, Mitsuba's parser takes the first vector of the view direction's coordinate system; probvis
+    took +y: another roll of the camera, and a light looking straight down was refused as parallel to +y."""
+    body = sensor().replace('<lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/>',
+                            f'<lookat origin="{origin}" target="{target}"/>')
+    assert "up=" not in body.split("<sampler")[0]
+    spot = (f"<emitter type='spot'><transform name='to_world'><lookat origin='{origin}' target='{target}'/>"
+            "</transform></emitter><shape type='rectangle'/>")
+    scene = probvis.load_scene(write_scene(tmp_path / "s.xml", body + spot))
+    np.testing.assert_allclose(scene.camera.to_world[:3], mitsuba, atol=1e-4)
+    if importlib.util.find_spec("mitsuba") is not None:
+        import mitsuba as mi
+
+        mi.set_variant("scalar_rgb")
+        theirs = mi.load_file(str(tmp_path / "s.xml")).sensors()[0].world_transform().matrix
+        np.testing.assert_allclose(scene.camera.to_world, np.array(theirs), atol=1e-6)
+
+
 @pytest.mark.parametrize("old, new, warned", [
     ('<float name="fov"', '<float name="shutter_open" value="0.2"/><float name="shutter_close" value="0.7"/>'
                           '<float name="fov"', None),

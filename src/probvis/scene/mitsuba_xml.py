@@ -521,7 +521,7 @@ class _Reader:
             self.check_attrs(op, ("origin", "target", "up"))
             o = self.numbers(op, self.attr(op, "origin"), (3,))
             tg = self.numbers(op, self.attr(op, "target"), (3,))
-            up = self.numbers(op, self.attr(op, "up", "0, 1, 0", required=False), (3,))
+            up = self.numbers(op, self.attr(op, "up"), (3,)) if "up" in op.attrs else None  # see tf.look_at
             if not (np.all(np.abs(o) <= MAX_COORDINATE) and np.all(np.abs(tg) <= MAX_COORDINATE)):
                 self.fail(op, f"lookat's origin and target must lie within ±{MAX_COORDINATE:g}: rescale the scene")
             return tf.look_at(o, tg, up)
@@ -1130,11 +1130,7 @@ class _Reader:
                             f"{'flat' if abs(r) >= length else 'thin'} to hold any area in double precision: move p0 "
                             "and p1 apart or change the radius")
         z = axis / length
-        # Mitsuba's Frame3f(z): Duff et al.'s orthonormal basis, which fixes where the uv's phi starts
-        sign = 1.0 if z[2] >= 0.0 else -1.0
-        a, b = -1.0 / (sign + z[2]), z[0] * z[1] * -1.0 / (sign + z[2])
-        x = np.array([1.0 + sign * z[0] * z[0] * a, sign * b, -sign * z[0]])
-        y = np.array([b, sign + z[1] * z[1] * a, -z[1]])
+        x, y = tf.coordinate_system(z)  # Mitsuba's Frame3f(z), which fixes where the uv's phi starts
         frame = np.eye(4)
         frame[:3, 0], frame[:3, 1], frame[:3, 2], frame[:3, 3] = x * r, y * r, z * length, p0
         return frame

@@ -29,14 +29,25 @@ def rotate(axis, angle_deg):
     return m
 
 
-def look_at(origin, target, up):
-    """Camera-to-world matrix: local +z looks at `target`, +y is `up`, +x is left (Mitsuba's convention)."""
+def coordinate_system(z):
+    """Mitsuba's orthonormal basis (x, y) of a unit vector z: Duff et al. (JCGT 2017), which fixes, for instance,
+    where a cylinder's uv starts and which way a lookat without `up` is turned."""
+    sign = 1.0 if z[2] >= 0.0 else -1.0
+    a = -1.0 / (sign + z[2])
+    b = z[0] * z[1] * a
+    return (np.array([1.0 + sign * z[0] * z[0] * a, sign * b, -sign * z[0]]),
+            np.array([b, sign + z[1] * z[1] * a, -z[1]]))
+
+
+def look_at(origin, target, up=None):
+    """Camera-to-world matrix: local +z looks at `target`, +y is `up`, +x is left (Mitsuba's convention). Without
+    `up`, Mitsuba's parser takes the first vector of `coordinate_system` of the view direction."""
     o = np.asarray(origin, dtype=np.float64)
     d = np.asarray(target, dtype=np.float64) - o
     if np.linalg.norm(d) == 0.0:
         raise ValueError("lookat origin and target coincide")
     d /= np.linalg.norm(d)
-    up = tamed(up)  # its direction is all that counts: 1e300 must not overflow the cross product
+    up = coordinate_system(d)[0] if up is None else tamed(up)  # the direction is what counts: 1e300 must not overflow
     if not np.abs(up).max() > 0.0:
         raise ValueError("lookat 'up' is the zero vector")
     left = np.cross(up, d)
