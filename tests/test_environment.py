@@ -1,6 +1,8 @@
 """Environment emitters (`envmap`, `constant`) against Mitsuba 3 (scalar_rgb): radiance per direction, renders,
 image files; and the occlusion map and probabilistic visibility staying unbiased under them."""
 import dataclasses
+import re
+import warnings
 
 import numpy as np
 import pytest
@@ -190,3 +192,31 @@ def test_an_environment_map_s_memory_is_estimated_before_it_is_read_or_built(sce
     scene = dataclasses.replace(scene, environment=dataclasses.replace(scene.environment, image=np.ones((400, 800, 3))))
     with pytest.raises(ProbvisError, match=r"needs about .*environment .* lower the environment map's size"):
         probvis.render(scene, spp=1, shadow_rays=1, resolution=(8, 8))
+
+
+def test_hidden_emitters_are_black_where_seen_as_in_mitsuba(tmp_path):
+    """`hide_emitters`: the area light and the sky the camera sees directly are black, what they light is not
+    (probvis refused the option); the image against Mitsuba's, the seen emitters' pixels black, and the `path`
+    integrator's option read as the `direct` one's."""
+    hide = '<boolean name="hide_emitters" value="true"/>'
+    head = sensor(origin="0, -2, 1.2", target="0, 0, 0.3", up="0, 0, 1", spp="$spp", w=24, h=24, sr=4)
+    head = head.replace('<integer name="bsdf_samples" value="0"/>', '<integer name="bsdf_samples" value="0"/>' + hide)
+    body = """
+        <emitter type="constant"><rgb name="radiance" value="0.3"/></emitter>
+        <shape type="rectangle"><bsdf type="diffuse"/></shape>
+        <shape type="rectangle"><transform name="to_world"><scale value="0.2"/><rotate x="1" angle="60"/>
+            <translate y="0.3" z="0.5"/></transform><emitter type="area"><rgb name="radiance" value="8"/></emitter>
+        </shape>"""
+    path = write_scene(tmp_path / "h.xml", head + body, '<default name="spp" value="16"/>')
+    assert_matches_mitsuba(path, shadow_rays=4)
+    image = probvis.render(path, spp=4).image
+    shown = probvis.render(write_scene(tmp_path / "s.xml", head.replace(hide, "") + body,
+                                       '<default name="spp" value="16"/>'), spp=4).image
+    assert image.max() < 2.0 < shown.max()  # the light itself (radiance 8) is seen only when shown
+    assert image[0, 0].max() == 0.0 < shown[0, 0].min()  # the sky in the top corner
+    as_path = re.sub(r'<integrator.*?</integrator>', f'<integrator type="path">{hide}</integrator>', head, flags=re.S)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "rendered as its direct-illumination component"
+        path_image = probvis.render(write_scene(tmp_path / "p.xml", as_path + body, '<default name="spp" '
+                                                'value="16"/>'), spp=4, shadow_rays=4).image
+    np.testing.assert_array_equal(path_image, image)

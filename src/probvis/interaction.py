@@ -1,6 +1,7 @@
 """Stage 2 of a render: the surface interaction at each camera ray's closest hit.
 
-Gives the radiance of an emitter seen directly (or of the environment, for a ray that misses), the shading
+Gives the radiance of an emitter seen directly (or of the environment, for a ray that misses; neither with the
+integrator's `hide_emitters`), the shading
 point, its shading normal turned to the camera's side, its material and its albedo (the material's reflectance,
 or its texture at the point's uv). As in Mitsuba 3, a plain `diffuse` BSDF is one-sided (nothing is reflected
 from its back) and area emitters emit from their front side only.
@@ -30,6 +31,7 @@ class SceneArrays(NamedTuple):
     emitter_radiance: np.ndarray  # (emitters, 3)
     material_texture: np.ndarray  # (materials,) index into the `TextureArrays`, -1 for none
     tri_uv: np.ndarray  # (n, 3, 2) the corners' uv (a placeholder when no material has a texture)
+    hide_emitters: bool  # emitters and the environment seen directly are black (Mitsuba's integrator option)
 
 
 def scene_arrays(scene):
@@ -38,7 +40,7 @@ def scene_arrays(scene):
     uv = scene.tri_uv if scene.tri_uv is not None else np.zeros((1, 3, 2))
     return SceneArrays(scene.triangles, scene.vertex_normals, unit_normals(scene.triangles), scene.tri_material,
                        scene.tri_emitter, scene.reflectance, scene.twosided, scene.emitter_radiance,
-                       scene.material_texture, uv), texture_arrays(scene.textures)
+                       scene.material_texture, uv, bool(scene.hide_emitters)), texture_arrays(scene.textures)
 
 
 class Interactions(NamedTuple):
@@ -61,7 +63,7 @@ def _surface(geom, tx, es, prim, b1, b2, dirs, first, end, out):
     twosided, radiance = geom.twosided, geom.emitter_radiance
     emitted, pos, nrm, mat, albedo = out
     scale = es.env_scale
-    sky = scale[0] != 0.0 or scale[1] != 0.0 or scale[2] != 0.0
+    sky = (scale[0] != 0.0 or scale[1] != 0.0 or scale[2] != 0.0) and not geom.hide_emitters
     for i in range(first, end):
         tri = prim[i]
         if tri < 0:
@@ -78,7 +80,7 @@ def _surface(geom, tx, es, prim, b1, b2, dirs, first, end, out):
         sx, sy, sz = sx * inv, sy * inv, sz * inv
         cos_i = -(sx * dirs[i, 0] + sy * dirs[i, 1] + sz * dirs[i, 2])
         em = tri_emit[tri]
-        if em >= 0 and cos_i > 0.0:
+        if em >= 0 and cos_i > 0.0 and not geom.hide_emitters:
             for k in range(3):
                 emitted[i, k] = radiance[em, k]
         m = tri_mat[tri]

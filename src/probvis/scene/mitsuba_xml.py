@@ -291,6 +291,7 @@ class _Reader:
         self.referenced = set()  # ids a <ref> resolved
         self.images = {}  # decoded image files by (resolved path, raw)
         self.search_paths = []  # the folders of <path> elements, searched before the scene's
+        self.hide_emitters = False  # the integrator's option
         self.root = None  # the document's tree, once parsed
 
     # --- errors and values -------------------------------------------------------------------
@@ -1339,8 +1340,7 @@ class _Reader:
         if kind in ("path", "volpath"):
             props, _ = self.params(node, {"max_depth": ("integer",), "rr_depth": ("integer",),
                                           "hide_emitters": ("boolean",)})
-            if props.get("hide_emitters", False):
-                self.fail(node, "hide_emitters=true is not supported")
+            self.hide_emitters = props.get("hide_emitters", False)
             depth = props.get("max_depth", -1)
             if depth < -1:
                 self.fail(node, f"max_depth must be -1 (no limit) or at least 2 here, got {depth}")
@@ -1359,8 +1359,7 @@ class _Reader:
                             "illumination)")
         props, _ = self.params(node, {"emitter_samples": ("integer",), "bsdf_samples": ("integer",),
                                       "shading_samples": ("integer",), "hide_emitters": ("boolean",)})
-        if props.get("hide_emitters", False):
-            self.fail(node, "hide_emitters=true is not supported")
+        self.hide_emitters = props.get("hide_emitters", False)  # emitters seen directly are black
         lines = _by_name(node)
         base = props.get("shading_samples", 1)
         if not 1 <= base <= MAX_SHADOW_RAYS:
@@ -1503,6 +1502,7 @@ class _Reader:
                           f"{'it' if len(unread) == 1 else 'them'} ($name reads the longest declared name), so the "
                           "image is the same without", stacklevel=2)
         builder.inputs = tuple(dict.fromkeys(Path(os.path.realpath(p)) for p in self.inputs))
+        builder.hide_emitters = self.hide_emitters
         try:
             return builder.build(camera, RenderSettings(spp, shadow_rays, seed))
         except ProbvisError as exc:

@@ -72,6 +72,7 @@ class Scene:
     textures: list = field(default_factory=list)
     material_texture: np.ndarray = None
     tri_uv: np.ndarray = None
+    hide_emitters: bool = False  # the integrator's option: emitters seen directly by the camera are black
 
     def __post_init__(self):
         e = len(self.emitter_radiance)
@@ -142,6 +143,8 @@ class Scene:
                        c.film_size, c.crop_x, c.crop_y, c.principal_x, c.principal_y, c.aperture_radius,
                        c.focus_distance, c.rfilter, c.filter_radius, c.filter_stddev)
                       + ((c.filter_b, c.filter_c) if c.rfilter == "mitchell" else ())).encode())
+        if self.hide_emitters:
+            h.update(b"hide_emitters")
         return h.hexdigest()
 
     def validate(self):
@@ -181,6 +184,7 @@ class SceneBuilder:
         self.shapes = []
         self.dropped = 0
         self._n = 0
+        self.hide_emitters = False  # the integrator's option (`Scene.hide_emitters`)
 
     def material(self, reflectance, twosided=False, texture=None):
         """The id of a diffuse material: its `reflectance`, or a `Texture` (reflectance then its mean)."""
@@ -327,6 +331,7 @@ class SceneBuilder:
             inputs=self.inputs,
             shapes=self.shapes,
             dropped_degenerate=self.dropped,
+            hide_emitters=self.hide_emitters,
         )
         scene.validate_camera()
         from .scene_checks import warn_of_offsets  # the checks' module reads this one's records

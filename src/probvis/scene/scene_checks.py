@@ -30,6 +30,8 @@ def check_scene(scene):
     if scene.environment is not None and not isinstance(scene.environment, Environment):
         raise ProbvisError(f"scene.environment must be an Environment or None, got "
                            f"{type(scene.environment).__name__}")
+    if not isinstance(scene.hide_emitters, (bool, np.bool_)):
+        raise ProbvisError(f"scene.hide_emitters must be True or False, got {scene.hide_emitters!r}")
     for name in ("name", "source"):
         if not isinstance(getattr(scene, name), str):
             raise ProbvisError(f"scene.{name} must be a string, got {type(getattr(scene, name)).__name__}")
