@@ -684,6 +684,16 @@ def test_a_mesh_given_as_the_scene_is_named_as_a_mesh(tmp_path, name):
         probvis.load_scene(tmp_path / name)
 
 
+@pytest.mark.parametrize("name, message", [
+    ("e.toml", "is an experiment file, not a scene: run it with `probvis experiment"),
+    ("i.exr", "is an image, not a scene"), ("i.PNG", "is an image, not a scene")])
+def test_an_image_or_experiment_given_as_the_scene_is_named_as_such(tmp_path, name, message):
+    """They were "malformed XML: not well-formed (invalid token)"."""
+    (tmp_path / name).write_bytes(b"\x89PNG\r\n" if name != "e.toml" else b'name = "x"\n')
+    with pytest.raises(probvis.ProbvisError, match=re.escape(f"{name} {message}")):
+        probvis.load_scene(tmp_path / name)
+
+
 @pytest.mark.parametrize("visibility", ["occlusion-map", "probvis"])
 def test_one_neighbour_gives_a_radius_not_numpy_warnings(visibility):
     """With --neighbours 1 (its minimum) the photon radius came from each probe photon's nearest one, itself:

@@ -62,6 +62,11 @@ def open_scene(path, defines, strict=False):
     if kind in ("obj", "ply", "serialized"):  # was "malformed XML: syntax error"
         raise ProbvisError(f"{p} is a mesh, not a scene: a scene is a Mitsuba XML file that places it (a <shape "
                            f"type=\"{kind}\">, with a sensor and an emitter), or a built-in scene")
+    if kind in ("exr", "png", "jpg", "jpeg", "hdr", "pfm", "bmp", "tga", "ppm"):
+        raise ProbvisError(f"{p} is an image, not a scene: a scene is a Mitsuba XML file (an image can be its "
+                           "envmap's or a bitmap texture's filename), or a built-in scene")
+    if kind == "toml":
+        raise ProbvisError(f"{p} is an experiment file, not a scene: run it with `probvis experiment {p}`")
     try:
         return read_scene(p, strict, defaults)
     except MemoryError:
