@@ -692,6 +692,9 @@ def test_a_second_film_is_refused(tmp_path):
      "<integer>: seed must be from 0 to"),
     (('name="emitter_samples" value="4"', 'name="emitter_samples" value="2000000000"'),
      "<integer>: emitter_samples must be from 1 to 65536, got 2000000000"),
+    (('name="emitter_samples" value="4"', 'name="emitter_samples" value="4"/><integer name="shading_samples" '
+                                          'value="2"'),
+     "<integer>: give either shading_samples or emitter_samples and bsdf_samples, not both"),
     (('name="emitter_samples" value="4"', 'name="emitter_samples" value="0"'),
      "<integer>: emitter_samples must be from 1 to 65536, got 0 (probvis samples emitters only)"),
 ])

@@ -1361,6 +1361,10 @@ class _Reader:
                                       "shading_samples": ("integer",), "hide_emitters": ("boolean",)})
         self.hide_emitters = props.get("hide_emitters", False)  # emitters seen directly are black
         lines = _by_name(node)
+        both = [k for k in ("emitter_samples", "bsdf_samples") if k in props]
+        if "shading_samples" in props and both:  # Mitsuba refuses the pair: which one counts would be a guess
+            self.fail(lines[both[0]], f"give either shading_samples or {' and '.join(both)}, not both (as Mitsuba "
+                                      "requires)")
         base = props.get("shading_samples", 1)
         if not 1 <= base <= MAX_SHADOW_RAYS:
             self.fail(lines.get("shading_samples", node), f"shading_samples must be from 1 to {MAX_SHADOW_RAYS}, "
