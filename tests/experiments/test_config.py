@@ -196,6 +196,9 @@ def test_an_experiment_built_in_python_may_use_tuples_and_numpy():
     assert parse_experiment(doc(target_relmse=np.longdouble(0.5))).target_relmse == 0.5  # was no number
     with pytest.raises(ProbvisError, match=r"scenes\[0\].defines: parameter names must be non-empty strings, got 1"):
         parse_experiment(doc(scenes=[dict(MINIMAL["scenes"][0], defines={1: 2})]))
+    with pytest.raises(ProbvisError, match=r"scenes\[0\].defines.spp: the study sets every cell's spp \(spp at the "
+                                           r"top of the file"):  # it was silently overridden
+        parse_experiment(doc(scenes=[dict(MINIMAL["scenes"][0], defines={"spp": 100})]))
     for value in ({8}, None, object()):  # were rendered as their str(): '{8}', 'None', an address in the cache key
         with pytest.raises(ProbvisError, match=r"scenes\[0\].defines.res: expected a number, string or boolean"):
             parse_experiment(doc(scenes=[dict(MINIMAL["scenes"][0], defines={"res": value})]))

@@ -26,6 +26,7 @@ TOP_KEYS = {"name", "description", "spp", "shadow_rays", "seeds", "resolution", 
             "timing_repeats", "timing_seconds", "seconds",
             "reference", "scenes", "methods"}
 REFERENCE_KEYS = {"spp", "shadow_rays", "seed", "visibility"}
+STUDY_SETTINGS = {"spp": "spp", "shadow_rays": "shadow_rays", "seed": "seeds"}  # defines the study's settings win over
 SCENE_KEYS = {"name", "source", "defines", "reference", "reference_noise"}
 METHOD_KEYS = {"name", "visibility", "options", "baseline"}
 
@@ -163,6 +164,10 @@ def _scene(where, table, base):
             _fail(f"{where}.defines", f"parameter names must be non-empty strings, got {key!r}")
         if not isinstance(value, (str, int, float)):  # a bool is an int; a TOML date or an object is neither
             _fail(f"{where}.defines.{key}", f"expected a number, string or boolean, got {shown(value, repr)}")
+        if key in STUDY_SETTINGS:  # each cell's own, as --spp wins over -D spp: the define would change nothing
+            _fail(f"{where}.defines.{key}", f"the study sets every cell's {key} ({STUDY_SETTINGS[key]} at the top "
+                                            "of the file, and reference.* for the reference): a scene's define of "
+                                            "it would change nothing")
     reference = table.get("reference")
     if reference is not None:
         given = base / _str(f"{where}.reference", reference)
