@@ -32,6 +32,7 @@ class SceneArrays(NamedTuple):
     material_texture: np.ndarray  # (materials,) index into the `TextureArrays`, -1 for none
     tri_uv: np.ndarray  # (n, 3, 2) the corners' uv (a placeholder when no material has a texture)
     hide_emitters: bool  # emitters and the environment seen directly are black (Mitsuba's integrator option)
+    back_material: np.ndarray  # (materials,) the material seen from behind, -1 where it is the same
 
 
 def scene_arrays(scene):
@@ -40,7 +41,8 @@ def scene_arrays(scene):
     uv = scene.tri_uv if scene.tri_uv is not None else np.zeros((1, 3, 2))
     return SceneArrays(scene.triangles, scene.vertex_normals, unit_normals(scene.triangles), scene.tri_material,
                        scene.tri_emitter, scene.reflectance, scene.twosided, scene.emitter_radiance,
-                       scene.material_texture, uv, bool(scene.hide_emitters)), texture_arrays(scene.textures)
+                       scene.material_texture, uv, bool(scene.hide_emitters), scene.back_material), \
+        texture_arrays(scene.textures)
 
 
 class Interactions(NamedTuple):
@@ -88,6 +90,8 @@ def _surface(geom, tx, es, prim, b1, b2, dirs, first, end, out):
             if not twosided[m]:
                 continue
             sx, sy, sz = -sx, -sy, -sz
+            if geom.back_material[m] >= 0:  # a two-sided material with another seen from behind
+                m = geom.back_material[m]
         for k in range(3):
             pos[i, k] = c0 * triangles[tri, 0, k] + c1 * triangles[tri, 1, k] + c2 * triangles[tri, 2, k]
         nrm[i, 0], nrm[i, 1], nrm[i, 2] = sx, sy, sz

@@ -587,7 +587,8 @@ class _Reader:
 
     # --- plugins -----------------------------------------------------------------------------
     def bsdf(self, node):
-        """Returns (reflectance, twosided)."""
+        """Returns (reflectance, twosided, texture or None, back): `back` is None, or the (reflectance, texture)
+        seen from behind a `twosided` of two BSDFs."""
         if node.tag == "ref":
             return self.resolve(node, "bsdf")
         self.check_attrs(node, ("type", "id", "name"))
@@ -610,14 +611,14 @@ class _Reader:
                                   stacklevel=2)
             if texture is None and (np.any(refl < 0) or np.any(refl > 1)):
                 self.fail(node, "reflectance must be within [0, 1]")
-            out = (refl, False, texture)
+            out = (refl, False, texture, None)
         elif kind == "twosided":
             _, objs = self.params(node, {}, ("bsdf", "ref"))
-            if len(objs) != 1:
-                self.fail(node, f"twosided needs exactly one nested bsdf, got {len(objs)} (probvis renders the same "
-                                "bsdf on both sides: Mitsuba's front and back pair is not supported)")
-            inner, _, texture = self.bsdf(objs[0])
-            out = (inner, True, texture)
+            if len(objs) not in (1, 2):
+                self.fail(node, f"twosided takes one nested bsdf (both sides) or two (the front's, then the back's), "
+                                f"got {len(objs)}")
+            sides = [self.bsdf(ch) for ch in objs]  # a nested twosided shows its front, the way Mitsuba turns it
+            out = (sides[0][0], True, sides[0][2], (sides[1][0], sides[1][2]) if len(sides) == 2 else None)
         elif kind in _APPROXIMATED_BSDFS:
             colour = self.nearest_diffuse(node, kind)
             how = f"rendered as diffuse with reflectance {', '.join(f'{c:.3g}' for c in colour)}"
@@ -626,7 +627,7 @@ class _Reader:
                                                       "casts shadows where Mitsuba's lets light through", False)
             else:
                 self.approximate(node, f"bsdf '{kind}'", how)
-            out = (colour, kind in ("dielectric", "thindielectric", "roughdielectric"), None)
+            out = (colour, kind in ("dielectric", "thindielectric", "roughdielectric"), None, None)
         else:
             self.fail(node, f"unsupported bsdf type '{kind}' (supported: diffuse, twosided; approximated as diffuse: "
                             f"{', '.join(sorted(_APPROXIMATED_BSDFS))})")
@@ -1031,12 +1032,12 @@ class _Reader:
             else:
                 if material is not None:
                     self.fail(ch, "a shape can carry only one bsdf")
-                refl, two, texture = self.bsdf(ch)
-                if texture is not None and kind == "cube":
+                refl, two, texture, back = self.bsdf(ch)
+                if kind == "cube" and (texture is not None or (back is not None and back[1] is not None)):
                     self.approximate(ch, "texture on a 'cube'", "rendered as its mean colour (probvis gives a "
                                                                 "cube no uv)")
-                    texture = None
-                material = builder.material(refl, two, texture)
+                    texture, back = None, back and (back[0], None)  # a textured side's reflectance is its mean
+                material = builder.material(refl, two, texture, back)
         if material is None and radiance is not None:  # Mitsuba gives an emitter without a BSDF a black one
             material = builder.material(np.zeros(3))
         m = props.get("to_world", np.eye(4))

@@ -73,11 +73,16 @@ class Scene:
     material_texture: np.ndarray = None
     tri_uv: np.ndarray = None
     hide_emitters: bool = False  # the integrator's option: emitters seen directly by the camera are black
+    # (n_materials,) the material seen from behind, where a two-sided one has another there (Mitsuba's twosided
+    # with two BSDFs); -1 elsewhere
+    back_material: np.ndarray = None
 
     def __post_init__(self):
         e = len(self.emitter_radiance)
         if self.material_texture is None:
             self.material_texture = np.full(len(self.reflectance), -1, np.int32)
+        if self.back_material is None:
+            self.back_material = np.full(len(self.reflectance), -1, np.int32)
         if self.emitter_kind is None:
             self.emitter_kind = np.zeros(e, np.int8)
             self.emitter_position = np.zeros((e, 3))
@@ -145,6 +150,8 @@ class Scene:
                       + ((c.filter_b, c.filter_c) if c.rfilter == "mitchell" else ())).encode())
         if self.hide_emitters:
             h.update(b"hide_emitters")
+        if np.any(np.asarray(self.back_material) >= 0):
+            h.update(np.ascontiguousarray(self.back_material, np.int64).tobytes())
         return h.hexdigest()
 
     def validate(self):
@@ -176,7 +183,7 @@ class SceneBuilder:
         self.name, self.source = name, source
         self.inputs = ()
         self._tris, self._normals, self._mat, self._emit, self._uv = [], [], [], [], []
-        self._materials = {}  # (reflectance, twosided, texture index) -> id
+        self._materials = {}  # (reflectance, twosided, texture index, back material or -1) -> id
         self.textures = []
         self.emitter_radiance = []
         self.deltas = {}  # emitter id -> (kind, position, axis, cone) of point and spot emitters
@@ -186,15 +193,17 @@ class SceneBuilder:
         self._n = 0
         self.hide_emitters = False  # the integrator's option (`Scene.hide_emitters`)
 
-    def material(self, reflectance, twosided=False, texture=None):
-        """The id of a diffuse material: its `reflectance`, or a `Texture` (reflectance then its mean)."""
+    def material(self, reflectance, twosided=False, texture=None, back=None):
+        """The id of a diffuse material: its `reflectance`, or a `Texture` (reflectance then its mean); `back`, a
+        (reflectance, texture) pair, is another material seen from behind (two-sided)."""
+        back_id = -1 if back is None else self.material(back[0], True, back[1])
         t = -1
         if texture is not None:
             t = next((k for k, x in enumerate(self.textures) if x.same_as(texture)), len(self.textures))
             if t == len(self.textures):
                 self.textures.append(texture)
             reflectance = texture.mean()
-        key = (tuple(float(x) for x in np.broadcast_to(reflectance, 3)), bool(twosided), t)
+        key = (tuple(float(x) for x in np.broadcast_to(reflectance, 3)), bool(twosided or back is not None), t, back_id)
         if key not in self._materials:
             self._materials[key] = len(self._materials)
         return self._materials[key]
@@ -311,6 +320,7 @@ class SceneBuilder:
             kind[k], position[k], axis[k], cone[k] = kd, pos, ax, cn
         mats = sorted(self._materials.items(), key=lambda kv: kv[1])
         material_texture = np.array([k[2] for k, _ in mats], np.int32)
+        back_material = np.array([k[3] for k, _ in mats], np.int32)
         scene = Scene(
             triangles=_joined(self._tris),
             vertex_normals=_joined(self._normals),
@@ -323,6 +333,7 @@ class SceneBuilder:
             environment=self.environment,
             textures=self.textures,
             material_texture=material_texture,
+            back_material=back_material,
             tri_uv=_joined(self._uv) if self.textures else None,
             camera=camera,
             defaults=defaults.validate(),

@@ -56,13 +56,15 @@ def check_scene(scene):
     for name, shape, kinds in (("triangles", (n, 3, 3), "f"), ("vertex_normals", (n, 3, 3), "f"),
                                ("tri_material", (n,), "iu"), ("tri_emitter", (n,), "iu"),
                                ("reflectance", (m, 3), "f"), ("twosided", (m,), "b"),
-                               ("material_texture", (m,), "iu"), ("emitter_radiance", (e, 3), "f"),
+                               ("material_texture", (m,), "iu"), ("back_material", (m,), "iu"),
+                               ("emitter_radiance", (e, 3), "f"),
                                ("emitter_kind", (e,), "iu"), ("emitter_position", (e, 3), "f"),
                                ("emitter_axis", (e, 3), "f"), ("emitter_cone", (e, 4), "f"),
                                *((("tri_uv", (n, 3, 2), "f"),) if scene.tri_uv is not None else ())):
         a = getattr(scene, name)
         base, row = (("emitter_radiance", "emitter") if name.startswith("emitter") else
-                     ("reflectance", "material") if name in ("reflectance", "twosided", "material_texture") else
+                     ("reflectance", "material") if name in ("reflectance", "twosided", "material_texture",
+                                                             "back_material") else
                      ("triangles", "triangle"))
         if (isinstance(a, np.ndarray) and a.ndim == len(shape) and a.shape[1:] == shape[1:] and a.shape[0] != shape[0]
                 and name != base):  # one of a family of arrays changed alone
@@ -90,6 +92,8 @@ def check_scene(scene):
             and scene.material_texture.max(initial=-1) < len(scene.textures)):
         raise ProbvisError("scene.emitter_kind must hold EMITTER_* kinds and scene.material_texture index "
                            "scene.textures (-1: none)")
+    if not (scene.back_material.min(initial=-1) >= -1 and scene.back_material.max(initial=-1) < m):
+        raise ProbvisError("scene.back_material must index scene.reflectance (-1: the same material from behind)")
     if scene.textures and scene.tri_uv is None:
         raise ProbvisError("scene.tri_uv must hold the corners' uv of a scene with textures")
     if scene.tri_uv is not None and not np.all(np.abs(scene.tri_uv) <= MAX_UV):
