@@ -961,8 +961,9 @@ class _Reader:
                 self.fail(node, "envmap needs a 'filename'")
             path = self.input_file(node, props["filename"])
             image = self.image(node, path)
-            if image.shape[1] < 2 or image.shape[0] < 3:
-                self.fail(node, f"{path}: the environment map resolution must be at least 2x3 pixels")
+            h, w = image.shape[:2]
+            if w < 2 or h < 3:  # as Mitsuba pads a smaller map: its last row and column repeated to 2 x 3
+                image = image[np.minimum(np.arange(max(h, 3)), h - 1)][:, np.minimum(np.arange(max(w, 2)), w - 1)]
             if not (np.all(np.isfinite(image)) and image.min() >= 0.0 and image.max() <= MAX_EMISSION):
                 self.fail(node, f"{path}: the environment map's values must be finite, non-negative and at most "
                                 f"{MAX_EMISSION:g} (they range from {np.nanmin(image):g} to {np.nanmax(image):g})")
