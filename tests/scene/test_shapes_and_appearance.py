@@ -263,12 +263,12 @@ def test_a_single_value_spectrum_is_flat_emission_or_grey_reflectance_as_in_mits
 def test_vertex_normals_weigh_faces_by_their_angle_at_the_vertex():
     """Where a mesh has no normals: at a vertex, the unit sum of its faces' normals times their corner angles
     (here 90° in the z = 0 plane and 45° in the x = 0 plane); a vertex without faces gets zero."""
-    from probvis.scene.scene import _angle_weighted_normals
+    from probvis.scene.mesh_geometry import angle_weighted_normals
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 1, 1], [5, 5, 5]], float)
     f = np.array([[0, 1, 2], [0, 3, 2]])
     fn = np.array([[0, 0, 1.0], [1.0, 0, 0]])
-    n = _angle_weighted_normals(v, f, fn)
+    n = angle_weighted_normals(v, f, fn)
     want = np.pi / 2 * fn[0] + np.pi / 4 * fn[1]
     np.testing.assert_allclose(n[0], want / np.linalg.norm(want), rtol=1e-12)
     np.testing.assert_allclose(n[1], fn[0], rtol=1e-12)

@@ -222,8 +222,7 @@ _PILLOW_MODES = {"1": "L", "CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "
 
 def read_linear_rgb(path, raw=False):
     """An image file as linear RGB (h, w, 3) float64, as Mitsuba's bitmap loader gives it: EXR, HDR and PFM as
-    stored, PNG, JPEG, BMP, TGA and PPM decoded from sRGB (unless `raw`); grey images are repeated over the
-    channels and alpha dropped.
+    stored, `_PILLOW_FORMATS` decoded from sRGB (unless `raw`); grey repeated over the channels, alpha dropped.
     Raises `ProbvisError` naming the file when it is missing or unreadable."""
     path = Path(path)
     if not path.exists():
