@@ -88,13 +88,13 @@ class Integrator:
     def __init__(self, scene, bvh, emitters, filter_importance=False):
         self.scene, self.bvh, self.emitters = scene, bvh, emitters
         self.camera = camera_params(scene.camera, filter_importance)
-        self.scene_arrays, self.textures = scene_arrays(scene)
+        self.scene_arrays, self.surface = scene_arrays(scene)
 
     def shading_batch(self, pixels, spp, shadow_rays, seed):
         """The `ShadingBatch` of image pixels `pixels` (row-major, int64), every case unknown."""
         org, dirs, tmin, tmax, keys, film_xy = camera_rays(self.camera, spp, seed, pixels)
         prim, _, b1, b2, cam_node, cam_tri = nearest_hits(self.bvh, org, dirs, tmin, tmax)
-        its = surface_interactions(self.scene_arrays, self.textures, self.emitters.arrays, prim, b1, b2, dirs)
+        its = surface_interactions(self.scene_arrays, self.surface, self.emitters.arrays, prim, b1, b2, dirs)
         cases = np.full((len(prim), self.scene.n_emitters), CASE_UNKNOWN, np.int8)
         return ShadingBatch(pixels, spp, shadow_rays, prim, its.emitted, its.position, its.normal, its.material,
                             its.albedo, cases, keys, cam_node, cam_tri, film_xy)

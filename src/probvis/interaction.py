@@ -15,7 +15,7 @@ from numba import njit
 from .environment import environment_radiance
 from .geometry import unit_normals
 from .parallel import over_threads
-from .texture import texture_arrays, texture_value
+from .texture import TextureArrays, texture_arrays, texture_value
 
 
 class SceneArrays(NamedTuple):
@@ -31,18 +31,25 @@ class SceneArrays(NamedTuple):
     emitter_radiance: np.ndarray  # (emitters, 3)
     material_texture: np.ndarray  # (materials,) index into the `TextureArrays`, -1 for none
     tri_uv: np.ndarray  # (n, 3, 2) the corners' uv (a placeholder when no material has a texture)
-    hide_emitters: bool  # emitters and the environment seen directly are black (Mitsuba's integrator option)
+
+
+class SurfaceArrays(NamedTuple):
+    """What the surface interaction alone reads besides the `SceneArrays`: how the surface looks (its textures,
+    the material seen from behind) and whether the emitters it sees directly are hidden."""
+
+    textures: TextureArrays
     back_material: np.ndarray  # (materials,) the material seen from behind, -1 where it is the same
+    hide_emitters: bool  # emitters and the environment seen directly are black (Mitsuba's integrator option)
 
 
 def scene_arrays(scene):
     """The `SceneArrays` of a `Scene` (unit face normals computed here, once per render) and its
-    `TextureArrays`."""
+    `SurfaceArrays`."""
     uv = scene.tri_uv if scene.tri_uv is not None else np.zeros((1, 3, 2))
     return SceneArrays(scene.triangles, scene.vertex_normals, unit_normals(scene.triangles), scene.tri_material,
                        scene.tri_emitter, scene.reflectance, scene.twosided, scene.emitter_radiance,
-                       scene.material_texture, uv, bool(scene.hide_emitters), scene.back_material), \
-        texture_arrays(scene.textures)
+                       scene.material_texture, uv), \
+        SurfaceArrays(texture_arrays(scene.textures), scene.back_material, bool(scene.hide_emitters))
 
 
 class Interactions(NamedTuple):
@@ -58,14 +65,14 @@ class Interactions(NamedTuple):
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def _surface(geom, tx, es, prim, b1, b2, dirs, first, end, out):
+def _surface(geom, sf, es, prim, b1, b2, dirs, first, end, out):
     """Interactions first..end-1 into `out`, the zeroed (emitted, position, normal, material, albedo) arrays
     (serial, without Numba's allocator and reference counts: `surface_interactions` runs it over the threads)."""
     triangles, vnormals, tri_mat, tri_emit = geom.triangles, geom.vertex_normals, geom.tri_material, geom.tri_emitter
     twosided, radiance = geom.twosided, geom.emitter_radiance
     emitted, pos, nrm, mat, albedo = out
     scale = es.env_scale
-    sky = (scale[0] != 0.0 or scale[1] != 0.0 or scale[2] != 0.0) and not geom.hide_emitters
+    sky = (scale[0] != 0.0 or scale[1] != 0.0 or scale[2] != 0.0) and not sf.hide_emitters
     for i in range(first, end):
         tri = prim[i]
         if tri < 0:
@@ -82,7 +89,7 @@ def _surface(geom, tx, es, prim, b1, b2, dirs, first, end, out):
         sx, sy, sz = sx * inv, sy * inv, sz * inv
         cos_i = -(sx * dirs[i, 0] + sy * dirs[i, 1] + sz * dirs[i, 2])
         em = tri_emit[tri]
-        if em >= 0 and cos_i > 0.0 and not geom.hide_emitters:
+        if em >= 0 and cos_i > 0.0 and not sf.hide_emitters:
             for k in range(3):
                 emitted[i, k] = radiance[em, k]
         m = tri_mat[tri]
@@ -90,8 +97,8 @@ def _surface(geom, tx, es, prim, b1, b2, dirs, first, end, out):
             if not twosided[m]:
                 continue
             sx, sy, sz = -sx, -sy, -sz
-            if geom.back_material[m] >= 0:  # a two-sided material with another seen from behind
-                m = geom.back_material[m]
+            if sf.back_material[m] >= 0:  # a two-sided material with another seen from behind
+                m = sf.back_material[m]
         for k in range(3):
             pos[i, k] = c0 * triangles[tri, 0, k] + c1 * triangles[tri, 1, k] + c2 * triangles[tri, 2, k]
         nrm[i, 0], nrm[i, 1], nrm[i, 2] = sx, sy, sz
@@ -104,13 +111,13 @@ def _surface(geom, tx, es, prim, b1, b2, dirs, first, end, out):
             uv = geom.tri_uv
             u = c0 * uv[tri, 0, 0] + c1 * uv[tri, 1, 0] + c2 * uv[tri, 2, 0]
             v = c0 * uv[tri, 0, 1] + c1 * uv[tri, 1, 1] + c2 * uv[tri, 2, 1]
-            albedo[i, 0], albedo[i, 1], albedo[i, 2] = texture_value(tx, t, u, v)
+            albedo[i, 0], albedo[i, 1], albedo[i, 2] = texture_value(sf.textures, t, u, v)
 
 
-def surface_interactions(geom, textures, es, prim, b1, b2, dirs):
+def surface_interactions(geom, surface, es, prim, b1, b2, dirs):
     """`Interactions` of camera rays with directions `dirs` that hit triangles `prim` (-1: a miss) at barycentrics
-    (b1, b2); `textures` are the scene's `TextureArrays`, `es` its `EmitterArrays` (for the environment)."""
+    (b1, b2); `surface` is the scene's `SurfaceArrays`, `es` its `EmitterArrays` (for the environment)."""
     n = len(prim)
     out = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.full(n, -1, np.int32), np.zeros((n, 3)))
-    over_threads(lambda _, first, end: _surface(geom, textures, es, prim, b1, b2, dirs, first, end, out), n)
+    over_threads(lambda _, first, end: _surface(geom, surface, es, prim, b1, b2, dirs, first, end, out), n)
     return Interactions(prim, *out)
