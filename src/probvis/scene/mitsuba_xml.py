@@ -1307,7 +1307,7 @@ class _Reader:
             if not (abs(b) <= MAX_CUBIC_PARAMETER and abs(c) <= MAX_CUBIC_PARAMETER):
                 self.fail(node, f"a mitchell filter's B and C must be within ±{MAX_CUBIC_PARAMETER:g}, got {b:g} and "
                                 f"{c:g} (1/3 each by default)")
-            return {"rfilter": kind, "filter_b": b, "filter_c": c}
+            return {"rfilter": kind, "filter_b": b, "filter_c": c} if kind == "mitchell" else {"rfilter": kind}
         if kind == "lanczos":
             props, _ = self.params(node, {"lobes": ("integer",)})
             lobes = props.get("lobes", 3)
