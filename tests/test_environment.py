@@ -211,6 +211,10 @@ def test_hidden_emitters_are_black_where_seen_as_in_mitsuba(tmp_path):
     shown = probvis.render(write_scene(tmp_path / "s.xml", head.replace(hide, "") + body,
                                        '<default name="spp" value="16"/>'), spp=4).image
     assert image.max() < 2.0 < shown.max()  # the light itself (radiance 8) is seen only when shown
+    lit = body.replace('<emitter type="area">', '<bsdf type="diffuse"/><emitter type="area">')
+    assert lit != body  # the emitter with a BSDF of its own, which the sky lights: Mitsuba 3.9 hides it whole
+    assert_matches_mitsuba(write_scene(tmp_path / "b.xml", head + lit, '<default name="spp" value="16"/>'),
+                           shadow_rays=4)
     assert image[0, 0].max() == 0.0 < shown[0, 0].min()  # the sky in the top corner
     as_path = re.sub(r'<integrator.*?</integrator>', f'<integrator type="path">{hide}</integrator>', head, flags=re.S)
     with warnings.catch_warnings():

@@ -89,7 +89,9 @@ def _surface(geom, sf, es, prim, b1, b2, dirs, first, end, out):
         sx, sy, sz = sx * inv, sy * inv, sz * inv
         cos_i = -(sx * dirs[i, 0] + sy * dirs[i, 1] + sz * dirs[i, 2])
         em = tri_emit[tri]
-        if em >= 0 and cos_i > 0.0 and not sf.hide_emitters:
+        if em >= 0 and sf.hide_emitters:  # as Mitsuba 3.9: an emitting shape seen directly is black whole, from
+            continue  # either side, what it reflects included
+        if em >= 0 and cos_i > 0.0:
             for k in range(3):
                 emitted[i, k] = radiance[em, k]
         m = tri_mat[tri]

@@ -131,12 +131,14 @@ def test_a_negative_sphere_radius_turns_it_inside_out_as_in_mitsuba(tmp_path):
     ("0,1.5,0", "0,-1,0", [[0, 1, 0, 0], [0, 0, -1, 1.5], [-1, 0, 0, 0]]),
     ("1,2,3", "0,0,0", [[-0.0793, 0.9604, -0.2673, 1], [0.8414, -0.0793, -0.5345, 2], [-0.5345, -0.2673, -0.8018, 3]]),
 ])
-def test_a_lookat_without_up_is_turned_as_mitsuba_turns_it(tmp_path, origin, target, mitsuba):
-    """Without `up`, Mitsuba's parser takes the first vector of the view direction's coordinate system; probvis
-    took +y: another roll of the camera, and a light looking straight down was refused as parallel to +y."""
+@pytest.mark.parametrize("up", ["", ' up="0, 0, 0"'])
+def test_a_lookat_without_up_is_turned_as_mitsuba_turns_it(tmp_path, origin, target, mitsuba, up):
+    """Without `up` (or with a zero one), Mitsuba's parser takes the first vector of the view direction's
+    coordinate system; probvis took +y: another roll of the camera, and a light looking straight down was refused
+    as parallel to +y (a zero `up` was refused)."""
     body = sensor().replace('<lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/>',
-                            f'<lookat origin="{origin}" target="{target}"/>')
-    assert "up=" not in body.split("<sampler")[0]
+                            f'<lookat origin="{origin}" target="{target}"{up}/>')
+    assert f'target="{target}"{up}/>' in body
     spot = (f"<emitter type='spot'><transform name='to_world'><lookat origin='{origin}' target='{target}'/>"
             "</transform></emitter><shape type='rectangle'/>")
     scene = probvis.load_scene(write_scene(tmp_path / "s.xml", body + spot))
@@ -177,7 +179,9 @@ def test_what_mitsuba_accepts_and_does_not_change_the_image_is_accepted(tmp_path
      "value='x.png'/></texture></emitter></shape>", "<texture>: an emitter's radiance given as a texture is not "
                                                     "supported by probvis: give an <rgb> or <spectrum>"),
     ("<emitter type='point'><float name='sampling_weight' value='-1'/></emitter>",
-     "<float>: sampling_weight must be from 0 to 1e+30, got -1"),
+     "<float>: sampling_weight must be above 0 and at most 1e+30, got -1"),
+    ("<emitter type='point'><float name='sampling_weight' value='0'/></emitter>",
+     "got 0 (at 0 Mitsuba never samples the emitter: remove it, or give a positive weight)"),
 ])
 def test_emitter_parameters_probvis_does_not_take_are_named(tmp_path, body, message):
     with pytest.raises(ProbvisError, match=re.escape(message)):
@@ -695,6 +699,8 @@ def test_a_second_film_is_refused(tmp_path):
     (('name="emitter_samples" value="4"', 'name="emitter_samples" value="4"/><integer name="shading_samples" '
                                           'value="2"'),
      "<integer>: give either shading_samples or emitter_samples and bsdf_samples, not both"),
+    (('<float name="fov"', '<float name="shutter_open" value="0.5"/><float name="fov"'),
+     "<float>: shutter_open must not be after shutter_close (as Mitsuba requires"),
     (('name="emitter_samples" value="4"', 'name="emitter_samples" value="0"'),
      "<integer>: emitter_samples must be from 1 to 65536, got 0 (probvis samples emitters only)"),
 ])

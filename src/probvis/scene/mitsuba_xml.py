@@ -579,9 +579,10 @@ class _Reader:
         the expected image. probvis samples emitters by power, so it is checked and left aside, with a warning."""
         if "sampling_weight" in props:
             w = props["sampling_weight"]
-            if not 0 <= w <= MAX_EMISSION:
-                self.fail(_by_name(node)["sampling_weight"], f"sampling_weight must be from 0 to {MAX_EMISSION:g}, "
-                                                             f"got {w:g}")
+            if not 0 < w <= MAX_EMISSION:  # 0: Mitsuba never samples it, and its light is missing from shading
+                self.fail(_by_name(node)["sampling_weight"], f"sampling_weight must be above 0 and at most "
+                                                             f"{MAX_EMISSION:g}, got {w:g} (at 0 Mitsuba never samples "
+                                                             "the emitter: remove it, or give a positive weight)")
             warnings.warn(f"{self.where(node)}: sampling_weight ignored: probvis samples emitters by their power "
                           "(the same expected image)", stacklevel=2)
 
@@ -1152,6 +1153,9 @@ class _Reader:
         else:
             allowed.update(aperture_radius=("float",), focus_distance=("float",))
         props, objs = self.params(node, allowed, ("sampler", "film"))
+        if props.get("shutter_open", 0.0) > props.get("shutter_close", 0.0):  # Mitsuba's defaults: both 0
+            self.fail(_by_name(node)["shutter_open"], "shutter_open must not be after shutter_close (as Mitsuba "
+                                                      "requires; nothing moves in a probvis scene, so neither matters)")
         if "srf" in props:
             if np.any(np.asarray(props["srf"]) < 0):
                 self.fail(node, "the sensor's srf (spectral response) must not be negative")
@@ -1331,9 +1335,9 @@ class _Reader:
                             f"samples would reach a pixel centre and count (use at least "
                             f"{MIN_FILTER_REACH if kind == 'tent' else MIN_FILTER_REACH / 4:g}, or a box filter)")
         if counted < 1.0:  # as in Mitsuba: the image divides by the weights the samples that count bring
-            warnings.warn(f"{self.where(node)}: {kind} {name} {value:g} reaches {reach:g} pixels: {counted:.1%} of the "
-                          "camera samples reach a pixel centre and count (as in Mitsuba), so the image is noisier "
-                          "than a box filter's", stacklevel=2)
+            warnings.warn(f"{self.where(node)}: {kind} {name} {value:g} reaches {reach:g} pixels: splatted, {counted:.1%} "
+                          "of the camera samples reach a pixel centre and count (as in Mitsuba), so the image is "
+                          "noisier than a box filter's", stacklevel=2)
         return {"rfilter": kind, field_name: value}
 
     def integrator(self, node):

@@ -41,15 +41,15 @@ def coordinate_system(z):
 
 def look_at(origin, target, up=None):
     """Camera-to-world matrix: local +z looks at `target`, +y is `up`, +x is left (Mitsuba's convention). Without
-    `up`, Mitsuba's parser takes the first vector of `coordinate_system` of the view direction."""
+    `up`, or with a zero one, Mitsuba's parser takes the first vector of `coordinate_system` of the view direction."""
     o = np.asarray(origin, dtype=np.float64)
     d = np.asarray(target, dtype=np.float64) - o
     if np.linalg.norm(d) == 0.0:
         raise ValueError("lookat origin and target coincide")
     d /= np.linalg.norm(d)
-    up = coordinate_system(d)[0] if up is None else tamed(up)  # the direction is what counts: 1e300 must not overflow
-    if not np.abs(up).max() > 0.0:
-        raise ValueError("lookat 'up' is the zero vector")
+    if up is None or not np.abs(np.asarray(up, dtype=np.float64)).max() > 0.0:  # no up, or a zero one: Mitsuba's
+        up = coordinate_system(d)[0]
+    up = tamed(up)  # the direction is what counts: 1e300 must not overflow
     left = np.cross(up, d)
     if np.linalg.norm(left) < 1e-12 * np.linalg.norm(up):  # the sine of their angle: a short `up` is as good
         raise ValueError("lookat 'up' is parallel to the viewing direction")
