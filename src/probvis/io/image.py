@@ -217,6 +217,7 @@ def _hdr_size(path):
 # Pillow modes read as another: 1-bit as 8-bit grey, CMYK and other colour spaces as RGB (their fourth channel
 # is not alpha)
 _PILLOW_FORMATS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".ppm")  # 8 or 16 bits, sRGB-encoded, as Mitsuba reads them
+READ_FORMATS = (".exr", ".hdr", ".pfm", *_PILLOW_FORMATS)  # what `read_linear_rgb` reads
 _PILLOW_MODES = {"1": "L", "CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB"}
 
 
@@ -291,8 +292,7 @@ def read_linear_rgb(path, raw=False):
         img = data.astype(np.float64) / np.iinfo(data.dtype).max
         img = img if raw else srgb_to_linear(img)
     else:
-        raise ProbvisError(f"{path}: unsupported image format '{ext}' (supported: .exr, .hdr, .pfm, "
-                           f"{', '.join(_PILLOW_FORMATS)})")
+        raise ProbvisError(f"{path}: unsupported image format '{ext}' (supported: {', '.join(READ_FORMATS)})")
     img = np.asarray(img, dtype=np.float64)
     if img.ndim == 2:
         img = img[..., None]

@@ -5,6 +5,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import ProbvisError, checked_call, is_flag, is_path
+from ..io.image import READ_FORMATS
 from .builtin import BUILTINS, builtin_scene
 from .mitsuba_xml import read_scene
 from .scene import Scene, SceneBuilder, ShapeInfo
@@ -62,7 +63,7 @@ def open_scene(path, defines, strict=False):
     if kind in ("obj", "ply", "serialized"):  # was "malformed XML: syntax error"
         raise ProbvisError(f"{p} is a mesh, not a scene: a scene is a Mitsuba XML file that places it (a <shape "
                            f"type=\"{kind}\">, with a sensor and an emitter), or a built-in scene")
-    if kind in ("exr", "png", "jpg", "jpeg", "hdr", "pfm", "bmp", "tga", "ppm"):
+    if p.suffix.lower() in READ_FORMATS:
         raise ProbvisError(f"{p} is an image, not a scene: a scene is a Mitsuba XML file (an image can be its "
                            "envmap's or a bitmap texture's filename), or a built-in scene")
     if kind == "toml":
