@@ -344,3 +344,18 @@ def test_a_huge_value_quoted_in_an_error_keeps_the_line_readable(tmp_path, capsy
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and len(err) < 2200
     assert err.startswith(f"probvis: error: {path}:") and "characters ...]" in err and err.rstrip().endswith(")")
+
+
+def test_the_command_skips_numba_s_blas_probe_and_nothing_else():
+    """The console command's import hook keeps Numba's start-up BLAS probe from loading scipy.linalg (0.13 s of
+    every start); scipy.linalg imported afterwards loads, and a kernel's linear algebra still finds BLAS."""
+    code = ("import sys\n"
+            "from probvis import __main__ as entry\n"
+            "sys.meta_path.insert(0, entry._NoBlasProbe())\n"
+            "import numba.np.arraymath as am\n"
+            "print(am._HAVE_BLAS, 'scipy.linalg' in sys.modules)\n"
+            "import scipy.linalg\n"
+            "import numba, numpy as np\n"
+            "print(float(numba.njit(lambda a: np.dot(a, a))(np.arange(3.0))))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", "False", "5.0"]

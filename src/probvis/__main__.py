@@ -142,7 +142,23 @@ def _openmp_complaint():
     return None
 
 
+class _NoBlasProbe:
+    """An import hook of the command's own process. Numba's NumPy support, as it loads at the first kernel call,
+    imports scipy.linalg only to learn whether np.convolve and np.correlate may call BLAS (`numba.np.arraymath`):
+    0.13 s of every start, for functions no probvis kernel uses. That one import is refused (the probe then
+    answers no BLAS); scipy.linalg imported for any other reason, or by a kernel that does linear algebra
+    (`numba.np.linalg` imports it as it compiles one), loads as usual."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name == "scipy.linalg":
+            probing = sys.modules.get("numba.np.arraymath")
+            if probing is not None and getattr(probing.__spec__, "_initializing", False):
+                raise ImportError("scipy.linalg is not loaded for Numba's start-up BLAS probe")
+        return None
+
+
 def main():
+    sys.meta_path.insert(0, _NoBlasProbe())
     if sys.stderr is None:  # closed (`2>&-`): the command goes on, its messages go nowhere (a closed standard
         sys.stderr = open(os.devnull, "w")  # output is the command's to report, on stderr)
     previous = {s: signal.signal(s, _terminate) for s in stop_signals()}
