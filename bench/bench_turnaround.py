@@ -3,9 +3,9 @@
 
 For each shared scene at its defaults (256x256, the file's samples), `probvis render SCENE -o out.exr` and
 `mitsuba -m llvm_ad_rgb SCENE -o out.exr` alternate as child processes, caches warm (one untimed run of each
-first: Numba's and Dr.Jit's kernel caches, the OS's file cache). Per process: wall seconds and peak resident
-memory (the child's own, from `wait4`); for probvis also its phases from `--stats`. Medians over the runs and
-their ratio. Mitsuba's llvm variant needs libLLVM >= 16 (Debian's libllvm19): DRJIT_LIBLLVM_PATH is set to it
+first: Python's bytecode, Numba's and Dr.Jit's kernel caches, the OS's file cache). Per process: wall seconds
+and peak resident memory (the child's own, from `wait4`); for probvis also its phases from `--stats`. Medians
+over the runs and their ratio. Mitsuba's llvm variant needs libLLVM >= 16 (Debian's libllvm19): DRJIT_LIBLLVM_PATH is set to it
 when found. Needs ../shared beside the repository.
 """
 import argparse
@@ -42,6 +42,9 @@ def main():
     ap.add_argument("--runs", type=int, default=5)
     args = ap.parse_args()
     env = dict(os.environ)
+    # Python's bytecode cache is one of the warm caches: `pip install` writes it, so an installed probvis never
+    # compiles its modules at start; a checkout under PYTHONDONTWRITEBYTECODE would, 0.1 s per process
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
     if "DRJIT_LIBLLVM_PATH" not in env:
         env.update({"DRJIT_LIBLLVM_PATH": p for p in LLVM if Path(p).exists()})
     tmp = Path(tempfile.mkdtemp(prefix="turnaround-"))
