@@ -2,9 +2,10 @@
 
 One mesh in file order (grouping and material statements ignored), polygons split into fans around their first
 corner, and where faces name texture coordinates or normals a vertex per distinct (position, uv, normal) index
-triple, numbered in order of first use. The statements are gathered by regular expressions and their numbers
-parsed in one call each; faces whose corners are not all of one form, or that count back (negative indices),
-are read statement by statement. A file it cannot read returns None: the caller names the line.
+triple, numbered in order of first use. The statements are told apart by their lines' first bytes (by regular
+expressions where a statement is indented or carries a comment) and their numbers parsed in one call each;
+faces whose corners are not all of one form, or that count back (negative indices), are read statement by
+statement. A file it cannot read returns None: the caller names the line.
 """
 import re
 
@@ -14,6 +15,41 @@ _BARE = re.compile(rb"(?m)^[ \t]*(?:v|vt|vn|f)[ \t]*(?:#[^\r\n]*)?\r?$")  # a st
 _STATEMENT = {kind: re.compile(rb"(?m)^[ \t]*" + kind + rb"[ \t]+([^\r\n#]*)") for kind in (b"v", b"vt", b"vn", b"f")}
 _WHITESPACE = np.zeros(256, bool)
 _WHITESPACE[[9, 10, 13, 32]] = True
+_BLANK = np.zeros(256, bool)  # the separator after a statement's keyword
+_BLANK[[9, 32]] = True
+
+
+_KINDS = (b"v", b"vt", b"vn", b"f")
+
+
+def _statements(data):
+    """Per kind (v, vt, vn, f) the bodies of its statements in file order, as `_STATEMENT` finds them, and
+    whether a statement has no numbers (`_BARE`). Where no line is indented and no statement carries a comment
+    or a lone carriage return, a line's kind is read off its first three bytes, for all lines at once (a large
+    mesh's four expressions took 60 ms, the bare-statement search 23 ms); otherwise the expressions run."""
+    data = data.replace(b"\r\n", b"\n")
+    text = np.frombuffer(data, np.uint8)
+    ends = np.flatnonzero(text == 10)
+    starts = np.concatenate([[0], ends + 1])
+    head = np.concatenate([text, np.zeros(3, np.uint8)])  # a line's first three bytes, past its end if short
+    b0, b1, b2 = head[starts], head[starts + 1], head[starts + 2]
+    kind = np.full(len(starts), -1, np.int8)
+    kind[(b0 == ord("v")) & _BLANK[b1]] = 0
+    kind[(b0 == ord("v")) & (b1 == ord("t")) & _BLANK[b2]] = 1
+    kind[(b0 == ord("v")) & (b1 == ord("n")) & _BLANK[b2]] = 2
+    kind[(b0 == ord("f")) & _BLANK[b1]] = 3
+    commented = kind[np.searchsorted(ends, np.flatnonzero(text == ord("#")))] >= 0
+    if _BLANK[b0].any() or commented.any() or b"\r" in data:
+        bodies = {name.decode(): _STATEMENT[name].findall(data) for name in _KINDS}
+        return bodies, _BARE.search(data) is not None
+    lines = data.split(b"\n")
+    others = np.flatnonzero((kind < 0) & ((b0 == ord("v")) | (b0 == ord("f"))))  # a bare `v` or `f`, or `vp`
+    bare = any(_BARE.match(lines[i]) for i in others)
+    bodies = {}
+    for k, name in enumerate(_KINDS):
+        skip = len(name) + 1
+        bodies[name.decode()] = [lines[i][skip:] for i in np.flatnonzero(kind == k).tolist()]
+    return bodies, bare
 
 
 def _tokens_per_line(bodies):
@@ -123,11 +159,11 @@ def read_obj(data):
     coordinate without v has v = 0; corners without uv get (0, 0); normals are kept only where every corner
     has one (else computed from the faces)."""
     data = data.removeprefix(b"\xef\xbb\xbf")  # a byte-order mark (Windows editors) would hide the first line
-    bodies = {kind.decode(): _STATEMENT[kind].findall(data) for kind in _STATEMENT}
+    bodies, bare = _statements(data)
     v = _numbers(bodies["v"], np.float64, 3)
     vt = _numbers(bodies["vt"], np.float64, 2, minimum=1)
     vn = _numbers(bodies["vn"], np.float64, 3)
-    if v is None or vt is None or vn is None or not bodies["f"] or _BARE.search(data):
+    if v is None or vt is None or vn is None or not bodies["f"] or bare:
         return None
     read = _uniform_corners(bodies["f"])
     if read is None or read[0].min() < 0:
