@@ -477,7 +477,24 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
     ("<emitter type='spot'><transform name='to_world'><scale value='0'/></transform></emitter>",
      "<emitter>: the spot light's to_world is singular"),
     ("<shape type='rectangle'><bsdf type='dielectric'><float name='int_ior' value='-1.5'/></bsdf></shape>",
-     "<bsdf>: int_ior and ext_ior must be positive (got -1.5 and 1.00028)"),
+     "<float>: int_ior of a dielectric bsdf must be positive, got -1.5"),
+    ("<shape type='rectangle'><bsdf type='plastic'><float name='int_ior' value='-1'/></bsdf></shape>",
+     "<float>: int_ior of a plastic bsdf must be positive, got -1"),
+    ("<shape type='rectangle'><bsdf type='roughplastic'><float name='ext_ior' value='0'/></bsdf></shape>",
+     "<float>: ext_ior of a roughplastic bsdf must be positive, got 0"),
+    ("<shape type='rectangle'><bsdf type='roughplastic'><string name='int_ior' value='kryptonite'/></bsdf></shape>",
+     "<string>: unknown material 'kryptonite' for int_ior"),
+    ("<shape type='rectangle'><bsdf type='principled'><float name='eta' value='-1'/></bsdf></shape>",
+     "<float>: eta of a principled bsdf must be positive (Mitsuba renders it as NaN), got -1"),
+    ("<shape type='rectangle'><bsdf type='roughplastic'><rgb name='diffuse_reflectance' value='0.2, 0.9, 1.7'/>"
+     "</bsdf></shape>", "<rgb>: 'diffuse_reflectance' of a roughplastic bsdf is a reflectance: an <rgb> must be "
+                        "within [0, 1], got 0.2, 0.9, 1.7"),
+    ("<shape type='rectangle'><bsdf type='principled'><rgb name='base_color' value='2'/></bsdf></shape>",
+     "<rgb>: 'base_color' of a principled bsdf is a reflectance"),
+    ("<shape type='rectangle'><bsdf type='conductor'><rgb name='specular_reflectance' value='2'/></bsdf></shape>",
+     "<rgb>: 'specular_reflectance' of a conductor bsdf is a reflectance"),
+    ("<shape type='rectangle'><bsdf type='plastic'><rgb name='specular_reflectance' value='-0.1'/></bsdf></shape>",
+     "<rgb>: 'specular_reflectance' of a plastic bsdf is a reflectance"),
     ("<shape type='rectangle'><bsdf type='diffuse'><spectrum name='reflectance' value='400:5, 700:5'/></bsdf>"
      "</shape>", "<spectrum>: reflectance must be within [0, 1] at every wavelength"),
     ("<shape type='rectangle'><bsdf type='diffuse'><texture type='checkerboard' name='reflectance'>"
@@ -519,7 +536,7 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
     ("<shape type='cylinder'><point name='p1' x='0' y='1e200' z='0'/></shape>",  # 'inf apart: move them apart'
      "<shape>: a cylinder's p1 (0, 1e+200, 0) lies beyond ±1e+30: rescale the scene"),
     ("<shape type='rectangle'><bsdf type='plastic'><rgb name='diffuse_reflectance' value='-0.5'/></bsdf></shape>",
-     "<rgb>: 'diffuse_reflectance' of a plastic bsdf must not be negative, got -0.5, -0.5, -0.5"),
+     "<rgb>: 'diffuse_reflectance' of a plastic bsdf is a reflectance: an <rgb> must be within [0, 1], got -0.5"),
     ("<shape type='rectangle'><bsdf type='blendbsdf'><float name='weight' value='2'/><bsdf type='diffuse'/>"
      "<bsdf type='diffuse'/></bsdf></shape>", "<float>: a blendbsdf's weight is between 0 and 1, got 2, 2, 2"),
     ("<emitter type='spot'><float name='cutoff_angle' value='1e-9'/></emitter>",
@@ -583,6 +600,55 @@ def test_an_approximated_bsdf_takes_what_mitsuba_takes(tmp_path, bsdf, message):
     path = write_scene(tmp_path / "bad.xml", sensor() + f"<shape type='rectangle'>{bsdf}</shape>" + LIGHT)
     with pytest.raises(ProbvisError, match=re.escape(message)):
         probvis.load_scene(path)
+
+
+def test_an_approximated_bsdf_s_rgb_is_taken_where_mitsuba_takes_it(tmp_path):
+    """A reflectance of 1.5 given as <rgb> was clamped to 1 and rendered, and an <rgb> was taken for parameters
+    that are single numbers: Mitsuba refuses the first on every parameter it reads as an sRGB reflectance (a
+    conductor's eta and k are unbounded) and the second as a wrong type. probvis refuses the same, judged
+    against Mitsuba 3 (scalar_rgb) parameter by parameter."""
+    mi = pytest.importorskip("mitsuba")
+    from probvis.scene.mitsuba_xml import (_BSDF_PARAMETERS, _FLAG_PARAMETERS, _IOR_PARAMETERS, _NAME_PARAMETERS,
+                                           _NESTED_BSDFS)
+
+    mi.set_variant("scalar_rgb")
+    seen = set()
+    for kind, names in _BSDF_PARAMETERS.items():
+        nested = {f"b{k}": {"type": "diffuse"} for k in range(_NESTED_BSDFS.get(kind, 0))}
+        for name in names:
+            if name in _FLAG_PARAMETERS | _NAME_PARAMETERS | _IOR_PARAMETERS or name.startswith("alpha") or kind in (
+                    "bumpmap", "normalmap"):
+                continue
+            try:
+                mi.load_dict({"type": kind, name: {"type": "rgb", "value": [1.5, 1.5, 1.5]}, **nested})
+                theirs = "taken"
+            except Exception as exc:
+                theirs = ("range" if "Invalid RGB reflectance value" in str(exc) else
+                          "type" if "has the wrong type" in str(exc) else str(exc))
+            inner = "<bsdf type='diffuse'/>" * _NESTED_BSDFS.get(kind, 0)
+            bsdf = f"<bsdf type='{kind}'><rgb name='{name}' value='1.5'/>{inner}</bsdf>"
+            path = write_scene(tmp_path / "b.xml", sensor() + f"<shape type='rectangle'>{bsdf}</shape>" + LIGHT)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    probvis.load_scene(path)
+                ours = "taken"
+            except ProbvisError as exc:
+                ours = ("range" if "is a reflectance" in str(exc) or "weight is between 0 and 1" in str(exc) else
+                        "type" if "is given as <float>" in str(exc) else str(exc))
+            assert ours == theirs, (kind, name)
+            seen.add(theirs)
+    assert seen == {"taken", "range", "type"}
+
+
+@pytest.mark.parametrize("kind, value", [("roughconductor", "GGX"), ("roughplastic", "Beckmann"),
+                                         ("roughdielectric", "Ggx")])
+def test_a_microfacet_distribution_is_read_in_any_case(tmp_path, kind, value):
+    """Mitsuba lower-cases the distribution's name; 'GGX' was refused as "beckmann or ggx"."""
+    bsdf = f"<bsdf type='{kind}'><string name='distribution' value='{value}'/></bsdf>"
+    with pytest.warns(UserWarning, match="approximated"):
+        probvis.load_scene(write_scene(tmp_path / "d.xml", sensor() + f"<shape type='rectangle'>{bsdf}</shape>"
+                                       + LIGHT))
 
 
 @pytest.mark.parametrize("edit, message", [

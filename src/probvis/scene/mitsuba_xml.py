@@ -229,6 +229,11 @@ _FLAG_PARAMETERS = {"nonlinear", "sample_visible", "polarizing"}
 _NAME_PARAMETERS = {"material", "distribution", "filename"}
 _IOR_PARAMETERS = {"int_ior", "ext_ior"}  # a number or a material's name
 _DISTRIBUTIONS = ("beckmann", "ggx")
+_UNBOUNDED_RGB = {"eta", "k", "sigma_a", "theta", "delta"}  # the approximated BSDFs' values that Mitsuba reads
+# unbounded from an <rgb>; it refuses one outside [0, 1] for every other (an sRGB reflectance)
+_FLOAT_ONLY = {("principled", "eta"), ("principled", "specular")} | {  # and every *_sampling_rate
+    ("hair", name) for name in ("eumelanin", "pheomelanin", "scale", "longitudinal_roughness", "azimuthal_roughness",
+                                "scale_tilt")}
 _PROPERTY_TAGS = {"integer", "float", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform"}
 _SAMPLERS = {"independent": (), "stratified": ("jitter",), "multijitter": ("jitter",),  # their own parameters
              "orthogonal": ("jitter", "strength"), "ldsampler": ()}  # beside sample_count and seed
@@ -664,15 +669,20 @@ class _Reader:
                 check(ch, name)
                 self.once(ch, name, lines)
                 want = (("boolean",) if name in _FLAG_PARAMETERS else ("string",) if name in _NAME_PARAMETERS
-                        else ("float", "string") if name in _IOR_PARAMETERS else ("rgb", "spectrum", "float"))
+                        else ("float", "string") if name in _IOR_PARAMETERS else ("float",) if (kind, name) in
+                        _FLOAT_ONLY or name.endswith("_sampling_rate") else ("rgb", "spectrum", "float"))
                 if ch.tag not in want:
                     self.fail(ch, f"'{name}' of a {kind} bsdf is given as <{'> or <'.join(want)}>"
-                                  f"{'' if 'float' not in want or name in _IOR_PARAMETERS else ' or a <texture>'}")
+                                  f"{' or a <texture>' if 'rgb' in want else ''}")
                 raw = self.attr(ch, "value")
                 if ch.tag == "spectrum" and ":" not in raw and len(raw.replace(",", " ").split()) != 1:
                     props[name] = np.full(3, 0.5)  # not a spectrum Mitsuba would read: its colour is not modelled
                 else:
                     props[name] = self.value(ch)
+                if ch.tag == "rgb" and name not in _UNBOUNDED_RGB and not np.all((props[name] >= 0) &
+                                                                                  (props[name] <= 1)):
+                    self.fail(ch, f"'{name}' of a {kind} bsdf is a reflectance: an <rgb> must be within [0, 1], got "
+                                  f"{', '.join(f'{v:g}' for v in props[name])}")
             elif ch.tag in ("bsdf", "ref", "texture"):
                 if "name" in ch.attrs:
                     name = self.attr(ch, "name")
@@ -761,6 +771,8 @@ class _Reader:
                       f"bsdf '{kind}' nests exactly {'one' if want == 1 else 'two'} bsdf{'s' * (want > 1)}, got "
                       f"{len(nested)}")
 
+        if isinstance(props.get("distribution"), str):  # Mitsuba reads the name in any case
+            props["distribution"] = props["distribution"].lower()
         if props.get("distribution", "beckmann") not in _DISTRIBUTIONS:
             self.fail(lines["distribution"], f"'distribution' of a {kind} bsdf is beckmann or ggx, got "
                                              f"'{props['distribution']}'")
@@ -769,6 +781,12 @@ class _Reader:
             self.fail(node, f"a {kind} bsdf takes either alpha or both alpha_u and alpha_v")
         if "material" in props and ("eta" in props or "k" in props):
             self.fail(node, f"a {kind} bsdf takes either a material or eta and k, not both")
+        for key in sorted(_IOR_PARAMETERS & props.keys()):  # unused by the approximation, but nonsense is refused
+            if not 0.0 < self.ior(lines[key], props, key, None) < np.inf:
+                self.fail(lines[key], f"{key} of a {kind} bsdf must be positive, got {props[key]:g}")
+        if kind.startswith("principled") and "eta" in props and not np.all(np.asarray(props["eta"]) > 0):
+            self.fail(lines["eta"], f"eta of a {kind} bsdf must be positive (Mitsuba renders it as NaN), got "
+                                    f"{', '.join(f'{v:g}' for v in np.ravel(props['eta']))}")
         if kind == "measured":
             if "filename" not in props:
                 self.fail(node, "a measured bsdf needs a 'filename'")
@@ -807,10 +825,8 @@ class _Reader:
                                 f"{', '.join(sorted(_CONDUCTORS))})")
             return colour("specular_reflectance", 1.0)
         if kind in ("dielectric", "thindielectric", "roughdielectric"):
-            ior_in, ior_out = (self.ior(lines.get(key, node), props, key, default)
+            ior_in, ior_out = (self.ior(lines.get(key, node), props, key, default)  # positive: checked above
                                for key, default in (("int_ior", "bk7"), ("ext_ior", "air")))
-            if not (0.0 < ior_in < np.inf and 0.0 < ior_out < np.inf):
-                self.fail(node, f"int_ior and ext_ior must be positive (got {ior_in:g} and {ior_out:g})")
             # Fresnel reflectance at normal incidence, ((n1 - n2) / (n1 + n2))^2, scaled by the larger index so
             # that no ratio overflows: 1 in the limit of a huge contrast
             a, b = ior_in / max(ior_in, ior_out), ior_out / max(ior_in, ior_out)
