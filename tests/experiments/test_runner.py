@@ -11,7 +11,7 @@ from probvis.errors import ProbvisError
 from probvis.experiments import experiment, parse_experiment
 from probvis.experiments import report as report_module
 from probvis.experiments import runner
-from probvis.experiments.runner import Cache, _load_scenes, plan
+from probvis.experiments.runner import Cache, load_scenes, plan
 
 TINY = {
     "name": "tiny", "spp": 2, "shadow_rays": [1, 4], "seeds": [3], "resolution": [12, 12],
@@ -22,6 +22,10 @@ TINY = {
                  "baseline": True},
                 {"name": "shifted", "visibility": "probvis", "options": {"estimator": "shifted", "photons": 4000}}],
 }
+
+
+ASSET_PNG = bytes.fromhex("89504e470d0a1a0a0000000d4948445200000001000000010802000000907753de0000000c4944415478"
+                          "9c63f8cfc0000003010100c9fe92ef0000000049454e44ae426082")  # one red pixel
 
 
 def numbers(results):
@@ -134,10 +138,10 @@ def test_two_workers_give_the_same_numbers(tiny_run, tmp_path):
 
 def test_keys_follow_scene_content_and_settings():
     exp = parse_experiment(TINY)
-    refs, cells = plan(exp, _load_scenes(exp))
+    refs, cells = plan(exp, load_scenes(exp))
     assert len({t.key for t in cells}) == len(cells) == 6
     other = dict(TINY, resolution=[12, 10])
-    refs2, cells2 = plan(parse_experiment(other), _load_scenes(parse_experiment(other)))
+    refs2, cells2 = plan(parse_experiment(other), load_scenes(parse_experiment(other)))
     assert refs[0].key != refs2[0].key and not {t.key for t in cells} & {t.key for t in cells2}
 
 
@@ -369,6 +373,25 @@ def test_report_names_no_file_system_holds_are_refused_before_rendering(tmp_path
     with pytest.raises(ProbvisError, match="images', where the report keeps a folder, is a symbolic link that loops"):
         experiment(parse_experiment(TINY), tmp_path / "s", progress=False, log=lambda m: None)
     assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["images"]
+
+
+def test_a_report_that_would_replace_a_file_a_scene_reads_is_refused_before_rendering(tmp_path):
+    """With -o the scene's own folder, the report's image of a method replaced the scene's texture of the same
+    name, exit 0 (later renders read the report's image as the texture)."""
+    from tests.conftest import sensor, write_scene
+
+    (tmp_path / "images" / "tex").mkdir(parents=True)
+    texture = tmp_path / "images" / "tex" / "exact-1.png"
+    texture.write_bytes(ASSET_PNG)
+    scene = write_scene(tmp_path / "s.xml", sensor() + "<emitter type='point'><point name='position' x='0' y='0' "
+                        "z='2'/></emitter><shape type='rectangle'><bsdf type='diffuse'><texture type='bitmap' "
+                        "name='reflectance'><string name='filename' value='images/tex/exact-1.png'/></texture>"
+                        "</bsdf></shape>")
+    doc = dict(TINY, scenes=[{"name": "tex", "source": str(scene)}], methods=[TINY["methods"][0]])
+    with pytest.raises(ProbvisError, match=r"it would replace '.*exact-1.png', which scene 'tex' reads; give -o "
+                                           "another folder"):
+        experiment(parse_experiment(doc), tmp_path, cache=tmp_path.parent / "c", progress=False, log=lambda m: None)
+    assert texture.read_bytes() == ASSET_PNG and not (tmp_path.parent / "c").exists()
 
 
 def test_report_file_names_are_unique_per_scene():

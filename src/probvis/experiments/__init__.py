@@ -10,7 +10,7 @@ from .config import (Experiment, MethodSpec, SceneSpec, load_experiment, parse_e
                      recheck)
 from .report import report_problem, write_report
 from .results import measure
-from .runner import run_experiment
+from .runner import load_scenes, run_experiment
 
 
 @checked_call
@@ -46,9 +46,10 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ProbvisError(f"report folder '{out}' is a file: give -o a folder (new or existing)")
-    if (problem := report_problem(exp, out)) is not None:
+    scenes = load_scenes(exp)
+    if (problem := report_problem(exp, out, {name: scene.inputs for name, scene in scenes.items()})) is not None:
         raise ProbvisError(problem)
-    run = run_experiment(exp, Path(cache) if cache else out / "cache", workers, scheduler, progress, log)
+    run = run_experiment(exp, Path(cache) if cache else out / "cache", workers, scheduler, progress, log, scenes)
     results = measure(exp, run)
     index = None
     try:

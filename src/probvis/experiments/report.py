@@ -502,9 +502,10 @@ Data: <a href=results.csv>results.csv</a>, <a href=results.json>results.json</a>
 """
 
 
-def report_problem(exp, folder):
-    """What would stop the report's writing in `folder` half-way, as an error message (None: nothing): a file
-    where the report makes a folder, or a folder where it writes a file. Checked before any render."""
+def report_problem(exp, folder, inputs=None):
+    """What would stop the report's writing in `folder` half-way, or make it replace a file a scene reads, as an
+    error message (None: nothing): a file where the report makes a folder, a folder where it writes a file, a
+    report file that is one of `inputs` (per scene name, the files it was read from). Checked before any render."""
     folder = Path(folder)
     if not utf8_path(folder):
         return (f"cannot write the report in '{folder}': OpenEXR's writer (its images and the render cache) takes "
@@ -528,9 +529,13 @@ def report_problem(exp, folder):
                     "link that loops or points to nothing")
         if (folder / name).exists() and not (folder / name).is_dir():
             return f"cannot write the report: '{folder / name}' is a file, where the report keeps a folder"
+    read = {Path(os.path.realpath(p)): scene for scene, paths in (inputs or {}).items() for p in paths}
     for name in files:
         if (folder / name).is_dir():
             return f"cannot write the report: '{folder / name}' is a folder, where the report writes a file"
+        if (scene := read.get(Path(os.path.realpath(folder / name)))) is not None:
+            return (f"cannot write the report: it would replace '{folder / name}', which scene '{scene}' reads; give "
+                    "-o another folder")
     index = folder / "index.html"
     if index.is_file():
         try:

@@ -334,7 +334,8 @@ def _open_client(workers, scheduler):
     return Client(cluster), cluster
 
 
-def _load_scenes(exp):
+def load_scenes(exp):
+    """Each of the study's scenes read (its defines applied, at the study's resolution), by name."""
     scenes = {}
     for spec in exp.scenes:
         try:
@@ -418,14 +419,15 @@ def _reference_file(spec, scene):
     return img
 
 
-def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log=None):
-    """Render every reference and cell of `exp` not already in `cache_dir`; return a `RunSummary`."""
+def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log=None, scenes=None):
+    """Render every reference and cell of `exp` not already in `cache_dir`; return a `RunSummary`. `scenes` are
+    the study's scenes as `load_scenes` read them (read here if None)."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     if workers < 1:
         raise ProbvisError(f"workers must be at least 1, got {workers}")
     if scheduler:
         _check_reachable(scheduler)
-    scenes = _load_scenes(exp)
+    scenes = load_scenes(exp) if scenes is None else scenes
     files = {spec.name: _reference_file(spec, scenes[spec.name]) for spec in exp.scenes
              if spec.reference is not None}  # checked before the first render
     if not scheduler:  # local workers: this machine's memory
