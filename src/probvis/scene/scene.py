@@ -251,6 +251,8 @@ class SceneBuilder:
                 if flip_normals:
                     vn = -vn
             normals = vn[f]
+            if radiance is not None:
+                tris, normals = self._emit_towards_normals(tris, normals, fn)
         if material is None:
             material = self.material((0.5, 0.5, 0.5))  # Mitsuba's default BSDF
         emitter = -1
@@ -264,6 +266,20 @@ class SceneBuilder:
         self._emit.append(np.full(len(tris), emitter, dtype=np.int32))
         self._n += len(tris)
         return len(tris)
+
+    def _emit_towards_normals(self, tris, normals, fn):
+        """An emitting mesh's triangles whose vertex normals point against their winding (an exporter that
+        reversed the faces and kept the normals), reversed: Mitsuba emits towards the shading normals, both into
+        the scene and as seen directly, and probvis's emitter sampling takes a triangle's face as its front. The
+        sum of the three normals decides a triangle; the corners' uv, already appended, follow."""
+        back = np.einsum("tkj,tj->t", normals, fn) < 0.0
+        if not back.any():
+            return tris, normals
+        tris, normals, uv = tris.copy(), normals.copy(), np.array(self._uv[-1])
+        for a in (tris, normals, uv):
+            a[back] = a[back][:, ::-1]
+        self._uv[-1] = uv
+        return tris, normals
 
     def add_point_emitter(self, intensity, position, axis=None, cutoff_deg=None, beam_deg=None):
         """A point light, or with an `axis` and angles a spot light (Mitsuba's linear falloff in angle between
