@@ -360,7 +360,7 @@ def test_a_plugin_s_own_memory_is_named_with_it():
     ((probvis.visibility.Option("s", probvis.visibility.Switch, "true", "a switch as true"),), "write 'on'"),
     # was "its check raised OverflowError", with no check declared
     ((probvis.visibility.Option("k", float, 10 ** 400, "beyond a float"),), "the default of option 'k' is invalid: k "
-     "expects number, got 1000"),
+     "expects a finite number, got 1000"),
     ((probvis.visibility.Option("t", tuple, (1.0, 2.0), "no count"),), "option 't' is a tuple and needs count"),
     ((probvis.visibility.Option("k", int, 1, "raises", check=lambda v: 1 / 0),),
      "option 'k': its check raised ZeroDivisionError on the default 1"),

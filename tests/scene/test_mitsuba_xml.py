@@ -478,6 +478,9 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
      "<emitter>: the spot light's to_world is singular"),
     ("<shape type='rectangle'><bsdf type='dielectric'><float name='int_ior' value='-1.5'/></bsdf></shape>",
      "<float>: int_ior of a dielectric bsdf must be positive, got -1.5"),
+    ("<shape type='rectangle'><bsdf type='diffuse'><texture type='checkerboard' name='reflectance'><texture "
+     "type='checkerboard' name='color0'/></texture></bsdf></shape>",
+     "<texture>: a checkerboard's 'color0' is a texture: probvis reads a checkerboard's colours as <rgb>"),
     ("<shape type='rectangle'><bsdf type='plastic'><float name='int_ior' value='-1'/></bsdf></shape>",
      "<float>: int_ior of a plastic bsdf must be positive, got -1"),
     ("<shape type='rectangle'><bsdf type='roughplastic'><float name='ext_ior' value='0'/></bsdf></shape>",
@@ -639,6 +642,16 @@ def test_an_approximated_bsdf_s_rgb_is_taken_where_mitsuba_takes_it(tmp_path):
             assert ours == theirs, (kind, name)
             seen.add(theirs)
     assert seen == {"taken", "range", "type"}
+
+
+def test_a_constant_environment_takes_a_to_world_that_changes_nothing(tmp_path):
+    """Every Mitsuba emitter reads a to_world; a constant emitter's was refused as an unsupported parameter."""
+    body = sensor() + "<shape type='rectangle'/><emitter type='constant'><rgb name='radiance' value='0.7'/>{}</emitter>"
+    plain = probvis.render(write_scene(tmp_path / "a.xml", body.format("")), spp=4, seed=1).image
+    turned = probvis.render(write_scene(tmp_path / "b.xml", body.format(
+        "<transform name='to_world'><rotate x='1' angle='50'/><scale value='2'/></transform>")), spp=4, seed=1).image
+    np.testing.assert_array_equal(plain, turned)
+    assert plain.max() > 0
 
 
 @pytest.mark.parametrize("kind, value", [("roughconductor", "GGX"), ("roughplastic", "Beckmann"),

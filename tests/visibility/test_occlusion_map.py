@@ -162,7 +162,7 @@ def test_matches_exact_visibility_within_the_noise():
     (dict(neighbours=-3), "neighbours must be from 1 to 1,024"),
     (dict(neighbours=2.5), "neighbours expects integer, got 2.5"),
     (dict(radius=-1.0), "radius must be positive"),
-    (dict(radius=float("nan")), "radius expects number, got nan"),
+    (dict(radius=float("nan")), "radius expects a finite number, got nan"),
     (dict(penumbra="grid"), "penumbra must be one of bvh, list, got 'grid'"),
     (dict(pneumbra="list"), "visibility 'occlusion-map' has no option 'pneumbra'"),
 ])

@@ -149,7 +149,7 @@ def test_ratio_keeps_every_emitter_when_emitters_are_chosen_per_sample(tmp_path)
     ("nee++", "min_probability", "0", "min_probability must be from 0.001 to 1"),
     ("nee++", "resolution", "2", "resolution must be from 4 to 256"),
     ("cache-cv", "q", "1.5", "q must be from 0.001 to 1"),
-    ("cache-cv", "pilot", "nan", "pilot expects number"),
+    ("cache-cv", "pilot", "nan", "pilot expects a finite number"),
     ("ratio", "q", "0.5", "visibility 'ratio' has no option 'q'"),
 ])
 def test_bad_options_are_named(visibility, option, value, message):

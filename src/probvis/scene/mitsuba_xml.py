@@ -572,6 +572,12 @@ class _Reader:
                 self.fail(ch, f"unsupported element inside <{node.tag}>")
         return props, objects
 
+    def nested_checker_colour(self, ch):
+        """A checkerboard's colour given as a nested texture (which Mitsuba reads) is refused in one line."""
+        if ch.tag in ("texture", "ref"):
+            self.fail(ch, f"a checkerboard's '{ch.attrs.get('name', 'color0')}' is a texture: probvis reads a "
+                          "checkerboard's colours as <rgb>, <spectrum> or <float> only")
+
     def textured_emission(self, ch):
         """A texture given as an emitter's radiance or intensity, which probvis does not take."""
         if ch.tag == "texture":
@@ -720,7 +726,8 @@ class _Reader:
             out = Texture(BITMAP, self.checked(node, self.to_uv, props), image=image, wrap=WRAP_MODES[wrap],
                           bilinear=filt == "bilinear")
         elif kind == "checkerboard":
-            props, _ = self.params(node, {"color0": colour, "color1": colour, "to_uv": ("transform",)})
+            props, _ = self.params(node, {"color0": colour, "color1": colour, "to_uv": ("transform",)},
+                                   unknown=self.nested_checker_colour)
             colours = np.array([props.get("color0", 0.4) * np.ones(3), props.get("color1", 0.2) * np.ones(3)])
             if np.any(colours < 0) or np.any(colours > 1):
                 self.fail(node, "checkerboard colours are reflectances: each must be within [0, 1]")
@@ -965,8 +972,9 @@ class _Reader:
     def environment(self, node, kind, builder):
         """A top-level `envmap` (image file, scale, to_world) or `constant` (radiance) emitter."""
         if kind == "constant":
-            props, _ = self.params(node, {"radiance": ("rgb", "spectrum", "float"), **_SAMPLING_WEIGHT},
-                                   unknown=self.textured_emission)
+            # a to_world, which every Mitsuba emitter reads, turns a constant environment into itself
+            props, _ = self.params(node, {"radiance": ("rgb", "spectrum", "float"), "to_world": ("transform",),
+                                          **_SAMPLING_WEIGHT}, unknown=self.textured_emission)
             self.sampling_weight(node, props)
             rad = self.emission(node, "radiance", props.get("radiance", np.ones(3)))
             image, m, scale = np.ones((2, 1, 3)), None, rad  # the radiance as the scale: lit points' closed form

@@ -105,7 +105,9 @@ class Option:
 
     def _convert(self, value):
         text = repr(value)
-        bad = ProbvisError(f"{self.name} expects {self.describe_type()}, got "
+        expected = self.describe_type() if self.choices or self.type not in (float, tuple) else (
+            f"{self.count} finite numbers" if self.type is tuple else "a finite number")
+        bad = ProbvisError(f"{self.name} expects {expected}, got "
                            f"{text if len(text) <= 60 else text[:50] + f'...({len(text)} characters)'}")
         if self.type is bool:
             if is_flag(value):
