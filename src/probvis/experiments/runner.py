@@ -542,6 +542,7 @@ def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, c
                     for message in stats.get("warnings", ()):  # once per scene, method and text
                         warnings.warn(f"{t.scene} / {t.method.name}: {message}", stacklevel=1)
                     cache.store(t.key, Render(stats, image, tests))
+                f.release()  # the scheduler (in this process, for a local cluster) forgets it, the worker its result
                 bar.update(1)
     if failures:
         raise ProbvisError(f"{len(failures)} render(s) failed (finished ones are cached): " + "; ".join(failures))
