@@ -143,3 +143,22 @@ def test_path_integrator_renders_its_direct_component_with_one_warning(tmp_path)
     assert len(caught) == 1 and "rendered as its direct-illumination component" in str(caught[0].message)
     b = probvis.render(direct, spp=2, shadow_rays=1, seed=3)
     np.testing.assert_array_equal(a.image, b.image)
+
+
+@pytest.mark.parametrize("fov", ['<float name="fov" value="40"/><string name="fov_axis" value="{}"/>', ""])
+@pytest.mark.parametrize("axis", ["x", "y", "diagonal", "smaller", "larger"])
+def test_another_resolution_keeps_the_declared_field_of_view_along_its_axis(tmp_path, fov, axis):
+    """`resolution=` (and a study's) kept the horizontal field of view computed at the declared film's shape, so
+    a view declared 40 degrees tall, or by a focal length (the film's diagonal), changed with the new shape: the
+    camera is now the one the scene declares at that size."""
+    def scene(w, h):
+        body = (f'<sensor type="perspective">{fov.format(axis)}<transform name="to_world"><lookat origin="0, 0, 4" '
+                f'target="0, 0, 0" up="0, 1, 0"/></transform><film type="hdrfilm"><integer name="width" value="{w}"/>'
+                f'<integer name="height" value="{h}"/></film></sensor><shape type="rectangle"/>'
+                '<emitter type="point"><point name="position" x="0" y="0" z="2"/></emitter>')
+        return probvis.load_scene(write_scene(tmp_path / f"s{w}x{h}.xml", body))
+
+    resized = scene(16, 32).with_resolution(32, 16).camera
+    declared = scene(32, 16).camera
+    assert (resized.width, resized.height) == (32, 16)
+    assert resized.fov_x == pytest.approx(declared.fov_x, rel=1e-12)

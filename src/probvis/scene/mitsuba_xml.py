@@ -21,8 +21,8 @@ from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import MAX_COORDINATE, MAX_EMISSION, SceneBuilder
-from .sensor import (FILTERS, MAX_CUBIC_PARAMETER, MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV, MIN_FILTER_REACH, Camera,
-                     camera_problem)
+from .sensor import (FILTERS, FOV_AXES, MAX_CUBIC_PARAMETER, MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV,
+                     MIN_FILTER_REACH, Camera, camera_problem, tan_x_per_axis)
 from .serialized import load_serialized
 from .spectrum import spectrum_to_rgb
 
@@ -1211,7 +1211,7 @@ class _Reader:
                 film = self.film(ch)
         film = film or self.film(None)
         fw, fh = film["film_width"], film["film_height"]
-        fov_x = self.fov_x(node, props, fw / fh)
+        fov_x, axis = self.fov_x(node, props, fw / fh)
         near, far = props.get("near_clip", 1e-2), props.get("far_clip", 1e4)
         lens = {}
         if kind == "thinlens":
@@ -1224,11 +1224,7 @@ class _Reader:
         if not _invertible_affine(m):
             self.fail(node, "the sensor's to_world is singular or projective: a camera needs an invertible "
                             "rotation, scale and translation (check its scale and matrix)")
-        scale = np.abs(np.linalg.det(m[:3, :3])) ** (1 / 3)
-        if not 1e-6 <= scale <= 1e6:
-            self.fail(node, f"the sensor's to_world scales by {scale:.3g}, beyond what its rays keep in double "
-                            "precision (1e-6 to 1e6): a camera needs only a rotation and translation")
-        cam = Camera(m, fov_x, near_clip=near, far_clip=far,
+        cam = Camera(m, fov_x, near_clip=near, far_clip=far, fov_axis=axis,
                      principal_x=props.get("principal_point_offset_x", 0.0),
                      principal_y=props.get("principal_point_offset_y", 0.0), **lens, **film)
         if problem := camera_problem(cam):
@@ -1237,7 +1233,7 @@ class _Reader:
 
     def fov_x(self, node, props, aspect):
         """The horizontal field of view, from `fov` along `fov_axis` or from a 35 mm `focal_length` (as Mitsuba's
-        parse_fov: the focal length spans the 36 x 24 mm frame's diagonal; default 50 mm)."""
+        parse_fov: the focal length spans the 36 x 24 mm frame's diagonal; default 50 mm), and that axis."""
         if "fov" in props and "focal_length" in props:
             self.fail(node, "give either 'fov' or 'focal_length', not both")
         if "fov_axis" in props and "fov" not in props:  # unreferenced in Mitsuba, which refuses it
@@ -1263,23 +1259,14 @@ class _Reader:
             self.fail(node, f"focal_length {props['focal_length']} makes the view {fov:.10g} degrees wide (at most "
                             f"{MAX_FOV:g}: wider, a perspective image shrinks the whole scene to a few pixels at its "
                             "centre)")
-        if axis == "smaller":
-            axis = "y" if aspect > 1 else "x"
-        elif axis == "larger":
-            axis = "x" if aspect > 1 else "y"
-        t = np.tan(np.radians(fov) / 2.0)
-        if axis == "y":
-            t *= aspect
-        elif axis == "diagonal":
-            t /= np.sqrt(1.0 + 1.0 / (aspect * aspect))
-        elif axis != "x":
-            self.fail(node, f"unknown fov_axis '{axis}' (x, y, diagonal, smaller, larger)")
-        fov_x = float(np.degrees(2.0 * np.arctan(t)))
+        if axis not in FOV_AXES:
+            self.fail(node, f"unknown fov_axis '{axis}' ({', '.join(FOV_AXES)})")
+        fov_x = float(np.degrees(2.0 * np.arctan(np.tan(np.radians(fov) / 2.0) * tan_x_per_axis(axis, aspect))))
         if fov_x > MAX_FOV:
             given = f"fov {fov:.10g}" if "fov" in props else f"focal_length {props.get('focal_length')}"
             self.fail(node, f"{given} makes the view {fov_x:.10g} degrees wide (at most {MAX_FOV:g}: wider, a "
                             "perspective image shrinks the whole scene to a few pixels at its centre)")
-        return fov_x
+        return fov_x, axis
 
     def film(self, node):
         """The film's size, crop window and reconstruction filter as `Camera` fields (Mitsuba's defaults
@@ -1297,6 +1284,10 @@ class _Reader:
                        "crop_offset_y": ("integer",), "crop_width": ("integer",), "crop_height": ("integer",),
                        "sample_border": ("boolean",), "banner": ("boolean",), "compensate": ("boolean",)},
                 ("rfilter",))
+            if props.get("sample_border", False):
+                self.fail(_by_name(node)["sample_border"], "sample_border is not supported: probvis samples the image's "
+                          "own pixels only, so the light a wide filter brings in from beyond the border would be "
+                          "missing (drop it, or render a larger film and crop it)")
             for key, known in (("pixel_format", ("rgb", "rgba", "luminance", "luminance_alpha", "xyz", "xyza")),
                                ("component_format", ("float16", "float32", "uint32")),
                                ("file_format", ("openexr", "exr", "rgbe", "hdr", "pfm"))):

@@ -100,11 +100,10 @@ class Scene:
         return bounds(self.triangles)
 
     def with_resolution(self, width=None, height=None):
-        """A copy whose film has another size, uncropped (geometry arrays are shared, not copied)."""
+        """A copy whose film has another size, uncropped, its declared field of view kept along its axis (geometry
+        arrays are shared, not copied)."""
         cam = self.camera
-        cam = dataclasses.replace(cam, width=cam.width if width is None else width,
-                                  height=cam.height if height is None else height, film_width=None,
-                                  film_height=None, crop_x=0, crop_y=0)
+        cam = cam.resized(cam.width if width is None else width, cam.height if height is None else height)
         out = dataclasses.replace(self, camera=cam)
         out.validate_camera()
         return out

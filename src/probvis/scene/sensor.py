@@ -16,6 +16,18 @@ MAX_CUBIC_PARAMETER = 100.0  # |B|, |C| of a mitchell filter: its weights grow w
 MAX_PRINCIPAL_OFFSET = 1e3  # film sizes: beyond, the view's axis is within a thousandth of a radian of the film plane
 MAX_FOV = 179.5  # degrees across the film: wider, a perspective image shrinks the scene to a few pixels at its centre
 MAX_APERTURE_RATIO = 1e3  # lens radius per focus distance: beyond, every ray leaves the lens nearly along its plane
+FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")  # what a field of view may span (Mitsuba's fov_axis)
+MAX_CAMERA_SCALE = 1e-3  # Mitsuba refuses a camera whose to_world's M M^T is further than this from the identity
+
+
+def tan_x_per_axis(axis, aspect):
+    """tan(fov_x / 2) per tan(fov / 2) for a field of view spanning `axis` (`FOV_AXES`) of a film of `aspect`
+    (width / height), as Mitsuba's parse_fov converts it."""
+    if axis == "smaller":
+        axis = "y" if aspect > 1 else "x"
+    elif axis == "larger":
+        axis = "x" if aspect > 1 else "y"
+    return {"x": 1.0, "y": aspect, "diagonal": 1.0 / math.sqrt(1.0 + 1.0 / (aspect * aspect))}[axis]
 
 
 @dataclass
@@ -25,7 +37,9 @@ class Camera:
     of `film_width` x `film_height` (None: the whole film). `principal_x`, `principal_y` shift the principal
     point by a fraction of the film size; `aperture_radius` > 0 makes a thin lens focused at `focus_distance`;
     `rfilter` is the reconstruction filter: "box", "tent" with `filter_radius`, "gaussian" with `filter_stddev`,
-    "mitchell" with `filter_b` and `filter_c`, "catmullrom", or "lanczos" with `filter_radius` lobes."""
+    "mitchell" with `filter_b` and `filter_c`, "catmullrom", or "lanczos" with `filter_radius` lobes. `fov_x` is
+    the horizontal field of view; the one the scene declared spans `fov_axis`, which a film of another size keeps
+    (`resized`)."""
 
     to_world: np.ndarray
     fov_x: float
@@ -46,6 +60,7 @@ class Camera:
     filter_stddev: float = 0.5
     filter_b: float = 1.0 / 3.0
     filter_c: float = 1.0 / 3.0
+    fov_axis: str = "x"  # the film's extent the declared field of view spans (`FOV_AXES`): kept by another size
 
     @property
     def filter_extent(self):
@@ -59,6 +74,18 @@ class Camera:
         """(width, height) of the whole film."""
         return (self.film_width or self.width, self.film_height or self.height)
 
+    def resized(self, width, height):
+        """The camera with a whole film of width x height, uncropped, its declared field of view spanning the same
+        `fov_axis` (a view declared 40 degrees tall stays 40 degrees tall), as the scene declared at that size."""
+        fw, fh = self.film_size
+        fov_x = self.fov_x
+        if is_number(width, True) and is_number(height, True) and width > 0 and height > 0:  # else refused by
+            # `camera_problem`
+            t = math.tan(math.radians(fov_x) / 2.0) / tan_x_per_axis(self.fov_axis, fw / fh)
+            fov_x = math.degrees(2.0 * math.atan(t * tan_x_per_axis(self.fov_axis, width / height)))
+        return dataclasses.replace(self, width=width, height=height, film_width=None, film_height=None, crop_x=0,
+                                   crop_y=0, fov_x=fov_x)
+
 
 _WHOLE_FIELDS = ("width", "height", "film_width", "film_height", "crop_x", "crop_y")  # pixels: whole numbers
 
@@ -69,7 +96,8 @@ def camera_problem(c):
     renders those black)."""
     for f in dataclasses.fields(c):  # a Camera changed through the API: numbers where numbers are read
         value, whole = getattr(c, f.name), f.name in _WHOLE_FIELDS
-        if f.name in ("to_world", "rfilter") or (value is None and f.name in ("film_width", "film_height")):
+        if f.name in ("to_world", "rfilter", "fov_axis") or (value is None and f.name in ("film_width",
+                                                                                             "film_height")):
             continue
         if not is_number(value, whole):
             return f"camera.{f.name} must be a {'whole number' if whole else 'number'}, got {value!r}"
@@ -94,6 +122,12 @@ def camera_problem(c):
             or not np.all(np.isfinite(m)) or not np.all(m[3] == (0, 0, 0, 1)) \
             or not abs(np.linalg.det(m[:3, :3] / max(np.abs(m[:3, :3]).max(), 1e-300))) >= 1e-12:
         return "the camera's to_world must be a finite, invertible affine 4x4 array (last row 0 0 0 1)"
+    off = float(np.abs(m[:3, :3] @ m[:3, :3].T - np.eye(3)).max())
+    if off > MAX_CAMERA_SCALE:
+        return (f"the camera's to_world scales or shears (M M^T differs from the identity by {off:.3g}): a camera "
+                "takes only a rotation and a translation, as Mitsuba requires (scale the scene, or change the fov)")
+    if c.fov_axis not in FOV_AXES:
+        return f"camera.fov_axis must be one of {', '.join(FOV_AXES)}, got {c.fov_axis!r}"
     for what, val in (("film_width", c.film_width), ("film_height", c.film_height)):
         if val is not None and not 1 <= val <= MAX_FILM_SIDE:
             return f"{what} must be a whole number from 1 to {MAX_FILM_SIDE}, got {val}"
