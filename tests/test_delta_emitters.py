@@ -68,7 +68,8 @@ def test_occlusion_map_with_point_lights_is_unbiased(scene_file, visibility, opt
 
 @pytest.mark.parametrize("spot, message", [
     ('<float name="cutoff_angle" value="0"/>', "cutoff_angle must be in [0.001, 90]"),
-    ('<float name="cutoff_angle" value="95"/>', "cutoff_angle must be in [0.001, 90]"),
+    ('<float name="cutoff_angle" value="95"/>', "cutoff_angle 95: a spot wider than a hemisphere (above 90 "
+                                                "degrees), which Mitsuba renders, is not supported"),
     ('<float name="cutoff_angle" value="20"/><float name="beam_width" value="-1"/>', "beam_width must be at least 0"),
 ])
 def test_bad_spot_lights_are_named(tmp_path, spot, message):

@@ -958,9 +958,12 @@ class _Reader:
             return
         cutoff = props.get("cutoff_angle", 20.0)
         beam = props.get("beam_width", 0.75 * cutoff)
-        if not MIN_CUTOFF <= cutoff <= 90.0:
-            why = " (a narrower cone carries no power in double precision)" if cutoff < MIN_CUTOFF else ""
-            self.fail(node, f"cutoff_angle must be in [{MIN_CUTOFF:g}, 90] degrees, got {cutoff:g}{why}")
+        if cutoff > 90.0:
+            self.fail(node, f"cutoff_angle {cutoff:g}: a spot wider than a hemisphere (above 90 degrees), which "
+                            "Mitsuba renders, is not supported by probvis")
+        if not MIN_CUTOFF <= cutoff:
+            self.fail(node, f"cutoff_angle must be in [{MIN_CUTOFF:g}, 90] degrees, got {cutoff:g} (a narrower cone "
+                            "carries no power in double precision)")
         if not beam >= 0.0:
             self.fail(node, f"beam_width must be at least 0 degrees, got {beam:g}")
         beam = min(beam, cutoff)  # wider: full intensity up to the cutoff, as in Mitsuba's falloff
@@ -1285,9 +1288,9 @@ class _Reader:
                        "sample_border": ("boolean",), "banner": ("boolean",), "compensate": ("boolean",)},
                 ("rfilter",))
             if props.get("sample_border", False):
-                self.fail(_by_name(node)["sample_border"], "sample_border is not supported: probvis samples the image's "
-                          "own pixels only, so the light a wide filter brings in from beyond the border would be "
-                          "missing (drop it, or render a larger film and crop it)")
+                self.fail(_by_name(node)["sample_border"], "sample_border is not supported: probvis samples the "
+                          "image's own pixels only, so the light a wide filter brings in from beyond the border would "
+                          "be missing (drop it, or render a larger film and crop it)")
             for key, known in (("pixel_format", ("rgb", "rgba", "luminance", "luminance_alpha", "xyz", "xyza")),
                                ("component_format", ("float16", "float32", "uint32")),
                                ("file_format", ("openexr", "exr", "rgbe", "hdr", "pfm"))):
@@ -1350,9 +1353,9 @@ class _Reader:
                             f"samples would reach a pixel centre and count (use at least "
                             f"{MIN_FILTER_REACH if kind == 'tent' else MIN_FILTER_REACH / 4:g}, or a box filter)")
         if counted < 1.0:  # as in Mitsuba: the image divides by the weights the samples that count bring
-            warnings.warn(f"{self.where(node)}: {kind} {name} {value:g} reaches {reach:g} pixels: splatted, {counted:.1%} "
-                          "of the camera samples reach a pixel centre and count (as in Mitsuba), so the image is "
-                          "noisier than a box filter's", stacklevel=2)
+            warnings.warn(f"{self.where(node)}: {kind} {name} {value:g} reaches {reach:g} pixels: splatted, "
+                          f"{counted:.1%} of the camera samples reach a pixel centre and count (as in Mitsuba), so the "
+                          "image is noisier than a box filter's", stacklevel=2)
         return {"rfilter": kind, field_name: value}
 
     def integrator(self, node):
