@@ -11,15 +11,13 @@ import re
 
 import numpy as np
 
+_KINDS = (b"v", b"vt", b"vn", b"f")  # the statements read
 _BARE = re.compile(rb"(?m)^[ \t]*(?:v|vt|vn|f)[ \t]*(?:#[^\r\n]*)?\r?$")  # a statement without numbers: named
-_STATEMENT = {kind: re.compile(rb"(?m)^[ \t]*" + kind + rb"[ \t]+([^\r\n#]*)") for kind in (b"v", b"vt", b"vn", b"f")}
+_STATEMENT = {kind: re.compile(rb"(?m)^[ \t]*" + kind + rb"[ \t]+([^\r\n#]*)") for kind in _KINDS}
 _WHITESPACE = np.zeros(256, bool)
 _WHITESPACE[[9, 10, 13, 32]] = True
 _BLANK = np.zeros(256, bool)  # the separator after a statement's keyword
 _BLANK[[9, 32]] = True
-
-
-_KINDS = (b"v", b"vt", b"vn", b"f")
 
 
 def _statements(data):

@@ -76,11 +76,11 @@ class Camera:
 
     def resized(self, width, height):
         """The camera with a whole film of width x height, uncropped, its declared field of view spanning the same
-        `fov_axis` (a view declared 40 degrees tall stays 40 degrees tall), as the scene declared at that size."""
+        `fov_axis` (a view declared 40 degrees tall stays 40 degrees tall), as the scene declared at that size. A
+        size that is not one keeps the angle: `camera_problem` refuses it."""
         fw, fh = self.film_size
         fov_x = self.fov_x
-        if is_number(width, True) and is_number(height, True) and width > 0 and height > 0:  # else refused by
-            # `camera_problem`
+        if is_number(width, True) and is_number(height, True) and width > 0 and height > 0:
             t = math.tan(math.radians(fov_x) / 2.0) / tan_x_per_axis(self.fov_axis, fw / fh)
             fov_x = math.degrees(2.0 * math.atan(t * tan_x_per_axis(self.fov_axis, width / height)))
         return dataclasses.replace(self, width=width, height=height, film_width=None, film_height=None, crop_x=0,
