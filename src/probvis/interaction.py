@@ -1,10 +1,10 @@
 """Stage 2 of a render: the surface interaction at each camera ray's closest hit.
 
 Gives the radiance of an emitter seen directly (or of the environment, for a ray that misses; neither with the
-integrator's `hide_emitters`), the shading
-point, its shading normal turned to the camera's side, its material and its albedo (the material's reflectance,
-or its texture at the point's uv). As in Mitsuba 3, a plain `diffuse` BSDF is one-sided (nothing is reflected
-from its back) and area emitters emit from their front side only.
+integrator's `hide_emitters`), the shading point, its shading normal turned to the camera's side, its material
+and its albedo (the material's reflectance, or its texture at the point's uv). As in Mitsuba 3, a plain
+`diffuse` BSDF is one-sided (nothing is reflected from its back) and area emitters emit from their front side
+only.
 """
 import math
 from typing import NamedTuple

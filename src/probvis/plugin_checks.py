@@ -212,7 +212,7 @@ def arrays_digest(integrator):
     """XXH3 of the arrays a plug-in estimator reaches through the integrator (the kernels' scene, its textures,
     the emitters, the BVH): they are the caller's and the render's own, so a plug-in must not change them."""
     h = xxhash.xxh3_128()
-    for record in (integrator.scene_arrays, integrator.surface.textures, integrator.surface[1:],
+    for record in (integrator.scene_arrays, integrator.surface.textures, (integrator.surface.back_material,),
                    integrator.emitters.arrays, integrator.bvh.arrays):
         for a in record:
             if isinstance(a, np.ndarray):

@@ -1225,8 +1225,8 @@ class _Reader:
                 self.fail(node, "aperture_radius must be >= 0 and focus_distance positive")
         m = props.get("to_world", np.eye(4))
         if not _invertible_affine(m):
-            self.fail(node, "the sensor's to_world is singular or projective: a camera needs an invertible "
-                            "rotation, scale and translation (check its scale and matrix)")
+            self.fail(node, "the sensor's to_world is singular or projective: a camera needs a rotation and a "
+                            "translation (check its scale and matrix)")
         cam = Camera(m, fov_x, near_clip=near, far_clip=far, fov_axis=axis,
                      principal_x=props.get("principal_point_offset_x", 0.0),
                      principal_y=props.get("principal_point_offset_y", 0.0), **lens, **film)
