@@ -90,6 +90,19 @@ def test_thin_lens_rays_meet_mitsuba_s_in_the_focal_plane(tmp_path):
     assert max(radii) <= 0.2 + 1e-9 and min(radii) < 0.1 < max(radii)  # spread over the aperture
 
 
+def test_a_negative_aperture_is_the_same_lens_as_in_mitsuba(tmp_path):
+    """Mitsuba scales its unit-disk sample by aperture_radius as given, so -0.2 is the disk of 0.2: same image."""
+    def lens(radius):
+        return (f'<float name="fov" value="45"/><float name="aperture_radius" value="{radius}"/>'
+                '<float name="focus_distance" value="2.5"/>')
+    images = [probvis.render(write_scene(tmp_path / f"{k}.xml", sensor_xml("thinlens", lens(r)) + SCENE,
+                                         '<default name="spp" value="4"/>'), seed=2).image
+              for k, r in (("pos", 0.2), ("neg", -0.2))]
+    np.testing.assert_array_equal(images[0], images[1])
+    theirs = mi.load_file(str(tmp_path / "neg.xml"), spp=4)  # Mitsuba takes it too
+    assert theirs.sensors()[0] is not None
+
+
 @pytest.mark.parametrize("kind, params, rfilter", [
     ("perspective", '<float name="fov" value="45"/>', '<rfilter type="box"/>'),
     ("thinlens", '<float name="fov" value="45"/><float name="aperture_radius" value="0.15"/>'

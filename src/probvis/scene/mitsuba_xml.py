@@ -1220,9 +1220,11 @@ class _Reader:
         if kind == "thinlens":
             if "aperture_radius" not in props:
                 self.fail(node, "a thinlens sensor needs 'aperture_radius'")
-            lens = {"aperture_radius": props["aperture_radius"], "focus_distance": props.get("focus_distance", far)}
-            if not (lens["aperture_radius"] >= 0 and lens["focus_distance"] > 0):
-                self.fail(node, "aperture_radius must be >= 0 and focus_distance positive")
+            # Mitsuba scales its unit-disk sample by the radius as given: a negative one is the same disk
+            lens = {"aperture_radius": abs(props["aperture_radius"]),
+                    "focus_distance": props.get("focus_distance", far)}
+            if not lens["focus_distance"] > 0:
+                self.fail(node, "focus_distance must be positive")
         m = props.get("to_world", np.eye(4))
         if not _invertible_affine(m):
             self.fail(node, "the sensor's to_world is singular or projective: a camera needs a rotation and a "
