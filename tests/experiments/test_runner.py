@@ -559,3 +559,47 @@ def test_a_cache_under_a_dangling_link_names_the_link(tmp_path):
     with pytest.raises(ProbvisError, match=r"cannot create cache folder '.*rep/cache': '.*rep' is a symbolic link to "
                                            r"'.*nowhere', which does not exist"):
         Cache(tmp_path / "rep" / "cache")
+
+
+def test_renders_are_submitted_a_few_per_worker_at_a_time(monkeypatch):
+    """A study of thousands of cells keeps only IN_FLIGHT_PER_WORKER renders per worker submitted and unfinished,
+    so the scheduler's and the driver's memory do not grow with the study; every render is still stored."""
+    import dask.distributed
+    from types import SimpleNamespace
+
+    in_flight, peak, stored = set(), [0], []
+
+    class Future:
+        def __init__(self, value):
+            self.value = value
+
+        def result(self):
+            return self.value
+
+        def release(self):
+            in_flight.discard(self)
+
+    class Client:
+        def scheduler_info(self, n_workers):
+            return {"workers": {"a": None, "b": None}}
+
+        def scatter(self, scene, broadcast):
+            return scene
+
+        def submit(self, *args, **kwargs):
+            f = Future(({"warnings": []}, None, None))
+            in_flight.add(f)
+            peak[0] = max(peak[0], len(in_flight))
+            return f
+
+    def wait(futures, timeout, return_when):  # the oldest one finishes
+        return {futures[0]}, set(futures[1:])
+
+    monkeypatch.setattr(dask.distributed, "wait", wait)
+    method = SimpleNamespace(visibility="exact", options={}, name="exact")
+    todo = [SimpleNamespace(scene="s", method=method, spp=1, shadow_rays=1, seed=k, key=f"k{k}", reference=k == 0)
+            for k in range(50)]
+    cache = SimpleNamespace(store=lambda key, render: stored.append(key))
+    runner._run_tasks(Client(), 2, None, todo, {"s": None}, cache, False, lambda m: None, lambda: None)
+    assert peak[0] == 2 * runner.IN_FLIGHT_PER_WORKER
+    assert stored == [t.key for t in todo]

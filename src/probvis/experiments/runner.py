@@ -8,6 +8,7 @@ key, so a study gives the same results whichever worker runs which cell.
 import functools
 import hashlib
 import inspect
+import itertools
 import json
 import logging
 import multiprocessing
@@ -228,6 +229,8 @@ def _digest(render):
 
 
 POLL_SECONDS = 0.2  # how often the render loop looks for Ctrl-C / SIGTERM while renders run
+IN_FLIGHT_PER_WORKER = 4  # renders submitted and not yet finished, per worker: the scheduler and the driver
+# hold these only, so a study of any size keeps them small, and no worker waits for its next render
 
 
 HANDSHAKE_SECONDS = 10  # how long a scheduler may take to greet a new connection
@@ -515,25 +518,29 @@ def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, c
         f"with {n_workers} worker{'s' if n_workers > 1 else ''}"
         + (f" x {threads} thread{'s' if threads > 1 else ''}" if threads else ""))
     shared = {name: client.scatter(scene, broadcast=True) for name, scene in scenes.items()}
+    queue = iter(todo)  # the references first
     futures = {}
-    for t in todo:
-        f = client.submit(render_task, shared[t.scene], t.method.visibility, t.method.options, t.spp,
-                          t.shadow_rays, t.seed, threads, Timing() if t.reference else timing,
-                          key=f"{'ref' if t.reference else 'cell'}-{t.key}",
-                          priority=1 if t.reference else 0, pure=False)
-        futures[f] = t
+
+    def submit(n):
+        for t in itertools.islice(queue, n):
+            f = client.submit(render_task, shared[t.scene], t.method.visibility, t.method.options, t.spp,
+                              t.shadow_rays, t.seed, threads, Timing() if t.reference else timing,
+                              key=f"{'ref' if t.reference else 'cell'}-{t.key}",
+                              priority=1 if t.reference else 0, pure=False)
+            futures[f] = t
+
+    submit(IN_FLIGHT_PER_WORKER * n_workers)
     failures = []
-    pending = set(futures)
     with tqdm(total=len(todo), desc="renders", unit="render",
               disable=not (progress and sys.stderr.isatty())) as bar:
-        while pending:
+        while futures:
             check_interrupt()
             try:
-                done, pending = wait(pending, timeout=POLL_SECONDS, return_when="FIRST_COMPLETED")
+                done, _ = wait(list(futures), timeout=POLL_SECONDS, return_when="FIRST_COMPLETED")
             except TimeoutError:
                 continue
             for f in done:
-                t = futures[f]
+                t = futures.pop(f)
                 try:
                     stats, image, tests = f.result()
                 except ProbvisError as exc:
@@ -544,5 +551,6 @@ def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, c
                     cache.store(t.key, Render(stats, image, tests))
                 f.release()  # the scheduler (in this process, for a local cluster) forgets it, the worker its result
                 bar.update(1)
+            submit(len(done))
     if failures:
         raise ProbvisError(f"{len(failures)} render(s) failed (finished ones are cached): " + "; ".join(failures))
