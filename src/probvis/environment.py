@@ -32,7 +32,7 @@ def environment_arrays(env, scale):
     theta = np.linspace(0.0, np.pi, h)  # of the pixel rows
     cos_t = np.cos(theta)
     solid = (2.0 * np.pi / w) * (cos_t[:-1] - cos_t[1:])[:, None] * np.ones((1, w))
-    density = lum * np.sin(theta)[:, None]
+    density = sampling_luminance(lum, env is not None and env.mis_compensation) * np.sin(theta)[:, None]
     mass = cells(density).mean(axis=0)  # each cell's integral of the bilinear density, times w (h - 1)
     total = mass.sum() / (w * (h - 1))
     if env is not None and not env.constant and total > 0:
@@ -48,6 +48,20 @@ def environment_arrays(env, scale):
     fields = (ext, prob, alias, density, cell_pdf, to_world, np.linalg.inv(to_world), 0.5 / w,
               np.zeros(3) if env is None else np.asarray(scale, np.float64))
     return fields, integral
+
+
+def sampling_luminance(lum, mis_compensation):
+    """The luminance (h, w + 1: the first column repeated) that the map is sampled by. With Mitsuba's
+    `mis_compensation` (Karlík et al., "MIS compensation", 2019) the map's mean luminance is taken off and what is
+    left clamped at zero, unless the mean is within 1% of the least value (a nearly constant map): directions
+    dimmer than the mean are left to BSDF sampling, so under `direct` without BSDF samples their light is
+    missing from the image, in Mitsuba as here."""
+    if not mis_compensation:
+        return lum
+    mean = lum[:, :-1].mean()
+    if mean - lum[:, :-1].min() <= 0.01 * mean:
+        return lum
+    return np.maximum(lum - mean, 0.0)
 
 
 @njit(cache=True, error_model="numpy", inline="always")

@@ -1002,8 +1002,14 @@ class _Reader:
             if 0.0 < image.max() * scale < 1.0 / MAX_EMISSION:
                 self.fail(node, f"scale {scale:g} times the map's largest value {image.max():g} is below "
                                 f"{1.0 / MAX_EMISSION:g}: the environment would vanish in single precision")
+            if props.get("mis_compensation", False):
+                warnings.warn(f"{self.where(node)}: mis_compensation samples the map by its luminance less the mean, "
+                              "leaving the dimmer directions to BSDF sampling, which `direct` without BSDF samples "
+                              "does not do: their light is missing, in Mitsuba as here; leave it out for all of it",
+                              stacklevel=2)
         try:
-            builder.add_environment(image, m, scale, constant=kind == "constant")
+            builder.add_environment(image, m, scale, constant=kind == "constant",
+                                    mis_compensation=props.get("mis_compensation", False))
         except ProbvisError as exc:
             self.fail(node, str(exc))
 

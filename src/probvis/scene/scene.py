@@ -28,6 +28,7 @@ class Environment:
     image: np.ndarray  # (h, w, 3)
     to_world: np.ndarray  # (3, 3)
     constant: bool = False
+    mis_compensation: bool = False  # sampled by luminance minus its mean (`environment.sampling_luminance`)
 
 
 @dataclass
@@ -302,9 +303,10 @@ class SceneBuilder:
         self.deltas[e] = (EMITTER_DIRECTIONAL, np.zeros(3), d / np.linalg.norm(d), np.zeros(4))
         return e
 
-    def add_environment(self, image, to_world=None, scale=1.0, constant=False):
+    def add_environment(self, image, to_world=None, scale=1.0, constant=False, mis_compensation=False):
         """The scene's environment emitter (at most one): a latitude-longitude `image` (h >= 2 rows, w >= 1
-        columns, linear RGB) times `scale` (a number or RGB), rotated by `to_world` (4x4 or 3x3)."""
+        columns, linear RGB) times `scale` (a number or RGB), rotated by `to_world` (4x4 or 3x3); sampled by its
+        luminance less the mean with `mis_compensation`, as Mitsuba's envmap."""
         if self.environment is not None:
             raise ProbvisError("only one environment emitter (envmap or constant) can be specified per scene")
         img = np.asarray(image, dtype=np.float64)
@@ -316,7 +318,7 @@ class SceneBuilder:
         e = len(self.emitter_radiance)
         self.emitter_radiance.append(np.ones(3) * np.asarray(scale, dtype=np.float64))
         self.deltas[e] = (EMITTER_ENVIRONMENT, np.zeros(3), np.zeros(3), np.zeros(4))
-        self.environment = Environment(np.ascontiguousarray(img), m, constant)
+        self.environment = Environment(np.ascontiguousarray(img), m, constant, bool(mis_compensation))
         return e
 
     def build(self, camera, defaults=RenderSettings()):
