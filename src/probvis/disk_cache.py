@@ -110,7 +110,12 @@ def store(kind, key, arrays):
             tmp.unlink(missing_ok=True)
         except OSError:
             pass
-        warnings.warn(f"{kind}: cannot cache in {path.parent} ({exc.strerror or exc})", stacklevel=3)
+        if path.parent not in _UNWRITABLE:  # once per folder, whichever estimator stores there next
+            _UNWRITABLE.add(path.parent)
+            warnings.warn(f"{kind}: cannot cache in {path.parent} ({exc.strerror or exc})", stacklevel=3)
+
+
+_UNWRITABLE = set()  # cache folders a store failed in, this process
 
 
 def load_or_build(kind, key, build, use_cache=True, expect=None):

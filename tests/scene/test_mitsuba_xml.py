@@ -1094,8 +1094,11 @@ def test_alias_path_spectrum_files_and_a_named_emitter_load_as_in_mitsuba(tmp_pa
                          ('<alias id="a" as="a"/>', "duplicate id 'a'"),
                          ('<path value="nowhere"/>', "folder .*nowhere' not found"),
                          ('<bsdf type="diffuse" id="x"><spectrum name="reflectance" filename="bad.spd"/></bsdf>',
-                          r"bad.spd:2: expected a wavelength and a value, got '500 0.5 1'")]:
+                          r"bad.spd:2: expected a wavelength and a value \(two finite numbers\), got '500 0.5 1'"),
+                         ('<bsdf type="diffuse" id="x"><spectrum name="reflectance" filename="nan.spd"/></bsdf>',
+                          r"nan.spd:3: expected a wavelength and a value \(two finite numbers\), got '600 x'")]:
         (tmp_path / "bad.spd").write_text("400 0.5\n500 0.5 1\n")
+        (tmp_path / "nan.spd").write_text("400 0.5\n# a comment\n600 x\n")
         with pytest.raises(ProbvisError, match=message):
             probvis.load_scene(write_scene(tmp_path / "u.xml", body + bad))
 

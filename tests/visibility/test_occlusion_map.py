@@ -286,8 +286,10 @@ def test_a_cache_entry_changed_since_it_was_stored_is_rebuilt(tmp_path, monkeypa
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(disk_cache.np, "savez", full)
-    with pytest.warns(UserWarning, match="cannot cache in .*No space left on device"):
+    with pytest.warns(UserWarning, match="cannot cache in .*No space left on device") as said:
         disk_cache.store("structure", "k", {"x": np.arange(3)})
+        disk_cache.store("structure", "k2", {"x": np.arange(3)})  # the same folder: said once
+    assert len(said) == 1
     assert sorted(p.name for p in (tmp_path / "structure").iterdir()) == [path.name]
     monkeypatch.setenv("PROBVIS_CACHE_DIR", "")
     monkeypatch.setenv("HOME", "")

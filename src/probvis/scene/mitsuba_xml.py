@@ -452,8 +452,12 @@ class _Reader:
             words = line.split("#", 1)[0].split()
             if not words:
                 continue
-            if len(words) != 2:
-                self.fail(node, f"{path}:{number}: expected a wavelength and a value, got '{line.strip()}'")
+            try:
+                if len(words) != 2 or not all(np.isfinite(_float(w)) for w in words):
+                    raise ValueError
+            except ValueError:
+                self.fail(node, f"{path}:{number}: expected a wavelength and a value (two finite numbers), got "
+                                f"'{line.strip()}'")
             pairs.append(":".join(words))
         return ", ".join(pairs)
 
