@@ -145,6 +145,18 @@ def test_keys_follow_scene_content_and_settings():
     assert refs[0].key != refs2[0].key and not {t.key for t in cells} & {t.key for t in cells2}
 
 
+def test_cells_run_method_after_method_for_each_setting():
+    """The cells of one scene, ray count and seed follow each other through the methods, so a busy spell of the
+    machine shifts every method's seconds alike, not one method's row."""
+    exp = parse_experiment(dict(TINY, seeds=[3, 4]))
+    _, cells = plan(exp, load_scenes(exp))
+    names = [m["name"] for m in TINY["methods"]]
+    for k in range(0, len(cells), len(names)):
+        group = cells[k:k + len(names)]
+        assert [t.method.name for t in group] == names
+        assert len({(t.scene, t.shadow_rays, t.seed) for t in group}) == 1
+
+
 def test_a_local_cluster_that_cannot_start_is_one_clear_error(monkeypatch):
     """Under `ulimit -f 0` Dask finds no usable temporary folder and raises a RuntimeError from the cause."""
     import dask.distributed
@@ -603,3 +615,27 @@ def test_renders_are_submitted_a_few_per_worker_at_a_time(monkeypatch):
     runner._run_tasks(Client(), 2, None, todo, {"s": None}, cache, False, lambda m: None, lambda: None)
     assert peak[0] == 2 * runner.IN_FLIGHT_PER_WORKER
     assert stored == [t.key for t in todo]
+
+
+def test_a_renamed_method_s_files_leave_the_report(tiny_run, tmp_path):
+    """Images an earlier report wrote that the new one does not (a method renamed) are removed; other files in the
+    report's folders stay, and so do files outside it that a tampered list names."""
+    import shutil
+
+    out, *_ = tiny_run
+    folder = tmp_path / "r"
+    shutil.copytree(out, folder)
+    old = folder / "images" / "quad" / "shifted-4.png"
+    assert old.is_file()
+    (folder / "images" / "quad" / "mine.png").write_bytes(b"x")
+    outside = tmp_path / "outside.png"
+    outside.write_bytes(b"x")
+    doc = json.loads((folder / "results.json").read_text())
+    doc["report_files"] += ["../outside.png", "images/../../outside.png", str(outside)]
+    (folder / "results.json").write_text(json.dumps(doc))
+    study = dict(TINY, methods=[*TINY["methods"][:2], dict(TINY["methods"][2], name="shifted2")])
+    _, _, run = experiment(parse_experiment(study), folder, progress=False, log=lambda m: None)
+    assert run.computed == 0  # the same renders, from the cache
+    assert not old.exists() and (folder / "images" / "quad" / "shifted2-4.png").is_file()
+    assert outside.is_file() and (folder / "images" / "quad" / "mine.png").is_file()
+    assert "images/quad/shifted2-4.png" in json.loads((folder / "results.json").read_text())["report_files"]

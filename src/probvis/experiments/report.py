@@ -303,7 +303,8 @@ class Report:
                               "reference": vars(exp.reference), "command": self.command,
                               "scenes": [vars(s) for s in exp.scenes],
                               "methods": [vars(m) for m in exp.methods]},
-               "cells": self.results.cells, "summary": self.results.summary, "targets": self.results.targets}
+               "cells": self.results.cells, "summary": self.results.summary, "targets": self.results.targets,
+               "report_files": report_files(exp)}
         _write_text(self.folder / "results.json", json.dumps(_finite(doc), indent=1, allow_nan=False))
 
     def _markdown(self):
@@ -502,6 +503,34 @@ Data: <a href=results.csv>results.csv</a>, <a href=results.json>results.json</a>
 """
 
 
+def report_files(exp):
+    """The files a study's report writes, relative to its folder."""
+    files = [*STATIC, "results.csv", "results.json", "results.md", "index.html"]
+    for spec in exp.scenes:
+        slug = _slug(spec.name)
+        files += [f"data/{slug}.js", Report._image_path(spec.name)]
+        files += [f"plots/{slug}-{kind}.png" for kind in ("convergence", "cost", "strip")]
+        files += [f"plots/{slug}-tests-{sr}.png" for sr in exp.shadow_rays]
+        files += [Report._image_path(spec.name, m.name, sr) for m in exp.methods for sr in exp.shadow_rays]
+    return files
+
+
+def _earlier_files(folder):
+    """The images, plots and data files an earlier report in `folder` listed in its results.json (none if there is
+    no such list): those the new report does not write again are removed once it is written."""
+    try:
+        listed = json.loads((folder / "results.json").read_text(encoding="utf-8")).get("report_files", [])
+    except (OSError, ValueError, AttributeError):
+        return []
+    out = []
+    for name in listed if isinstance(listed, list) else []:
+        parts = Path(name).parts if isinstance(name, str) else ()
+        if len(parts) >= 2 and parts[0] in ("images", "plots", "data") and ".." not in parts \
+                and Path(name).suffix in (".png", ".js") and not Path(name).is_absolute():
+            out.append(name)
+    return out
+
+
 def report_problem(exp, folder, inputs=None):
     """What would stop the report's writing in `folder` half-way, or make it replace a file a scene reads, as an
     error message (None: nothing): a file where the report makes a folder, a folder where it writes a file, a
@@ -510,14 +539,8 @@ def report_problem(exp, folder, inputs=None):
     if not utf8_path(folder):
         return (f"cannot write the report in '{folder}': OpenEXR's writer (its images and the render cache) takes "
                 "only folder names in UTF-8; give another folder")
-    slugs = [_slug(spec.name) for spec in exp.scenes]
-    folders = ["images", "plots", "data"] + [f"images/{slug}" for slug in slugs]
-    files = [*STATIC, "results.csv", "results.json", "results.md", "index.html"]
-    for spec, slug in zip(exp.scenes, slugs):
-        files += [f"data/{slug}.js", Report._image_path(spec.name)]
-        files += [f"plots/{slug}-{kind}.png" for kind in ("convergence", "cost", "strip")]
-        files += [f"plots/{slug}-tests-{sr}.png" for sr in exp.shadow_rays]
-        files += [Report._image_path(spec.name, m.name, sr) for m in exp.methods for sr in exp.shadow_rays]
+    folders = ["images", "plots", "data"] + [f"images/{_slug(spec.name)}" for spec in exp.scenes]
+    files = report_files(exp)
     for name in folders + files:
         part = max(name.split("/"), key=lambda p: len(p.encode()))
         if len(part.encode()) > NAME_MAX:
@@ -556,8 +579,9 @@ def write_report(exp, run, results, folder, command=""):
     planned = [folder, *folder.parents, *(folder / sub for sub in ("images", "plots", "data")),
                *(folder / "images" / _slug(spec.name) for spec in exp.scenes)]
     made = [d for d in planned if not d.exists()]
+    earlier = _earlier_files(folder)
     try:
-        return _write_report(exp, run, results, folder, command)
+        index = _write_report(exp, run, results, folder, command)
     except BaseException:
         for d in sorted(made, key=lambda p: len(p.parts), reverse=True):  # the deepest first
             try:
@@ -565,6 +589,13 @@ def write_report(exp, run, results, folder, command=""):
             except OSError:
                 pass
         raise
+    for name in set(earlier) - set(report_files(exp)):  # a renamed method's or scene's files: no longer shown
+        try:
+            if (folder / name).is_file() and not (folder / name).is_symlink():
+                (folder / name).unlink()
+        except OSError:
+            pass
+    return index
 
 
 def _write_report(exp, run, results, folder, command):

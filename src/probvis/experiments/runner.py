@@ -352,7 +352,9 @@ def load_scenes(exp):
 
 
 def plan(exp, scenes):
-    """The study's tasks: (references, cells), each keyed by content hash."""
+    """The study's tasks: (references, cells), each keyed by content hash. The cells of one scene, ray count and
+    seed follow each other method after method, so that a render's turn on a busy machine, or a machine that
+    slows down, weighs on every method alike rather than on one method's whole row."""
     refs, cells = [], []
     ref_method = MethodSpec("reference", exp.reference.visibility, {})
     prints = {m.visibility: estimator_fingerprint(m.visibility) for m in (ref_method, *exp.methods)}
@@ -363,9 +365,9 @@ def plan(exp, scenes):
             refs.append(Task(spec.name, ref_method, r.spp, r.shadow_rays, r.seed,
                              task_key(h, ref_method, r.spp, r.shadow_rays, r.seed,
                                       fingerprint=prints[ref_method.visibility]), reference=True))
-        for m in exp.methods:
-            for sr in exp.shadow_rays:
-                for seed in exp.seeds:
+        for sr in exp.shadow_rays:
+            for seed in exp.seeds:
+                for m in exp.methods:
                     cells.append(Task(spec.name, m, exp.spp, sr, seed,
                                       task_key(h, m, exp.spp, sr, seed, exp.timing, prints[m.visibility])))
     return refs, cells
