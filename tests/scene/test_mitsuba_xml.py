@@ -265,8 +265,9 @@ def test_obj_materials_and_groups_are_ignored_as_by_mitsuba(tmp_path):
     ("<shape type='rectangle'><boolean name='flip_normals' value='true'/><boolean name='flip_normals' value='false'/>"
      "</shape>", "parameter 'flip_normals' is given twice"),
     ("<shape type='cube' id='c'/><shape type='rectangle'><ref id='c'/></shape>", "id 'c' is a <shape>, not a bsdf"),
-    ("<shape type='rectangle'><ref id='m'/></shape><bsdf type='diffuse' id='m'/>",
-     "id 'm' is defined after this reference (line"),
+    ("<shape type='rectangle'><ref id='p'/></shape><bsdf type='twosided' id='p'><ref id='q'/></bsdf>"
+     "<bsdf type='twosided' id='q'><ref id='p'/></bsdf>",
+     "references that go round in a circle ('p' -> 'q' -> 'p')"),
     ("<shape type='instance'><ref id='g'/></shape><shape type='shapegroup' id='g'><shape type='cube'/></shape>",
      "id 'g' is defined after this reference (line"),
     ("<shape type='obj'><string name='filename' value='.'/></shape>", "is not a regular file"),
@@ -1290,3 +1291,23 @@ def test_a_sphere_stretched_or_sheared_stays_round_as_in_mitsuba(tmp_path, trans
         scene = probvis.load_scene(write_scene(tmp_path / "s.xml", body))
     sphere = scene.triangles[scene.tri_emitter < 0].reshape(-1, 3)
     np.testing.assert_allclose(np.linalg.norm(sphere - [0.0, 0.5, 0.0], axis=1), radius, rtol=1e-9)
+
+
+def test_a_reference_to_a_bsdf_or_texture_defined_below_reads_it_as_mitsuba_does(tmp_path):
+    """Mitsuba resolves a <ref> to a top-level object defined further down the file; so does probvis (it reads
+    the object ahead, once): the image is the one of the file in the usual order."""
+    head = sensor(origin="0, -3, 1.5", target="0, 0, 0.3", up="0, 0, 1", fov=40, spp="4", w=16, h=16) + \
+        '<emitter type="point"><point name="position" x="0.5" y="-0.5" z="2"/>' \
+        '<rgb name="intensity" value="5"/></emitter>'
+    tex = ('<texture type="checkerboard" id="t"><rgb name="color0" value="0.2"/>'
+           '<rgb name="color1" value="0.8"/></texture>')
+    bsdf = '<bsdf type="twosided" id="m"><bsdf type="diffuse"><ref name="reflectance" id="t"/></bsdf></bsdf>'
+    shape = '<shape type="rectangle"><transform name="to_world"><scale value="2"/></transform><ref id="m"/></shape>'
+    usual = probvis.load_scene(write_scene(tmp_path / "a.xml", head + tex + bsdf + shape))
+    below = write_scene(tmp_path / "b.xml", head + shape + bsdf + tex)
+    ahead = probvis.load_scene(below)
+    np.testing.assert_array_equal(probvis.render(ahead, seed=1).image, probvis.render(usual, seed=1).image)
+    assert len(ahead.reflectance) == len(usual.reflectance)  # each read once
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    assert len(mi.load_file(str(below)).shapes()) == 1  # a scene Mitsuba loads

@@ -294,6 +294,7 @@ class _Reader:
         self.ids = {}
         self.id_defined = {}  # the element that defined each id
         self.referenced = set()  # ids a <ref> resolved
+        self.reading_ahead = []  # top-level elements read before their turn, for a <ref> above them (innermost last)
         self.images = {}  # decoded image files by (resolved path, raw)
         self.search_paths = []  # the folders of <path> elements, searched before the scene's
         self.hide_emitters = False  # the integrator's option
@@ -880,6 +881,10 @@ class _Reader:
             target = self.id_nodes.get(key)
             if target is None:
                 self.fail(node, f"reference to unknown id '{key}'")
+            if target.tag == kind and kind in ("bsdf", "texture") and any(ch is target for ch in self.root.children):
+                self.read_ahead(node, target)
+        if key not in self.ids:
+            target = self.id_nodes[key]
             group = target.tag == "shape" and target.attrs.get("type") == "shapegroup"
             if target.tag == kind or (group and kind == "shapegroup"):
                 self.fail(node, f"id '{key}' is defined after this reference ({self.line_of(target, node)}): move it "
@@ -890,6 +895,16 @@ class _Reader:
             self.fail(node, f"id '{key}' is a {k}, not a {kind}")
         self.referenced.add(key)
         return val
+
+    def read_ahead(self, node, target):
+        """Read the top-level BSDF or texture `target` that `node`, above it, refers to, as Mitsuba resolves a
+        reference to an object defined further down; one that refers back to itself on the way is refused."""
+        if any(t is target for t in self.reading_ahead):
+            chain = " -> ".join(f"'{t.attrs.get('id')}'" for t in self.reading_ahead + [target])
+            self.fail(node, f"references that go round in a circle ({chain})")
+        self.reading_ahead.append(target)
+        self.bsdf(target) if target.tag == "bsdf" else self.texture(target)
+        self.reading_ahead.pop()
 
     def emitter_radiance(self, node):
         self.check_attrs(node, ("type", "id", "name"))
@@ -1501,7 +1516,8 @@ class _Reader:
             elif ch.tag in ("bsdf", "texture"):
                 if "id" not in ch.attrs:
                     self.fail(ch, f"a top-level {ch.tag} needs an 'id'")
-                self.bsdf(ch) if ch.tag == "bsdf" else self.texture(ch)
+                if self.id_defined.get(self.attr(ch, "id")) is not ch:  # not read ahead for a <ref> above it
+                    self.bsdf(ch) if ch.tag == "bsdf" else self.texture(ch)
             elif ch.tag == "shape":
                 self.shape(ch, builder)
             elif ch.tag == "emitter":
