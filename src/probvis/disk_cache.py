@@ -96,6 +96,9 @@ def _digest(arrays):
     return h.digest()
 
 
+_UNWRITABLE = set()  # cache folders a store failed in, this process
+
+
 def store(kind, key, arrays):
     """Store a dict of arrays under `key`, atomically; a cache that cannot be written is a warning."""
     path = cache_dir(kind) / f"{key}.npz"
@@ -114,8 +117,6 @@ def store(kind, key, arrays):
             _UNWRITABLE.add(path.parent)
             warnings.warn(f"{kind}: cannot cache in {path.parent} ({exc.strerror or exc})", stacklevel=3)
 
-
-_UNWRITABLE = set()  # cache folders a store failed in, this process
 
 
 def load_or_build(kind, key, build, use_cache=True, expect=None):
