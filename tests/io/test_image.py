@@ -217,3 +217,18 @@ def test_pillow_s_decompression_bomb_note_is_not_shown(tmp_path, monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert read_linear_rgb(tmp_path / "t.png").shape == (4, 4, 3)
+
+
+@pytest.mark.parametrize("kind", ["png", "exr", "pfm"])
+def test_an_image_under_another_extension_is_read_by_its_content(tmp_path, kind):
+    """As Mitsuba's bitmap loader, a file whose extension names no format is read by its first bytes; one whose
+    bytes announce none either is refused naming the extensions read."""
+    from probvis.io.image import read_linear_rgb
+
+    img = np.random.default_rng(0).random((3, 4, 3))
+    write_image(tmp_path / f"a.{kind}", img)
+    (tmp_path / "a.texture").write_bytes((tmp_path / f"a.{kind}").read_bytes())
+    np.testing.assert_array_equal(read_linear_rgb(tmp_path / "a.texture"), read_linear_rgb(tmp_path / f"a.{kind}"))
+    (tmp_path / "b.texture").write_bytes(b"not an image at all")
+    with pytest.raises(ProbvisError, match=r"b.texture: unsupported image format '.texture' \(supported: .exr"):
+        read_linear_rgb(tmp_path / "b.texture")

@@ -221,6 +221,21 @@ READ_FORMATS = (".exr", ".hdr", ".pfm", *_PILLOW_FORMATS)  # what `read_linear_r
 _PILLOW_MODES = {"1": "L", "CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB"}
 
 
+_SIGNATURES = ((b"\x89PNG\r\n\x1a\n", ".png"), (b"\xff\xd8\xff", ".jpg"), (b"v/1\x01", ".exr"),
+               (b"#?", ".hdr"), (b"PF\n", ".pfm"), (b"Pf\n", ".pfm"), (b"BM", ".bmp"), (b"P5", ".ppm"),
+               (b"P6", ".ppm"))  # a file's first bytes and the format they start
+
+
+def _format_by_content(path):
+    """The extension of the format a file's first bytes announce (None: none of `_SIGNATURES`)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError:
+        return None
+    return next((ext for magic, ext in _SIGNATURES if head.startswith(magic)), None)
+
+
 def read_linear_rgb(path, raw=False):
     """An image file as linear RGB (h, w, 3) float64, as Mitsuba's bitmap loader gives it: EXR, HDR and PFM as
     stored, `_PILLOW_FORMATS` decoded from sRGB (unless `raw`); grey repeated over the channels, alpha dropped.
@@ -237,6 +252,8 @@ def read_linear_rgb(path, raw=False):
         raise ProbvisError(f"image {path} is {size / 2**30:.1f} GiB, more than any texture or environment map "
                            f"probvis reads (at most {MAX_IMAGE_BYTES >> 30} GiB)")
     ext = path.suffix.lower()
+    if ext not in READ_FORMATS:  # as Mitsuba's bitmap loader, by the file's first bytes
+        ext = _format_by_content(path) or ext
     if ext == ".exr":
         img = read_exr(path)
     elif ext == ".pfm":
