@@ -1249,11 +1249,32 @@ def test_an_included_file_reads_as_if_pasted_in_as_in_mitsuba(tmp_path, case):
         assert np.array_equal(*(np.array(mi.render(mi.load_file(str(f)), seed=1, spp=4)) for f in (included, pasted)))
 
 
+def test_an_include_s_filename_takes_parameters_as_in_mitsuba(tmp_path):
+    """`<include filename="$part.xml"/>` reads the file its parameter names, from the <default> above it or -D,
+    as Mitsuba substitutes it (probvis refused parameters there)."""
+    head = "<default name='refl' value='0.3'/><default name='part' value='a'/>" + sensor() + LIGHT
+    wrap = "<scene version='3.0.0'>{}</scene>"
+    (tmp_path / "a.xml").write_text(wrap.format(MATERIAL))
+    (tmp_path / "b.xml").write_text(wrap.format(MATERIAL.replace("$refl", "0.9")))
+    body = "<include filename='$part.xml'/>" + FLOOR.format(bsdf="<ref id='m'/>")
+    scene = write_scene(tmp_path / "s.xml", head + body)
+    for part, refl in (("a", 0.3), (None, 0.3), ("b", 0.9)):
+        loaded = probvis.load_scene(scene, **({} if part is None else {"part": part}))
+        assert loaded.reflectance[loaded.tri_material[-1]][0] == pytest.approx(refl)  # the floor, last
+    if importlib.util.find_spec("mitsuba") is not None:
+        import mitsuba as mi
+
+        mi.set_variant("scalar_rgb")
+        mi.load_file(str(scene), part="b")  # a scene Mitsuba reads
+
+
 @pytest.mark.parametrize("files, body, message", [
     ({}, "<include filename='none.xml'/>", r"s.xml:\d+: <include>: included file 'none.xml' not found"),
     ({"a.xml": "<scene version='3.0.0'><include filename='s.xml'/></scene>"}, "<include filename='a.xml'/>",
      r"a.xml:1: <include>: 's.xml' includes itself \(s.xml -> a.xml -> s.xml\)"),
-    ({}, "<include filename='$f.xml'/>", r"s.xml:\d+: <include>: an <include> filename made of parameters"),
+    ({}, "<include filename='$f.xml'/>", r"s.xml:\d+: <include>: undefined parameter '\$f'"),
+    ({}, "<include filename='$f.xml'/><default name='f' value='a'/>",
+     r"s.xml:\d+: <include>: parameter '\$f' is declared on line \d+, after this use"),
     ({}, "<include filename='a.xml' other='1'/>", r"s.xml:\d+: <include>: an <include> takes one attribute"),
     ({"a.xml": "<scene version='3.0.0'>\n\n<shape type='rectangle'><float name='nope' value='1'/></shape></scene>"},
      "<include filename='a.xml'/>", r"a.xml:3: <float>: unsupported parameter 'nope'"),

@@ -127,27 +127,29 @@ def _size(node):
     return 1 + sum(_size(ch) for ch in node.children)
 
 
-def with_includes(root, path, fail):
+def with_includes(root, path, fail, filename):
     """The document with each `<include filename=.../>` replaced, as Mitsuba's parser does, by the included file's
-    elements: the children of its `<scene>`, or its root element itself. The file is looked for beside the file
-    that includes it, then beside the scene file; its elements keep their own file and line for messages. Then
-    every element is numbered in document order."""
+    elements: the children of its `<scene>`, or its root element itself. `filename(node, defaults)` gives an
+    include's file name, its parameters substituted from the top-level `<default>` elements above it. The file is
+    looked for beside the file that includes it, then beside the scene file; its elements keep their own file
+    and line for messages. Then every element is numbered in document order."""
     scene_folder = Path(path).parent
     brought = [0]
+    defaults = []  # the top-level <default> elements so far, in document order
 
     def expand(node, file, chain, depth):
         out = []
         for ch in node.children:
             if ch.tag != "include":
+                if ch.tag == "default" and depth == 1:
+                    defaults.append(ch)
                 expand(ch, file, chain, depth + 1)
                 out.append(ch)
                 continue
             extra = set(ch.attrs) - {"filename"}
             if extra or "filename" not in ch.attrs:
                 fail(ch, "an <include> takes one attribute, filename" if extra else "missing attribute 'filename'")
-            name = ch.attrs["filename"]
-            if "$" in name:
-                fail(ch, f"an <include> filename made of parameters ('{name}') is not supported: write the file's name")
+            name = filename(ch, list(defaults))
             here = Path(file).parent if file is not None else scene_folder
             target = next((f / name for f in (here, scene_folder) if (f / name).is_file()), here / name)
             if not target.is_file():
@@ -1470,11 +1472,24 @@ class _Reader:
         self.inputs.append(path)
         return path
 
+    def _include_name(self, node, defaults):
+        """An `<include>`'s file name with its parameters substituted, as Mitsuba does: -D values, then the
+        `<default>` elements above it (the first of a name kept)."""
+        saved, self.defaults = self.defaults, {}
+        try:
+            for d in defaults:
+                name = d.attrs.get("name")
+                if name and name not in self.defaults and "value" in d.attrs:
+                    self.defaults[name] = d.attrs["value"] if name in self.overrides else self.attr(d, "value")
+            return self.attr(node, "filename")
+        finally:
+            self.defaults = saved
+
     def read(self):
         self.root = root = parse_tree(self.path)
         if root.tag != "scene":
             self.fail(root, "the root element must be <scene>")
-        with_includes(root, self.path, self.fail)
+        with_includes(root, self.path, self.fail, self._include_name)
         self.inputs += list(dict.fromkeys(n.file for n in _document_order(root) if n.file is not None))
         self.check_attrs(root, ("version",))
         if "version" in root.attrs and not re.fullmatch(r"\d+(\.\d+){0,2}", root.attrs["version"].strip()):
