@@ -92,6 +92,8 @@ CASES = [
     (["render", "quad-shadow", "--stats", "a.json", "--stats", "b.json"], "--stats given twice (a.json, b.json)"),
     (["render", "quad-shadow", "--tests-image", "a.exr", "--tests-image", "b.exr"], "--tests-image given twice"),
     (["render", "quad-shadow", "-o", "x.exr/"], "the name ends in '/'"),
+    (["render", "quad-shadow", "-o", ".exr"], "cannot write '.exr': the name is an extension alone; give a name "
+                                             "before it, such as 'out.exr'"),
     (["render", "quad-shadow", "--visibility", "cache-cv", "--q", "0.1", "--min-q", "0.9"],
      "give q or min_q, not both"),
     (["render", "quad-shadow", "-D", "res=8", "-D", "res=64"], "-D res given twice (8, 64): give it once"),

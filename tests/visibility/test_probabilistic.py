@@ -70,6 +70,16 @@ def test_tables_cli_json(capsys):
     assert "summing to 1" in capsys.readouterr().err
 
 
+def test_shifts_that_sum_to_1_within_rounding_are_taken_as_exact():
+    """A third typed to seven digits three times sums to 0.9999999: accepted as the user's check accepts it, the
+    last shift taken as 1 - α - β so that the terms sum to V_A V_B exactly (an unbiased estimate)."""
+    from probvis.visibility.probabilistic.shifted import shifted
+
+    d = shifted(shifts=(0.3333333, 0.3333333, 0.3333333))
+    for va, vb in ((0, 0), (0, 1), (1, 0), (1, 1)):
+        assert d.f[:, va, vb].sum() == pytest.approx(va * vb, abs=1e-15)
+
+
 def blockers(n_a, n_b, covered):
     """n_a + n_b small triangles around the segment from (0,0,0) to (0,0,1); `covered` says which cross it."""
     tris = []

@@ -46,6 +46,9 @@ def check_writable(path, formats=FORMATS, role="an image"):
     if str(path).endswith(os.sep):
         raise ProbvisError(f"cannot write '{path}': the name ends in '{os.sep}' (a folder's name); give a file name")
     path = Path(path)
+    if path.name.lower() in formats:  # '.exr' is a hidden file's name, without an extension
+        raise ProbvisError(f"cannot write '{path}': the name is an extension alone; give a name before it, such as "
+                           f"'{path.with_name('out' + path.name)}'")
     if path.suffix.lower() not in formats:
         raise ProbvisError(f"cannot write '{path}': {role} must be a {', '.join(formats)} file")
     if path.suffix.lower() == ".exr" and not utf8_path(path):
