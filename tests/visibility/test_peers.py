@@ -104,6 +104,10 @@ def test_ratio_is_consistent_and_biased_at_few_samples():
     assert abs(many) < 0.2 * abs(one)
     r = probvis.render("quad-shadow", spp=1, shadow_rays=2, resolution=(8, 8), visibility="ratio")
     assert r.stats["estimator"]["biased"]
+    from probvis.io.stats import summary
+
+    assert "visibility ratio (biased:" in summary(r.stats)  # the command's summary says so too
+    assert "biased" not in summary(probvis.render("quad-shadow", spp=1, shadow_rays=2, resolution=(8, 8)).stats)
 
 
 def test_ratio_gives_lit_points_their_analytic_light():

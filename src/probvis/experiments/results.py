@@ -3,6 +3,7 @@ import json
 import statistics
 from dataclasses import dataclass
 
+from ..io.stats import biased_by_choice
 from ..visibility import estimator_class
 from . import metrics
 
@@ -74,15 +75,6 @@ def phases(stats, visibility):
     elif not prepare:
         out["prepare"] = sec["prepare"]
     return {**out, **batch, "render": sec["render"] - sum(batch.values())}
-
-
-def biased_by_choice(stats):
-    """Whether a render is biased by construction (a consistent estimator such as `ratio`, verification off,
-    negative pixels clamped): such methods are labelled biased in reports."""
-    estimator = stats.get("estimator") or {}
-    verification = estimator.get("verification") or {}
-    return (bool(estimator.get("biased")) or bool(verification.get("biased"))
-            or bool(stats["negative_pixels"].get("clamped")))
 
 
 def tests_by_geometry(stats):

@@ -21,6 +21,15 @@ def write_stats(path, stats):
             f.write(text)
 
 
+def biased_by_choice(stats):
+    """Whether a render is biased by construction (a consistent estimator such as `ratio`, verification off,
+    negative pixels clamped): such renders are labelled biased in the summary and in reports."""
+    estimator = stats.get("estimator") or {}
+    verification = estimator.get("verification") or {}
+    return (bool(estimator.get("biased")) or bool(verification.get("biased"))
+            or bool(stats["negative_pixels"].get("clamped")))
+
+
 def summary(stats):
     """The lines `probvis render` prints of a render's `stats` (`RenderResult.stats`)."""
     if not isinstance(stats, dict):
@@ -40,7 +49,9 @@ def _summary(stats):
     it = stats["intersection_tests"]
     lines = [
         f"scene       {stats['scene']}  {stats['width']}x{stats['height']}, {stats['spp']} spp x "
-        f"{stats['shadow_rays_per_sample']} shadow rays, seed {stats['seed']}, visibility {stats['visibility']['name']}",
+        f"{stats['shadow_rays_per_sample']} shadow rays, seed {stats['seed']}, visibility {stats['visibility']['name']}"
+        + (" (biased: at these settings its expectation is not exact visibility's image)"
+           if biased_by_choice(stats) else ""),
         f"seconds     total {s['total']:.2f} = load {s['load']:.2f} + compile {s['compile']:.2f} + "
         f"bvh {s['bvh']:.2f} + prepare {s['prepare']:.2f} + render {s['render']:.2f}",
         f"rays        camera {stats['camera_rays']:,}  shadow {stats['shadow_rays']:,}"
