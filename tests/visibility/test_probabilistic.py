@@ -245,6 +245,20 @@ def test_bad_probvis_options(options, message):
             make_estimator("probvis", **options)
 
 
+def test_deep_subdivision_warns_that_the_image_will_be_noisy():
+    """Levels or cells whose terms reach beyond NOISY_REACH render (unbiased) with a warning naming the reach;
+    the defaults and shallow settings render without."""
+    with pytest.warns(UserWarning, match=r"levels 3 and cells 1: one segment's estimate may reach ±5.8e\+03"):
+        probvis.render("quad-shadow", spp=1, shadow_rays=1, resolution=(4, 4), visibility="probvis",
+                       visibility_options={"levels": 3})
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        probvis.render("quad-shadow", spp=1, shadow_rays=1, resolution=(4, 4), visibility="probvis",
+                       visibility_options={"levels": 2})
+
+
 @pytest.mark.parametrize("estimator", ["standard", "shifted", "power"])
 def test_the_reach_of_recursive_estimates_is_their_largest_value(estimator):
     """`Decomposition.reach` (what --levels and --cells are checked against) is the largest |estimate| of two

@@ -6,6 +6,8 @@ with `penumbra="list"`, so the two converge to the same image and differ only in
 drawn for verification is evaluated against its whole list instead, whose exact value the correction needs
 anyway: (1 - B) X + B (V_list + (V - V_list) / q) has expectation V for any estimate X of V_list.
 """
+import warnings
+
 import numpy as np
 
 from ...errors import ProbvisError
@@ -25,6 +27,7 @@ from .standard import standard as standard_decomposition
 GROUPINGS = {"solid-angle": GROUP_SOLID_ANGLE, "count": GROUP_COUNT, "random": GROUP_RANDOM}
 DECOMPOSITIONS = ("standard", "shifted", "power", "adaptive")
 MAX_REACH = 1e12  # the largest |estimate| of one segment allowed (as of a plug-in's): beyond, images overflow
+NOISY_REACH = 100  # above, a warning: such terms make an image far noisier than exact visibility's
 MAX_LEVELS = 5  # the shifted decomposition's reach at 5 levels is 2e11; at 6, no decomposition's is below 1e12
 MAX_POWER = 64  # (V_A + V_B)^n / (2^n - 2): beyond this the terms lose all precision
 
@@ -89,9 +92,16 @@ class ProbabilisticVisibility(OcclusionMapVisibility):
             raise ProbvisError(f"levels {p.levels} and cells {p.cells}: one segment's estimate could reach {size} "
                                f"(each level's 1/p weights multiply, and the cells' estimates), beyond {MAX_REACH:g}; "
                                "lower levels or cells")
+        self.reach = reach
 
     def prepare(self, scene, bvh, emitters, settings, integrator):
         super().prepare(scene, bvh, emitters, settings, integrator)
+        p = self.params
+        if self.reach > NOISY_REACH:
+            warnings.warn(f"levels {p.levels} and cells {p.cells}: one segment's estimate may reach "
+                          f"±{self.reach:.2g}, so the image, though unbiased, is far noisier than exact visibility's "
+                          "(the paper's negative finding for deep subdivision); levels 1 and cells 1 are the defaults",
+                          stacklevel=2)
         self._stats.update(term_selections=[0, 0, 0], exact_selections=0, group_balance=None,
                            adaptive_strategies=[0] * (len(mixture.P_GRID) + 1))
         d = self.decomposition
