@@ -272,15 +272,15 @@ def test_a_texture_too_large_to_read_is_one_line(tmp_path, monkeypatch):
     from PIL import Image
 
     import probvis
-    from probvis.io import image
+    from probvis.io import linear_rgb
 
     import imageio.v3 as iio
 
     Image.new("L", (64, 64)).save(tmp_path / "big.png")
-    monkeypatch.setattr(image, "MAX_IMAGE_PIXELS", 1000)
+    monkeypatch.setattr(linear_rgb, "MAX_IMAGE_PIXELS", 1000)
     monkeypatch.setattr(iio, "imread", None)  # decoding it would fail: the size must come from the header
     with pytest.raises(probvis.ProbvisError, match="image is 64x64 .* above the 0 Mpixel probvis reads"):
-        image.read_linear_rgb(tmp_path / "big.png")
+        linear_rgb.read_linear_rgb(tmp_path / "big.png")
 
     def out_of_memory(*args, **kwargs):
         raise MemoryError

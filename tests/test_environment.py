@@ -11,7 +11,8 @@ import probvis
 from probvis import ProbvisError
 from probvis.emitters import build_emitter_sampler
 from probvis.environment import environment_radiance, sample_environment
-from probvis.io.image import read_linear_rgb, write_exr
+from probvis.io.image import write_exr
+from probvis.io.linear_rgb import read_linear_rgb
 from tests.conftest import assert_matches_mitsuba, mitsuba_image, sensor, write_scene
 
 GROUND = """

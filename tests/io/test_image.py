@@ -32,7 +32,8 @@ def test_unwritable_outputs_are_caught_early(tmp_path):
 def test_an_hdr_header_too_large_and_a_truncated_pfm_are_named(tmp_path):
     """An HDR's declared size is checked from its header before decoding (as a PNG's); a PFM shorter than its
     header says is called truncated."""
-    from probvis.io.image import read_linear_rgb, write_pfm
+    from probvis.io.image import write_pfm
+    from probvis.io.linear_rgb import read_linear_rgb
 
     (tmp_path / "t.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 100000 +X 100000\n" + bytes(20))
     with pytest.raises(ProbvisError, match=r"t.hdr: image is 100000x100000 \(10000 Mpixel\), above the 134 Mpixel"):
@@ -49,7 +50,7 @@ def test_valid_images_of_other_pixel_modes_read_as_rgb(tmp_path, kind):
     """A 1-bit PNG was refused, a white CMYK JPEG read black (K taken for alpha), an RGBA EXR refused."""
     from PIL import Image
 
-    from probvis.io.image import read_linear_rgb
+    from probvis.io.linear_rgb import read_linear_rgb
 
     path = tmp_path / kind
     if kind == "1-bit.png":
@@ -111,7 +112,7 @@ def test_an_empty_write_is_refused(tmp_path):
 
 def test_a_damaged_hdr_is_one_error_with_opencv_s_reason(tmp_path, capfd):
     """OpenCV logged '[ERROR:0@...] global loadsave.cpp ...' and a blank line before probvis's error."""
-    from probvis.io.image import read_linear_rgb
+    from probvis.io.linear_rgb import read_linear_rgb
 
     (tmp_path / "t.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8 +X 8\n" + bytes([2, 2, 0, 8, 9]))
     with pytest.raises(ProbvisError, match=r"cannot read Radiance HDR image .*t.hdr \(RGBE read error\)"):
@@ -210,7 +211,7 @@ def test_pillow_s_decompression_bomb_note_is_not_shown(tmp_path, monkeypatch):
     from PIL import Image
 
     from probvis.io import write_png
-    from probvis.io.image import read_linear_rgb
+    from probvis.io.linear_rgb import read_linear_rgb
 
     write_png(tmp_path / "t.png", np.full((4, 4, 3), 0.5))
     monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 10)  # 16 pixels: above it, below twice it (an error)
@@ -223,7 +224,7 @@ def test_pillow_s_decompression_bomb_note_is_not_shown(tmp_path, monkeypatch):
 def test_an_image_under_another_extension_is_read_by_its_content(tmp_path, kind):
     """As Mitsuba's bitmap loader, a file whose extension names no format is read by its first bytes; one whose
     bytes announce none either is refused naming the extensions read."""
-    from probvis.io.image import read_linear_rgb
+    from probvis.io.linear_rgb import read_linear_rgb
 
     img = np.random.default_rng(0).random((3, 4, 3))
     write_image(tmp_path / f"a.{kind}", img)

@@ -5,7 +5,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import ProbvisError, checked_call, is_flag, is_path
-from ..io.image import READ_FORMATS
+from ..io.linear_rgb import READ_FORMATS
 from .builtin import BUILTINS, builtin_scene
 from .mitsuba_xml import read_scene
 from .scene import Scene, SceneBuilder, ShapeInfo

@@ -14,7 +14,7 @@ import defusedxml.sax
 import numpy as np
 
 from ..errors import ProbvisError, missing_file
-from ..io.image import read_linear_rgb
+from ..io.linear_rgb import read_linear_rgb
 from ..settings import (MAX_SHADOW_RAYS, MAX_SPP, RenderSettings, parse_float as _float,
                         parse_int as _int)
 from . import shapes as shp
