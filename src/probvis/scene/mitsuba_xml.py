@@ -885,13 +885,12 @@ class _Reader:
                 self.fail(node, f"reference to unknown id '{key}'")
             if target.tag == kind and kind in ("bsdf", "texture") and any(ch is target for ch in self.root.children):
                 self.read_ahead(node, target)
-        if key not in self.ids:
-            target = self.id_nodes[key]
-            group = target.tag == "shape" and target.attrs.get("type") == "shapegroup"
-            if target.tag == kind or (group and kind == "shapegroup"):
-                self.fail(node, f"id '{key}' is defined after this reference ({self.line_of(target, node)}): move it "
-                                "above")
-            self.fail(node, f"id '{key}' is a <{target.tag}>, not a {kind}")
+            if key not in self.ids:  # a shapegroup further down, or not the kind asked for
+                group = target.tag == "shape" and target.attrs.get("type") == "shapegroup"
+                if target.tag == kind or (group and kind == "shapegroup"):
+                    self.fail(node, f"id '{key}' is defined after this reference ({self.line_of(target, node)}): "
+                                    "move it above")
+                self.fail(node, f"id '{key}' is a <{target.tag}>, not a {kind}")
         k, val = self.ids[key]
         if k != kind:
             self.fail(node, f"id '{key}' is a {k}, not a {kind}")
@@ -1472,6 +1471,11 @@ class _Reader:
         self.inputs.append(path)
         return path
 
+    def default_value(self, node, name):
+        """A `<default>`'s value: as written where -D gives the parameter (its `$b` then needs no other), else
+        with the parameters known so far substituted."""
+        return node.attrs["value"] if name in self.overrides else self.attr(node, "value")
+
     def _include_name(self, node, defaults):
         """An `<include>`'s file name with its parameters substituted, as Mitsuba does: -D values, then the
         `<default>` elements above it (the first of a name kept)."""
@@ -1480,7 +1484,7 @@ class _Reader:
             for d in defaults:
                 name = d.attrs.get("name")
                 if name and name not in self.defaults and "value" in d.attrs:
-                    self.defaults[name] = d.attrs["value"] if name in self.overrides else self.attr(d, "value")
+                    self.defaults[name] = self.default_value(d, name)
             return self.attr(node, "filename")
         finally:
             self.defaults = saved
@@ -1515,7 +1519,7 @@ class _Reader:
                     continue
                 self.default_nodes[name] = ch
                 # `$b` in a default: the parameters known so far (none needed where -D gives the parameter)
-                self.defaults[name] = ch.attrs["value"] if name in self.overrides else self.attr(ch, "value")
+                self.defaults[name] = self.default_value(ch, name)
             elif ch.tag == "integrator":
                 if integrator_line is not None:
                     self.fail(ch, f"only one integrator per scene (the first on line {integrator_line})")
