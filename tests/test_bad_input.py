@@ -52,7 +52,7 @@ CASES = [
     (["render", "quad-shadow", "-o", "/proc/out.png"], "cannot write '/proc/out.png'"),
     (["render", "quad-shadow", "-o", "x" * 300 + ".png"], "File name too long"),
     (["render", "quad-shadow", "-D", "res=16384"], "this render needs about"),
-    (["render", "quad-shadow", "-D", "res=32768"], "lower the resolution"),
+    (["render", "quad-shadow", "-D", "res=32768"], "lower the resolution (-D res, or resolution= in Python)"),
     (["render", "quad-shadow", "-D", "res=1e9"], "parameter res must be an integer"),
     (["render", "quad-shadow", "-D", "res=0"], "parameter res (-D res=, res=) must be from 1 to 32768, got 0"),
     (["render", "quad-shadow", "-o", "a\nb.tiff"], "cannot write 'a\\nb.tiff'"),
@@ -157,6 +157,17 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, args, message):
     assert "Traceback" not in r.stderr and not r.stdout.strip()
     assert not [p for p in tmp_path.iterdir()], "nothing may be written"
     assert seconds < TIME_LIMIT
+
+
+def test_a_film_too_large_names_what_sets_its_size(tmp_path):
+    """A scene file whose film is too large and that declares no `res`: the advice names the film's width and
+    height in that file, not a -D res it does not have (sweep 37)."""
+    scene = write_scene(tmp_path / "big.xml", sensor(w=30000, h=30000) + """
+        <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""")
+    r, _ = run(["render", scene, "-o", tmp_path / "o.exr"], tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "lower the resolution (the film's width and height in big.xml, or resolution= in Python)" in r.stderr
+    assert not (tmp_path / "o.exr").exists()
 
 
 def test_bad_meshes_are_named_with_file_and_line(tmp_path):

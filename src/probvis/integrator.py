@@ -45,10 +45,6 @@ from .visibility import RenderPath, ShadingPoints, ShadowQuery, VisibilityEstima
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keeps progress and Ctrl-C prompt)
 TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
 COMPILE_TIME = "about half a minute"  # a first run's compilation on 2 cores (17-26 s exact, 33-36 s probvis)
-MEMORY_HINTS = {"film": "the resolution (-D res, resolution=)", "photons": "--photons", "lookups": "--neighbours or "
-                "--shadow-rays", "batch": "--spp or --shadow-rays", "environment": "the environment map's size"}
-
-
 def render_memory(scene, settings, estimator):
     """Bytes by part (`memory.estimate`) a render with `estimator` (made, not prepared) will take."""
     staged = type(estimator).render_path is VisibilityEstimator.render_path  # may need the slot buffers
@@ -371,7 +367,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     need = render_memory(scene, settings, estimator)
     if (type(estimator), repr(sorted(options.items()))) not in _warmed:
         need["kernels"] = memory.KERNEL_BYTES  # loading (or compiling) the kernels comes after the estimate
-    memory.check(need, MEMORY_HINTS, estimator.name)
+    memory.check(need, memory.render_hints(scene), estimator.name)
     with threadpool_limits(limits=threads):  # one budget: BLAS and OpenMP pools get no more than Numba
         with plugin_errors(type(estimator), "the render (prepare, classify, evaluate or shade)"):
             cpu_compile = time.process_time()

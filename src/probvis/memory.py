@@ -5,6 +5,7 @@ with its BVH and the estimator's own structures (`VisibilityEstimator.memory_est
 refuses a render that would not fit in the memory available now, naming what to lower.
 """
 import resource
+from pathlib import Path
 
 import psutil
 
@@ -81,6 +82,18 @@ def available():
 def peak_rss():
     """The process's peak resident set so far, in bytes."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+# what lowers each part of a render's estimate, named in `check`'s message (the film's: `render_hints`)
+RENDER_HINTS = {"photons": "--photons", "lookups": "--neighbours or --shadow-rays", "batch": "--spp or --shadow-rays",
+                "environment": "the environment map's size"}
+
+
+def render_hints(scene):
+    """`RENDER_HINTS` with the film's: -D res where the scene declares `res`, else its film's width and height."""
+    file = f" in {Path(scene.source).name}" if scene.source else ""
+    where = "-D res" if "res" in scene.parameters else f"the film's width and height{file}"
+    return {**RENDER_HINTS, "film": f"the resolution ({where}, or resolution= in Python)"}
 
 
 def check(parts, hints, estimator=None):

@@ -201,9 +201,11 @@ def builtin_scene(name, defaults=None):
     if not 1 <= kwargs.get("res", 1) <= MAX_FILM_SIDE:
         raise ProbvisError(f"parameter res (-D res=, res=) must be from 1 to {MAX_FILM_SIDE}, got {kwargs['res']}")
     try:
-        return gen(**kwargs)
+        scene = gen(**kwargs)
     except ProbvisError as exc:  # a setting's range (spp, shadow_rays, seed): named as the parameter it came from
         key = next((k for k in kwargs if str(exc).startswith(f"{k} must")), None)
         if key is None:
             raise
         raise ProbvisError(f"parameter {key} (-D {key}=, {key}=){str(exc)[len(key):]}") from None
+    scene.parameters = PARAMETERS
+    return scene

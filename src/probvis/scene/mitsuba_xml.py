@@ -1126,13 +1126,18 @@ class _Reader:
             v, f = shp.disk()
         elif kind == "cylinder":
             v, f, vnormals = shp.cylinder()
-            m = m @ self.cylinder_frame(node, props)
+            frame = self.cylinder_frame(node, props)
+            if frame is None:
+                return self.left_out(node, kind, radiance, "its radius is 0 or p0 = p1")
+            m = m @ frame
             face_normals = False
         else:
             v, f, vnormals = shp.uv_sphere()
             r = props.get("radius", 1.0)
-            if not 0 < abs(r) <= MAX_COORDINATE:  # negative: turned inside out, as Mitsuba flips its normals
-                self.fail(node, f"sphere radius must be non-zero and at most {MAX_COORDINATE:g} in size, got {r:g}")
+            if not abs(r) <= MAX_COORDINATE:  # negative: turned inside out, as Mitsuba flips its normals
+                self.fail(node, f"sphere radius must be at most {MAX_COORDINATE:g} in size, got {r:g}")
+            if r == 0:
+                return self.left_out(node, kind, radiance, "its radius is 0")
             m = self.round_sphere(node, m @ tf.translate(props.get("center", np.zeros(3))) @ tf.scale([r, r, r]))
             face_normals = False
         if kind in ("disk", "sphere", "cylinder"):
@@ -1158,17 +1163,23 @@ class _Reader:
             kept = builder.add_mesh(name, kind, v, f, m, material, radiance, face_normals, vnormals, flip, uv)
         except ProbvisError as exc:
             self.fail(node, str(exc))
-        if radiance is not None and kept == 0:
-            self.fail(node, "an area emitter on a shape without area (every triangle degenerate) emits nothing: "
-                            "check the shape's size and to_world")
         if kept == 0:
-            warnings.warn(f"{self.where(node)}: shape '{kind}' has no area (all {len(f)} of its triangles are "
-                          "degenerate once transformed): it is left out; check its size and to_world", stacklevel=2)
+            self.left_out(node, kind, radiance, f"all {len(f)} of its triangles are degenerate once transformed")
+
+    def left_out(self, node, kind, radiance, why):
+        """A shape without area is left out with a warning, as Mitsuba renders nothing of it; an area emitter on
+        one is refused, since it would emit nothing."""
+        if radiance is not None:
+            self.fail(node, f"an area emitter on a shape without area ({why}) emits nothing: check the shape's size "
+                            "and to_world")
+        warnings.warn(f"{self.where(node)}: shape '{kind}' has no area ({why}): it is left out; check its size and "
+                      "to_world", stacklevel=3)
 
     def cylinder_frame(self, node, props):
         """Object-to-shape transform of Mitsuba's cylinder from p0 to p1 with a radius (the unit cylinder's z
         axis along p1 - p0, x and y as Mitsuba's frame of that axis). A negative radius turns the frame half a
-        turn about the axis, as Mitsuba's scale by it does: the same surface, facing out."""
+        turn about the axis, as Mitsuba's scale by it does: the same surface, facing out. None for a cylinder
+        without area (radius 0, p0 = p1)."""
         p0, p1 = props.get("p0", np.zeros(3)), props.get("p1", np.array([0.0, 0.0, 1.0]))
         r = props.get("radius", 1.0)
         for name, p in (("p0", p0), ("p1", p1)):
@@ -1181,7 +1192,7 @@ class _Reader:
         axis = np.asarray(p1, float) - np.asarray(p0, float)
         length = float(np.linalg.norm(axis))
         if not (r != 0 and length > 0):
-            self.fail(node, "a cylinder needs a non-zero radius and p0 != p1")
+            return None
         if (length / abs(r) if abs(r) >= length else (r / length) ** 2) < 1e-12:
             self.fail(node, f"a cylinder of radius {r:g} from p0 to p1 {length:g} apart is too "
                             f"{'flat' if abs(r) >= length else 'thin'} to hold any area in double precision: move p0 "
@@ -1578,6 +1589,7 @@ class _Reader:
                           "image is the same without", stacklevel=2)
         builder.inputs = tuple(dict.fromkeys(Path(os.path.realpath(p)) for p in self.inputs))
         builder.hide_emitters = self.hide_emitters
+        builder.parameters = tuple(sorted(self.defaults))
         try:
             return builder.build(camera, RenderSettings(spp, shadow_rays, seed))
         except ProbvisError as exc:

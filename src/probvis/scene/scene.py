@@ -58,6 +58,7 @@ class Scene:
     name: str = "scene"
     source: str = ""
     inputs: tuple = ()  # the files it was read from (the XML, meshes, images): no output may replace one
+    parameters: tuple = ()  # the names -D sets: the scene file's <default>s, a built-in scene's parameters
     shapes: list = field(default_factory=list)
     dropped_degenerate: int = 0
     # emitters that are points, not shapes: per emitter its kind (EMITTER_AREA, _POINT, _SPOT), position, the
@@ -181,6 +182,7 @@ class SceneBuilder:
     def __init__(self, name="scene", source=""):
         self.name, self.source = name, source
         self.inputs = ()
+        self.parameters = ()  # `Scene.parameters`
         self._tris, self._normals, self._mat, self._emit, self._uv = [], [], [], [], []
         self._materials = {}  # (reflectance, twosided, texture index, back material or -1) -> id
         self.textures = []
@@ -356,6 +358,7 @@ class SceneBuilder:
             name=self.name,
             source=self.source,
             inputs=self.inputs,
+            parameters=self.parameters,
             shapes=self.shapes,
             dropped_degenerate=self.dropped,
             hide_emitters=self.hide_emitters,
