@@ -3,13 +3,15 @@
 [--shadow-rays 16] [--seeds 5] [--ref-spp 32]`.
 
 Per scene and seed, exact visibility and `proxy` (auto q, no shells) render one after the other in this process,
-with `proxy_plan.GAIN_MARGIN` set to 1 so that the pilot's plan is rendered whatever it predicts, and the
-cached decision removed first (each seed's pilot runs, as a first render's would). Printed per seed: the
-predicted gain, the mean q, both renders' relMSE against an exact reference (`--ref-spp` samples per pixel, made
-once and kept in ~/.cache/probvis/bench-references) and their seconds (render plus the estimator's preparation,
-pilot included). Then the measured gain over the seeds, 1 / (relMSE x seconds) against exact visibility's, with
-the reference's own noise (exact's relMSE x spp / ref-spp) taken off both relMSEs, and the range of the
-predictions: where the two ranges sit against GAIN_MARGIN is what the margin decides.
+with `proxy_plan.GAIN_MARGIN` set to 1 so that the pilot's plan is rendered whatever it predicts, and the cached
+decision removed first (each seed's pilot runs, as a first render's would). Printed per seed: the predicted gain,
+the mean q, both renders' relMSE against an exact reference (`--ref-spp` samples per pixel, made once and kept in
+~/.cache/probvis/bench-references) and their seconds (render plus the estimator's preparation, pilot included), and
+below them the pilot's measured costs (the proxy test, the extra exact test and the camera rays, relative to an
+exact segment's), the render's seconds relative to exact visibility's as they predict (with the regions' mean q) and
+as measured, and the proxy's preparation by phase. Then the measured gain over the seeds, 1 / (relMSE x seconds)
+against exact visibility's, with the reference's own noise (exact's relMSE x spp / ref-spp) taken off both relMSEs,
+and the range of the predictions: where the two ranges sit against GAIN_MARGIN is what the margin decides.
 """
 import argparse
 import shutil
@@ -69,6 +71,14 @@ def main():
             print(f"  {name} seed {seed}: predicted gain {em['predicted_gain'] or float('nan'):.3f}, q "
                   f"{em['q'] or float('nan'):.3f}; exact relMSE {rows[-1][0]:.5f} in {rows[-1][1]:.2f} s, proxy "
                   f"relMSE {rows[-1][2]:.5f} in {rows[-1][3]:.2f} s", flush=True)
+            est, sec = proxy.stats["estimator"], proxy.stats["seconds"]
+            rho, cost_e, kappa = est["cost_ratio"], est["exact_cost_ratio"], est["camera_cost_ratio"]
+            predicted = ("1.00x (no proxy)" if em["q"] is None
+                         else f"{(rho + em['q'] * cost_e + kappa) / (1 + kappa):.2f}x")
+            print(f"    pilot: proxy cost {rho:.2f}, exact test {cost_e:.2f}, camera {kappa:.2f} of exact's segments: "
+                  f"render predicted {predicted} of exact's, measured "
+                  f"{sec['render'] / exact.stats['seconds']['render']:.2f}x; proxy prepare {sec['prepare']:.2f} s "
+                  f"({', '.join(f'{k} {v:.2f}' for k, v in est['seconds'].items() if v >= 0.005)})", flush=True)
         e_err, e_sec, p_err, p_sec = (statistics.mean(r[i] for r in rows) if i in (0, 2) else
                                       statistics.median(r[i] for r in rows) for i in range(4))
         noise = e_err * args.spp / args.ref_spp

@@ -32,9 +32,9 @@ REGIONS = 8  # q per emitter in REGIONS x REGIONS tiles of the film
 SHRINK = 256  # a region's mismatch energy and variance are shrunk toward its emitter's by this many segments' worth
 PILOT_SALT = 0x50524F5859  # mixed into its seed, apart from the render's samples
 Q_MIN = 0.02  # a region's q is never below this (a segment's, `segment_q`, never below a tenth of its region's)
-PLAN_VERSION = 1  # of the cached decision's record (`Decision`)
+PLAN_VERSION = 2  # of the cached decision's record (`Decision`)
 PREDICTED = ("render_seconds", "pilot_seconds")  # the probe's predictions, in seconds (stored)
-GAIN_MARGIN = 1.25  # proxies are used where the predicted gain exceeds this: a small view flatters them
+GAIN_MARGIN = 1.1  # proxies are used where the predicted gain exceeds this: a small view flatters them
 SHELL_MARGIN = 1.05  # shells are kept where their plan predicts this much more than the plan without them
 
 
@@ -146,7 +146,9 @@ def allocate(n, variance, mismatch, rho, exact=1.0, base=1.0, rounds=20, scaled=
     for _ in range(rounds):
         with np.errstate(divide="ignore", invalid="ignore"):
             q = np.clip(np.sqrt(np.where(n_q > 0, mismatch_q / (lam * exact * n_q), 1.0)), Q_MIN, 1.0)
-        proxy_v = variance - mismatch + mismatch_q / q
+        # the correction adds Σ (V - V_P)² w² (1/q_s - 1) >= 0 with each segment's q_s = q w / w_ref: never less
+        # than nothing, although the unclipped q_s above 1 of heavy segments would make the sum negative
+        proxy_v = variance + np.maximum(mismatch_q / q - mismatch, 0.0)
         proxy_c = n * rho + exact * q * n_q
         use = proxy_v + lam * proxy_c < variance + lam * base * n
         v = np.where(use, proxy_v, variance).sum()
