@@ -45,6 +45,8 @@ from .visibility import RenderPath, ShadingPoints, ShadowQuery, VisibilityEstima
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keeps progress and Ctrl-C prompt)
 TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
 COMPILE_TIME = "about half a minute"  # a first run's compilation on 2 cores (17-26 s exact, 33-36 s probvis)
+
+
 def render_memory(scene, settings, estimator):
     """Bytes by part (`memory.estimate`) a render with `estimator` (made, not prepared) will take."""
     staged = type(estimator).render_path is VisibilityEstimator.render_path  # may need the slot buffers

@@ -1128,7 +1128,8 @@ class _Reader:
             v, f, vnormals = shp.cylinder()
             frame = self.cylinder_frame(node, props)
             if frame is None:
-                return self.left_out(node, kind, radiance, "its radius is 0 or p0 = p1")
+                self.left_out(node, kind, radiance, "its radius is 0 or p0 = p1")
+                return
             m = m @ frame
             face_normals = False
         else:
@@ -1137,7 +1138,8 @@ class _Reader:
             if not abs(r) <= MAX_COORDINATE:  # negative: turned inside out, as Mitsuba flips its normals
                 self.fail(node, f"sphere radius must be at most {MAX_COORDINATE:g} in size, got {r:g}")
             if r == 0:
-                return self.left_out(node, kind, radiance, "its radius is 0")
+                self.left_out(node, kind, radiance, "its radius is 0")
+                return
             m = self.round_sphere(node, m @ tf.translate(props.get("center", np.zeros(3))) @ tf.scale([r, r, r]))
             face_normals = False
         if kind in ("disk", "sphere", "cylinder"):
