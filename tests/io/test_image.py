@@ -235,10 +235,12 @@ def test_an_image_under_another_extension_is_read_by_its_content(tmp_path, kind)
         read_linear_rgb(tmp_path / "b.texture")
 
 
-@pytest.mark.parametrize("name", ["t.png", "t.exr"])
-def test_an_unreadable_image_says_so(tmp_path, name):
+@pytest.mark.parametrize("name, reader", [("t.png", "linear_rgb.read_linear_rgb"), ("t.exr", "linear_rgb.read_linear_rgb"),
+                                          ("t.exr", "image.read_exr")])
+def test_an_unreadable_image_says_so(tmp_path, name, reader):
     """A texture or environment map the process may not read was 'not a valid PNG file (OSError)' (sweep 38):
-    now the system's reason. As root, the permission is taken away by dropping the capabilities that bypass it."""
+    now the system's reason; an EXR read as such said 'Permission denied (the file is truncated or not an OpenEXR
+    image)'. As root, the permission is taken away by dropping the capabilities that bypass it."""
     import os
     import shutil
     import subprocess
@@ -246,8 +248,9 @@ def test_an_unreadable_image_says_so(tmp_path, name):
 
     write_image(tmp_path / name, np.full((4, 4, 3), 0.5))
     (tmp_path / name).chmod(0)
-    code = ("from probvis.io.linear_rgb import read_linear_rgb\nfrom probvis import ProbvisError\n"
-            f"try:\n    read_linear_rgb({str(tmp_path / name)!r})\nexcept ProbvisError as exc:\n    print(exc)")
+    module, function = reader.split(".")
+    code = (f"from probvis.io.{module} import {function}\nfrom probvis import ProbvisError\n"
+            f"try:\n    {function}({str(tmp_path / name)!r})\nexcept ProbvisError as exc:\n    print(exc)")
     cmd = [sys.executable, "-c", code]
     if os.geteuid() == 0:
         if shutil.which("setpriv") is None:
@@ -256,4 +259,5 @@ def test_an_unreadable_image_says_so(tmp_path, name):
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     if r.returncode != 0 and "setpriv" in r.stderr:
         pytest.skip(f"setpriv cannot drop capabilities here: {r.stderr.strip()}")
-    assert r.stdout.strip() == f"cannot read image {tmp_path / name}: Permission denied", r.stderr
+    what = "EXR" if function == "read_exr" else "image"
+    assert r.stdout.strip() == f"cannot read {what} {tmp_path / name}: Permission denied", r.stderr

@@ -152,6 +152,15 @@ def _input_path(path):
     return Path(path)
 
 
+def check_readable(path, what):
+    """Fail with the system's reason (permission) when `path` cannot be opened for reading, before a decoder
+    would report an unreadable file as an invalid one. `what` names the kind of file in the message."""
+    try:
+        Path(path).open("rb").close()
+    except OSError as exc:
+        raise ProbvisError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+
+
 def read_exr(path, channel=None):
     """Read an RGB EXR as (h, w, 3) float32, or one named `channel` as (h, w). The header is read first: a size
     no image needs is refused before its pixels are allocated."""
@@ -160,6 +169,7 @@ def read_exr(path, channel=None):
         raise ProbvisError(f"image {path} is not a regular file" if path.exists() else missing_file(path, "image"))
     if not utf8_path(path):
         raise ProbvisError(f"cannot read '{path}': OpenEXR opens only file and folder names in UTF-8; rename it")
+    check_readable(path, "EXR")
     with library_output() as said:  # the library reports a failed read (a truncated file) as a line of its own
         try:
             return _exr_pixels(path, channel, said)

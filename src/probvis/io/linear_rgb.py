@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ProbvisError, missing_file
-from .image import MAX_IMAGE_BYTES, MAX_IMAGE_PIXELS, read_exr, read_pfm
+from .image import MAX_IMAGE_BYTES, MAX_IMAGE_PIXELS, check_readable, read_exr, read_pfm
 from .library_output import library_output
 
 
@@ -62,10 +62,7 @@ def read_linear_rgb(path, raw=False):
     if size > MAX_IMAGE_BYTES:
         raise ProbvisError(f"image {path} is {size / 2**30:.1f} GiB, more than any texture or environment map "
                            f"probvis reads (at most {MAX_IMAGE_BYTES >> 30} GiB)")
-    try:  # a file that cannot be opened says why (permission), not that its decoder found no valid image
-        path.open("rb").close()
-    except OSError as exc:
-        raise ProbvisError(f"cannot read image {path}: {exc.strerror or exc}") from None
+    check_readable(path, "image")
     ext = path.suffix.lower()
     if ext not in READ_FORMATS:  # as Mitsuba's bitmap loader, by the file's first bytes
         ext = _format_by_content(path) or ext
