@@ -235,8 +235,8 @@ def test_an_image_under_another_extension_is_read_by_its_content(tmp_path, kind)
         read_linear_rgb(tmp_path / "b.texture")
 
 
-@pytest.mark.parametrize("name, reader", [("t.png", "linear_rgb.read_linear_rgb"), ("t.exr", "linear_rgb.read_linear_rgb"),
-                                          ("t.exr", "image.read_exr")])
+@pytest.mark.parametrize("name, reader", [("t.png", "linear_rgb.read_linear_rgb"),
+                                          ("t.exr", "linear_rgb.read_linear_rgb"), ("t.exr", "image.read_exr")])
 def test_an_unreadable_image_says_so(tmp_path, name, reader):
     """A texture or environment map the process may not read was 'not a valid PNG file (OSError)' (sweep 38):
     now the system's reason; an EXR read as such said 'Permission denied (the file is truncated or not an OpenEXR
