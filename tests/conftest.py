@@ -88,3 +88,19 @@ def assert_matches_mitsuba(path, shadow_rays=4, reference_spp=512):
     ours = probvis.render(path, spp=16, shadow_rays=shadow_rays, seed=1).image
     assert relmse(ours, ref) <= 1.5 * noise
     np.testing.assert_allclose(ours.reshape(-1, 3).mean(0), ref.reshape(-1, 3).mean(0), rtol=0.01)
+
+
+def without_permission_override(cmd):
+    """`cmd` (a list) run so that file permissions apply: as is for a normal user; as root, under `setpriv`
+    without the capabilities that bypass them. Skips the test where root cannot drop them."""
+    import shutil
+
+    if os.geteuid() != 0:
+        return cmd
+    if shutil.which("setpriv") is None:
+        pytest.skip("root without setpriv reads any file")
+    probe = subprocess.run(["setpriv", "--bounding-set", "-dac_override,-dac_read_search,-fowner", "--", "true"],
+                           capture_output=True, text=True)
+    if probe.returncode != 0:
+        pytest.skip(f"setpriv cannot drop capabilities here: {probe.stderr.strip()}")
+    return ["setpriv", "--bounding-set", "-dac_override,-dac_read_search,-fowner", "--"] + cmd

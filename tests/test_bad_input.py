@@ -170,6 +170,31 @@ def test_a_film_too_large_names_what_sets_its_size(tmp_path):
     assert not (tmp_path / "o.exr").exists()
 
 
+def test_files_the_process_may_not_read_are_named_where_the_scene_names_them(tmp_path):
+    """An included file the process may not read was 'cannot read scene file inc.xml' without the <include>'s
+    line, and a mesh in a folder it may not search 'sub/m.obj: Permission denied' (sweep 38)."""
+    from tests.conftest import without_permission_override
+
+    (tmp_path / "inc.xml").write_text("<scene version='3.0.0'/>")
+    (tmp_path / "inc.xml").chmod(0)
+    scene = write_scene(tmp_path / "s.xml", sensor() + "<include filename='inc.xml'/>")
+    r = subprocess.run(without_permission_override([sys.executable, "-m", "probvis.cli", "render", str(scene), "-o",
+                                                    str(tmp_path / "o.exr")]), capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "s.xml:" in r.stderr and "<include>: cannot read included file 'inc.xml': Permission denied" in r.stderr
+    (tmp_path / "sub").mkdir()
+    scene = mesh_scene(tmp_path, b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "sub/m.obj")
+    (tmp_path / "sub").chmod(0o600)
+    try:
+        r = subprocess.run(without_permission_override([sys.executable, "-m", "probvis.cli", "render", str(scene),
+                                                        "-o", str(tmp_path / "o.exr")]), capture_output=True, text=True)
+    finally:
+        (tmp_path / "sub").chmod(0o755)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "mesh.xml:" in r.stderr and "<shape>: cannot read" in r.stderr and "Permission denied" in r.stderr
+    assert not (tmp_path / "o.exr").exists()
+
+
 def test_bad_meshes_are_named_with_file_and_line(tmp_path):
     scene = mesh_scene(tmp_path, os.urandom(3000))
     r, _ = run(["render", scene, "-o", tmp_path / "o.exr"], tmp_path)

@@ -241,23 +241,17 @@ def test_an_unreadable_image_says_so(tmp_path, name, reader):
     """A texture or environment map the process may not read was 'not a valid PNG file (OSError)' (sweep 38):
     now the system's reason; an EXR read as such said 'Permission denied (the file is truncated or not an OpenEXR
     image)'. As root, the permission is taken away by dropping the capabilities that bypass it."""
-    import os
-    import shutil
     import subprocess
     import sys
+
+    from tests.conftest import without_permission_override
 
     write_image(tmp_path / name, np.full((4, 4, 3), 0.5))
     (tmp_path / name).chmod(0)
     module, function = reader.split(".")
     code = (f"from probvis.io.{module} import {function}\nfrom probvis import ProbvisError\n"
             f"try:\n    {function}({str(tmp_path / name)!r})\nexcept ProbvisError as exc:\n    print(exc)")
-    cmd = [sys.executable, "-c", code]
-    if os.geteuid() == 0:
-        if shutil.which("setpriv") is None:
-            pytest.skip("root without setpriv reads any file")
-        cmd = ["setpriv", "--bounding-set", "-dac_override,-dac_read_search,-fowner", "--"] + cmd
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-    if r.returncode != 0 and "setpriv" in r.stderr:
-        pytest.skip(f"setpriv cannot drop capabilities here: {r.stderr.strip()}")
+    r = subprocess.run(without_permission_override([sys.executable, "-c", code]), capture_output=True, text=True,
+                       timeout=120)
     what = "EXR" if function == "read_exr" else "image"
     assert r.stdout.strip() == f"cannot read {what} {tmp_path / name}: Permission denied", r.stderr

@@ -159,6 +159,10 @@ def with_includes(root, path, fail, filename):
                 fail(ch, f"'{name}' includes itself ({' -> '.join(p.name for p in chain + [target])})")
             if len(chain) > MAX_INCLUDES:
                 fail(ch, f"includes nested more than {MAX_INCLUDES} deep")
+            try:  # a file the process may not read is named at its <include>, as every other include mistake
+                target.open("rb").close()
+            except OSError as exc:
+                fail(ch, f"cannot read included file '{name}': {exc.strerror or exc}")
             included = parse_tree(target)
             elements = included.children if included.tag == "scene" else [included]
             included.attrs.pop("version", None)
@@ -1479,8 +1483,12 @@ class _Reader:
         if not name.strip():
             self.fail(node, "the filename is empty")
         path = Path(name) if Path(name).is_absolute() else self.path.parent / name
-        if not Path(name).is_absolute():
-            path = next((folder / name for folder in self.search_paths if (folder / name).exists()), path)
+        try:  # a folder the process may not search makes exists() raise: named here, at the element
+            if not Path(name).is_absolute():
+                path = next((folder / name for folder in self.search_paths if (folder / name).exists()), path)
+            path.exists()
+        except OSError as exc:
+            self.fail(node, f"cannot read {path}: {exc.strerror or exc}")
         self.inputs.append(path)
         return path
 
