@@ -959,14 +959,19 @@ def test_a_shape_without_area_is_left_out_with_a_warning(tmp_path):
     ("<shape type='cylinder'><float name='radius' value='0'/></shape>", "its radius is 0 or p0 = p1")])
 def test_an_analytic_shape_without_area_is_left_out_as_a_mesh_s_is(tmp_path, shape, why):
     """A sphere of radius 0 and a cylinder with p0 = p1 were refused, where Mitsuba 3.9.1 renders the rest of
-    the scene (sweep 37) and probvis leaves out a mesh without area with a warning: now the same; an area
-    emitter on one is refused, as on such a mesh."""
+    the scene (sweep 37) and probvis leaves out a mesh without area with a warning: now the same. An area
+    emitter on one emits nothing: left out with a warning beside other emitters, as Mitsuba renders it (sweep
+    38), refused where it would be the scene's only one."""
     with pytest.warns(UserWarning, match=re.escape(f"has no area ({why}): it is left out")):
         scene = probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + LIGHT + shape))
     assert scene.n_triangles == probvis.load_scene(write_scene(tmp_path / "l.xml", sensor() + LIGHT)).n_triangles
     emitting = shape.replace("</shape>", "<emitter type='area'><rgb name='radiance' value='1'/></emitter></shape>")
-    with pytest.raises(ProbvisError, match=re.escape(f"an area emitter on a shape without area ({why})")):
-        probvis.load_scene(write_scene(tmp_path / "e.xml", sensor() + LIGHT + emitting))
+    with pytest.warns(UserWarning, match=re.escape(f"({why}): it is left out with its area emitter, which emits")):
+        lit = probvis.load_scene(write_scene(tmp_path / "e.xml", sensor() + LIGHT + emitting))
+    assert lit.n_emitters == 1 and lit.n_triangles == scene.n_triangles
+    with pytest.raises(ProbvisError, match=re.escape(f"an area emitter on a shape without area ({why}) emits "
+                                                     "nothing, and the scene has no other emitter")):
+        probvis.load_scene(write_scene(tmp_path / "d.xml", sensor() + "<shape type='cube'/>" + emitting))
 
 
 @pytest.mark.parametrize("where", ["far", "beside a far vertex"])

@@ -304,6 +304,7 @@ class _Reader:
         self.images = {}  # decoded image files by (resolved path, raw)
         self.search_paths = []  # the folders of <path> elements, searched before the scene's
         self.hide_emitters = False  # the integrator's option
+        self.dark = []  # (element, kind, why) of area emitters on shapes without area (`dark_emitters`)
         self.root = None  # the document's tree, once parsed
 
     # --- errors and values -------------------------------------------------------------------
@@ -1173,13 +1174,26 @@ class _Reader:
             self.left_out(node, kind, radiance, f"all {len(f)} of its triangles are degenerate once transformed")
 
     def left_out(self, node, kind, radiance, why):
-        """A shape without area is left out with a warning, as Mitsuba renders nothing of it; an area emitter on
-        one is refused, since it would emit nothing."""
+        """A shape without area is left out with a warning, as Mitsuba renders nothing of it. One with an area
+        emitter, which emits nothing, is judged once the scene is read (`dark_emitters`)."""
         if radiance is not None:
-            self.fail(node, f"an area emitter on a shape without area ({why}) emits nothing: check the shape's size "
-                            "and to_world")
+            self.dark.append((node, kind, why))
+            return
         warnings.warn(f"{self.where(node)}: shape '{kind}' has no area ({why}): it is left out; check its size and "
                       "to_world", stacklevel=3)
+
+    def dark_emitters(self, builder):
+        """Area emitters on shapes without area: left out with a warning where other emitters light the scene,
+        as Mitsuba renders it; refused at the first one's element where none does."""
+        if not self.dark:
+            return
+        node, kind, why = self.dark[0]
+        if not builder.emitter_radiance:
+            self.fail(node, f"an area emitter on a shape without area ({why}) emits nothing, and the scene has no "
+                            "other emitter: check the shape's size and to_world")
+        for node, kind, why in self.dark:
+            warnings.warn(f"{self.where(node)}: shape '{kind}' has no area ({why}): it is left out with its area "
+                          "emitter, which emits nothing; check its size and to_world", stacklevel=3)
 
     def cylinder_frame(self, node, props):
         """Object-to-shape transform of Mitsuba's cylinder from p0 to p1 with a radius (the unit cylinder's z
@@ -1600,6 +1614,7 @@ class _Reader:
         builder.inputs = tuple(dict.fromkeys(Path(os.path.realpath(p)) for p in self.inputs))
         builder.hide_emitters = self.hide_emitters
         builder.parameters = tuple(sorted(self.defaults))
+        self.dark_emitters(builder)
         try:
             return builder.build(camera, RenderSettings(spp, shadow_rays, seed))
         except ProbvisError as exc:

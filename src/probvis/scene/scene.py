@@ -258,7 +258,7 @@ class SceneBuilder:
         if material is None:
             material = self.material((0.5, 0.5, 0.5))  # Mitsuba's default BSDF
         emitter = -1
-        if radiance is not None:
+        if radiance is not None and len(tris):  # a shape without area emits nothing: no emitter
             emitter = len(self.emitter_radiance)
             self.emitter_radiance.append(np.asarray(radiance, dtype=np.float64) * np.ones(3))
         self.shapes.append(ShapeInfo(name, kind, self._n, len(tris), emitter, lo, hi))
