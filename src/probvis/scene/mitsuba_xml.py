@@ -1187,10 +1187,10 @@ class _Reader:
         as Mitsuba renders it; refused at the first one's element where none does."""
         if not self.dark:
             return
-        node, kind, why = self.dark[0]
         if not builder.emitter_radiance:
-            self.fail(node, f"an area emitter on a shape without area ({why}) emits nothing, and the scene has no "
-                            "other emitter: check the shape's size and to_world")
+            first, _, why = self.dark[0]
+            self.fail(first, f"an area emitter on a shape without area ({why}) emits nothing, and the scene has no "
+                             "other emitter: check the shape's size and to_world")
         for node, kind, why in self.dark:
             warnings.warn(f"{self.where(node)}: shape '{kind}' has no area ({why}): it is left out with its area "
                           "emitter, which emits nothing; check its size and to_world", stacklevel=3)
