@@ -50,6 +50,13 @@ def checked_call(func):
     return call
 
 
+def expect_record(value, cls, name, made_by):
+    """Refuse argument `name` unless it is a `cls` record (an Experiment, a RunSummary), saying which call makes
+    one: a building block of the API gets what an earlier step returned, not a path or a dict."""
+    if not isinstance(value, cls):
+        raise ProbvisError(f"{name} must be {made_by}, got {type(value).__name__}")
+
+
 def is_path(value):
     """Whether `value` names a file: a string or any path-like object of one (`Path`, `PurePosixPath`, a class
     with `__fspath__`), not bytes."""

@@ -174,12 +174,28 @@ def test_a_plugin_method_whose_init_raises_is_named(tmp_path):
 def test_the_experiment_api_names_wrong_argument_types(tmp_path):
     from probvis.experiments import experiment, quick_experiment
 
-    for kwargs, message in ((dict(workers="2"), "workers must be a whole number, got '2'"),
+    for kwargs, message in ((dict(workers="2"), "workers must be a whole number from 1, got '2'"),
                             (dict(cache=5), "cache must be a folder"), (dict(scheduler=5), "scheduler must be")):
         with pytest.raises(ProbvisError, match=message):
             experiment(quick_experiment(), tmp_path / "rep", **kwargs)
     with pytest.raises(ProbvisError, match="base must be the folder relative paths start from"):
         parse_experiment(doc(), base=5)
+
+
+def test_the_experiment_building_blocks_refuse_what_is_not_their_record(tmp_path):
+    from probvis.experiments import load_experiment, measure, quick_experiment, run_experiment, write_report
+
+    exp = quick_experiment()
+    for call, message in ((lambda: quick_experiment(1), r"quick_experiment\(\): too many positional arguments"),
+                          (lambda: load_experiment(), r"load_experiment\(\): missing a required argument: 'path'"),
+                          (lambda: run_experiment(1, tmp_path), "exp must be an Experiment .*got int"),
+                          (lambda: run_experiment(exp, 5), "cache_dir must be a folder"),
+                          (lambda: run_experiment(exp, tmp_path, workers=0), "workers must be a whole number from 1"),
+                          (lambda: measure(exp, {}), "run must be the RunSummary run_experiment returns, got dict"),
+                          (lambda: write_report("x.toml", 1, 2, tmp_path), "exp must be an Experiment")):
+        with pytest.raises(ProbvisError, match=message):
+            call()
+    assert not (tmp_path / "cache").exists() and not any(tmp_path.iterdir())
 
 
 def test_an_experiment_built_in_python_may_use_tuples_and_numpy():

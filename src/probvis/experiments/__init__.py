@@ -4,13 +4,13 @@ import os
 from pathlib import Path
 
 
-from ..errors import ProbvisError, checked_call, is_flag, is_number, is_path
+from ..errors import ProbvisError, checked_call, is_path
 from ..interrupts import deferred_interrupts
 from .config import (Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment,
                      recheck)
 from .report import report_problem, write_report
 from .results import measure
-from .runner import load_scenes, run_experiment
+from .runner import check_run_options, load_scenes, run_experiment
 
 
 @checked_call
@@ -22,27 +22,18 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
         raise ProbvisError(f"exp must be an Experiment (parse_experiment builds one from a dict) or an experiment "
                            f"file's path, got {type(exp).__name__}")
     exp = recheck(exp) if isinstance(exp, Experiment) else load_experiment(exp)
-    if not is_flag(progress):
-        raise ProbvisError(f"progress must be True or False, got {progress!r}")
     if not isinstance(command, str):
         raise ProbvisError(f"command must be the command line shown in the report (a string), got {command!r}")
-    if log is not None and not callable(log):
-        raise ProbvisError(f"log must be a function taking a line (or None), got {log!r}")
     if not is_path(out):
         raise ProbvisError(f"out must be the report's folder (a path), got {type(out).__name__}")
     if cache is not None and not is_path(cache):
         raise ProbvisError(f"cache must be a folder (a path) or None, got {type(cache).__name__}")
     out, cache = os.fspath(out), None if cache is None else os.fspath(cache)
-    if not is_number(workers, whole=True):
-        raise ProbvisError(f"workers must be a whole number, got {workers!r}")
     for name, folder in (("out", out), ("cache", cache)):
         if folder is not None and not str(folder).strip():
             raise ProbvisError(f"{name} must name a folder, got an empty name")
+    check_run_options(workers, scheduler, progress, log)
     workers = int(workers)
-    if scheduler is not None and not isinstance(scheduler, str):
-        raise ProbvisError(f"scheduler must be an address (tcp://host:port) or None, got {type(scheduler).__name__}")
-    if scheduler is not None and not scheduler.strip():  # not a local cluster instead of the one meant
-        raise ProbvisError("scheduler must be an address (tcp://host:port) or None, got an empty one")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ProbvisError(f"report folder '{out}' is a file: give -o a folder (new or existing)")

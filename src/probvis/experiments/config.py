@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ProbvisError, is_path, missing_file, shown
+from ..errors import ProbvisError, checked_call, is_path, missing_file, shown
 from ..scene import BUILTINS
 from ..settings import MAX_SEED, MAX_SEGMENTS_PER_PIXEL, MAX_SHADOW_RAYS, MAX_SPP
 from ..visibility import estimator_class
@@ -29,6 +29,9 @@ REFERENCE_KEYS = {"spp", "shadow_rays", "seed", "visibility"}
 STUDY_SETTINGS = {"spp": "spp", "shadow_rays": "shadow_rays", "seed": "seeds"}  # defines the study's settings win over
 SCENE_KEYS = {"name", "source", "defines", "reference", "reference_noise"}
 METHOD_KEYS = {"name", "visibility", "options", "baseline"}
+
+
+MADE_BY = "an Experiment (load_experiment or parse_experiment makes one)"
 
 
 @dataclass(frozen=True)
@@ -243,6 +246,7 @@ def _as_toml(value, depth=0):
     return value
 
 
+@checked_call
 def parse_experiment(data, base=Path("."), source=""):
     """Validate a parsed TOML document (or one built in Python) into an `Experiment`; `base` resolves relative
     paths."""
@@ -377,6 +381,7 @@ def _choice(where, value, choices):
     return value
 
 
+@checked_call
 def load_experiment(path):
     """Read and validate an experiment TOML file."""
     if not is_path(path):
@@ -400,6 +405,7 @@ def load_experiment(path):
     return parse_experiment(data, path.resolve().parent, str(path))
 
 
+@checked_call
 def quick_experiment():
     """The `--quick` preset: built-in scenes, every method, small images; minutes on 2 cores."""
     text = resources.files(__package__).joinpath("quick.toml").read_text()

@@ -22,10 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ProbvisError
+from ..errors import ProbvisError, checked_call, expect_record, is_path
 from ..io.atomic import atomic_path, staged_writes
 from ..io.image import tonemap_srgb, utf8_path, write_png
-from .results import UNSTEADY
+from .config import MADE_BY, Experiment
+from .results import UNSTEADY, Results
+from .runner import RunSummary
 
 STATIC = ("viewer.js", "report.css")
 NAME_MAX = 255  # bytes in a file name: what Linux's and macOS's file systems hold
@@ -572,9 +574,15 @@ def report_problem(exp, folder, inputs=None):
     return None
 
 
+@checked_call
 def write_report(exp, run, results, folder, command=""):
     """Write the report; on failure (a full disk, say) say so — the renders stay in the cache — and leave none of
     the report's folders that this call made behind empty."""
+    expect_record(exp, Experiment, "exp", MADE_BY)
+    expect_record(run, RunSummary, "run", "the RunSummary run_experiment returns")
+    expect_record(results, Results, "results", "the Results measure returns")
+    if not is_path(folder):
+        raise ProbvisError(f"folder must be the report's folder (a path), got {type(folder).__name__}")
     folder = Path(folder)
     planned = [folder, *folder.parents, *(folder / sub for sub in ("images", "plots", "data")),
                *(folder / "images" / _slug(spec.name) for spec in exp.scenes)]

@@ -3,6 +3,7 @@ import json
 import statistics
 from dataclasses import dataclass
 
+from ..errors import checked_call, expect_record
 from ..io.stats import biased_by_choice
 from ..visibility import estimator_class
 from . import metrics
@@ -203,8 +204,14 @@ def _bias_ratios(exp, run):
     return out
 
 
+@checked_call
 def measure(exp, run):
     """Metrics of every cell of a finished run (a `runner.RunSummary`) against its scene's reference."""
+    from .config import MADE_BY, Experiment
+    from .runner import RunSummary  # the runner reads this module's stats check
+
+    expect_record(exp, Experiment, "exp", MADE_BY)
+    expect_record(run, RunSummary, "run", "the RunSummary run_experiment returns")
     cells = [cell_row(t, run.renders[t.key], run.reference_images[t.scene], exp.baseline, exp.seconds)
              for t in run.tasks]
     _changes(cells, ("scene", "shadow_rays", "seed"))

@@ -26,13 +26,13 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..errors import ProbvisError, shown
+from ..errors import ProbvisError, checked_call, expect_record, is_flag, is_number, is_path, shown
 from ..interrupts import deferred_interrupts
 from ..io.atomic import atomic_path
 from ..io.image import read_exr, write_exr
 from ..scene import open_scene
 from ..scene.scene import MAX_EMISSION
-from .config import MethodSpec, Timing
+from .config import MADE_BY, Experiment, MethodSpec, Timing
 from .results import stats_readable
 
 
@@ -424,12 +424,30 @@ def _reference_file(spec, scene):
     return img
 
 
+def check_run_options(workers, scheduler, progress, log):
+    """Refuse run options of the wrong kind before anything is read or rendered."""
+    if not is_number(workers, whole=True) or workers < 1:
+        raise ProbvisError(f"workers must be a whole number from 1, got {workers!r}")
+    if scheduler is not None and not isinstance(scheduler, str):
+        raise ProbvisError(f"scheduler must be an address (tcp://host:port) or None, got {type(scheduler).__name__}")
+    if scheduler is not None and not scheduler.strip():  # not a local cluster instead of the one meant
+        raise ProbvisError("scheduler must be an address (tcp://host:port) or None, got an empty one")
+    if not is_flag(progress):
+        raise ProbvisError(f"progress must be True or False, got {progress!r}")
+    if log is not None and not callable(log):
+        raise ProbvisError(f"log must be a function taking a line (or None), got {log!r}")
+
+
+@checked_call
 def run_experiment(exp, cache_dir, workers=1, scheduler=None, progress=True, log=None, scenes=None):
     """Render every reference and cell of `exp` not already in `cache_dir`; return a `RunSummary`. `scenes` are
     the study's scenes as `load_scenes` read them (read here if None)."""
+    expect_record(exp, Experiment, "exp", MADE_BY)
+    if not is_path(cache_dir):
+        raise ProbvisError(f"cache_dir must be a folder (a path), got {type(cache_dir).__name__}")
+    check_run_options(workers, scheduler, progress, log)
+    cache_dir, workers = Path(cache_dir), int(workers)
     log = log or (lambda msg: print(msg, file=sys.stderr))
-    if workers < 1:
-        raise ProbvisError(f"workers must be at least 1, got {workers}")
     if scheduler:
         _check_reachable(scheduler)
     scenes = load_scenes(exp) if scenes is None else scenes
