@@ -313,7 +313,13 @@ def test_more_shadow_rays_per_pixel_than_a_batch_can_interrupt_are_refused():
                                                                     "machine's byte order, got (6, 3, 3) >f8"),
     (lambda s: setattr(s, "triangles", s.triangles.astype(np.float16)), "byte order, got (6, 3, 3) float16"),
     (lambda s: setattr(s, "tri_material", s.tri_material.astype(">i8")), "scene.tri_material must be a 6 array of "
-                                                                          "integers in the machine's byte order"),
+                                                                          "integers (not uint64) in the machine's"),
+    (lambda s: setattr(s, "tri_material", s.tri_material.astype(np.uint64)),
+     "integers (not uint64) in the machine's byte order, got (6,) uint64: use scene.tri_material.astype(np.int32)"),
+    (lambda s: setattr(s, "tri_emitter", s.tri_emitter.astype(np.uint64)), "scene.tri_emitter must be a 6 array of"),
+    (lambda s: setattr(s, "triangles", None), "scene.triangles must be a n x 3 x 3 array of floats (32 or 64 bits) "
+                                              "in the machine's byte order, got NoneType"),
+    (lambda s: setattr(s, "reflectance", 0.5), "scene.reflectance must be a n x 3 array of floats"),
     (lambda s: setattr(s, "triangles", s.triangles[:0]),
      "scene.vertex_normals has 6 rows where scene.triangles has 0: the arrays with a row per triangle change"),
     (lambda s: setattr(s, "twosided", s.twosided[:0]), "scene.twosided has 0 rows where scene.reflectance has"),

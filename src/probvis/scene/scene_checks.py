@@ -52,7 +52,8 @@ def check_scene(scene):
                            "rotation (3, 3) to_world")
     if (env is not None) != bool(np.any(np.asarray(scene.emitter_kind) == EMITTER_ENVIRONMENT)):
         raise ProbvisError("scene.environment must be set exactly when an emitter's kind is EMITTER_ENVIRONMENT")
-    n, m, e = (len(np.asarray(a)) for a in (scene.triangles, scene.reflectance, scene.emitter_radiance))
+    n, m, e = (len(a) if isinstance(a, np.ndarray) and a.ndim else "n"  # not an array: refused below, first
+               for a in (scene.triangles, scene.reflectance, scene.emitter_radiance))
     for name, shape, kinds in (("triangles", (n, 3, 3), "f"), ("vertex_normals", (n, 3, 3), "f"),
                                ("tri_material", (n,), "iu"), ("tri_emitter", (n,), "iu"),
                                ("reflectance", (m, 3), "f"), ("twosided", (m,), "b"),
@@ -71,11 +72,14 @@ def check_scene(scene):
             raise ProbvisError(f"scene.{name} has {a.shape[0]} rows where scene.{base} has {shape[0]}: the arrays "
                                f"with a row per {row} change together")
         if not isinstance(a, np.ndarray) or a.shape != shape or a.dtype.kind not in kinds or not a.dtype.isnative \
-                or (kinds == "f" and a.dtype.itemsize not in (4, 8)):  # half, long double, other byte order: no kernel
+                or (kinds == "f" and a.dtype.itemsize not in (4, 8)) or a.dtype == np.uint64:
+            # half, long double, other byte order: no kernel; uint64 does not mix with NumPy's signed indices
             raise ProbvisError(f"scene.{name} must be a {' x '.join(map(str, shape))} array of "
-                               f"{dict(f='floats (32 or 64 bits)', iu='integers', b='booleans')[kinds]} in the "
-                               f"machine's byte order, got {getattr(a, 'shape', type(a).__name__)} "
-                               f"{getattr(a, 'dtype', '')}".rstrip())
+                               f"{dict(f='floats (32 or 64 bits)', iu='integers (not uint64)', b='booleans')[kinds]} "
+                               f"in the machine's byte order, got {getattr(a, 'shape', type(a).__name__)} "
+                               f"{getattr(a, 'dtype', '')}".rstrip()
+                               + (f": use scene.{name}.astype(np.int32)" if getattr(a, "dtype", None) == np.uint64
+                                  else ""))
     for name in ("triangles", "vertex_normals", "emitter_radiance", "emitter_position", "emitter_axis",
                  "emitter_cone"):
         if not np.all(np.isfinite(getattr(scene, name))):
