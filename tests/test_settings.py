@@ -13,11 +13,18 @@ from probvis.settings import parse_float, parse_int
     ({"spp": None}, "spp must be a whole number from 1 to 1048576, got None"),
     ({"threads": "2"}, "threads must be a positive whole number, got '2'"),
     ({"seed": 1.5}, "seed must be a whole number from 0"),
+    ({"threads": -1}, "threads must be a positive whole number, got -1"),
+    ({"filter_importance": "no"}, "filter_importance must be True or False, got 'no'"),
 ])
 def test_settings_of_the_wrong_type_are_named(changes, message):
-    """Raw ValueError, OverflowError and TypeError from int() before; the error names the setting and value."""
-    with pytest.raises(ProbvisError, match=message.replace("[", r"\[").replace("]", r"\]")):
-        RenderSettings(**changes).validate()
+    """Raw ValueError, OverflowError and TypeError from int() before; the error names the setting and value, where
+    the settings are made (not at a later render)."""
+    makers = [lambda: RenderSettings(**changes)]
+    if None not in changes.values():  # replace() keeps a setting given as None
+        makers.append(lambda: RenderSettings().replace(**changes))
+    for make in makers:
+        with pytest.raises(ProbvisError, match=message.replace("[", r"\[").replace("]", r"\]")):
+            make()
 
 
 def test_whole_floats_are_whole_numbers():
@@ -51,3 +58,8 @@ def test_replace_names_a_setting_it_does_not_have():
     (dataclasses.replace's TypeError came from deep inside)."""
     with pytest.raises(ProbvisError, match=r"RenderSettings has no setting 'sp' \(its settings: spp, shadow_rays"):
         RenderSettings().replace(sp=3)
+    with pytest.raises(ProbvisError, match=r"RenderSettings\(\): got an unexpected keyword argument 'sp' \(did you "
+                                           r"mean spp=\?\)"):
+        RenderSettings(sp=3)
+    with pytest.raises(ProbvisError, match=r"RenderSettings\(\): too many positional arguments"):
+        RenderSettings(1, 2, 3, None, False, 6)

@@ -19,16 +19,19 @@ def is_number(value, whole=False):
     return isinstance(value, (int, np.integer) if whole else (int, float, np.integer, np.floating))
 
 
-def checked_call(func):
+def checked_call(func, name=None):
     """`func` with a call that does not fit its signature (a misspelt keyword, a missing argument) refused as a
-    ProbvisError naming the nearest argument, instead of Python's TypeError."""
+    ProbvisError naming the nearest argument, instead of Python's TypeError; `name` is the call's name in the
+    message (a class's, for its `__init__`)."""
     import difflib
     import functools
     import inspect
 
     sig = inspect.signature(func)
     params = sig.parameters.values()
-    names = [p.name for p in params if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL, p.POSITIONAL_ONLY)]
+    names = [p.name for p in params if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL, p.POSITIONAL_ONLY)
+             and p.name != "self"]
+    name = name or func.__name__
     by_position = [p.name for p in params if p.kind == p.POSITIONAL_ONLY]
 
     @functools.wraps(func)
@@ -43,8 +46,8 @@ def checked_call(func):
                 hint = f" (did you mean {close[0]}=?)" if close else f" (its arguments: {', '.join(names)})"
             given = [name for name in by_position if name in kwargs]
             if given:
-                hint = f" ({given[0]} is given first, by position: {func.__name__}(value, ...))"
-            raise ProbvisError(f"{func.__name__}(): {text}{hint}") from None
+                hint = f" ({given[0]} is given first, by position: {name}(value, ...))"
+            raise ProbvisError(f"{name}(): {text}{hint}") from None
         return func(*args, **kwargs)
 
     return call

@@ -8,7 +8,7 @@ import numbers
 import re
 from dataclasses import dataclass
 
-from .errors import ProbvisError, is_flag, is_number
+from .errors import ProbvisError, checked_call, is_flag, is_number
 
 MAX_SPP = 1 << 20
 MAX_SHADOW_RAYS = 1 << 16
@@ -53,16 +53,17 @@ class RenderSettings:
     threads: int | None = None
     filter_importance: bool = False
 
+    def __post_init__(self):
+        self.validate()  # refused where it is made, not at a later render
+
     def replace(self, **changes):
-        """A copy with the given settings replaced; None leaves a setting as it is. Validated."""
+        """A copy with the given settings replaced (and validated); None leaves a setting as it is."""
         names = [f.name for f in dataclasses.fields(self)]
         unknown = sorted(set(changes) - set(names))
         if unknown:
             raise ProbvisError(f"RenderSettings has no setting {', '.join(map(repr, unknown))} (its settings: "
                                f"{', '.join(names)})")
-        out = dataclasses.replace(self, **{k: v for k, v in changes.items() if v is not None})
-        out.validate()
-        return out
+        return dataclasses.replace(self, **{k: v for k, v in changes.items() if v is not None})
 
     def check_budget(self):
         """A render's settings (after any overrides): at most MAX_SEGMENTS_PER_PIXEL shadow rays per pixel."""
@@ -86,3 +87,7 @@ class RenderSettings:
             if getattr(self, name) is not None:  # whose arithmetic neither wraps nor rounds
                 object.__setattr__(self, name, int(getattr(self, name)))
         return self
+
+
+# a misspelt setting is named with its nearest, as the API's functions do
+RenderSettings.__init__ = checked_call(RenderSettings.__init__, "RenderSettings")
