@@ -14,6 +14,7 @@ itself (`shade`). This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0
 import os
 import sys
 import time
+import warnings
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -260,11 +261,13 @@ class _CompileProgress(event.Listener):
 
 def warm_up_render(cls, options):
     """The warm-up: a render of `cls(**options)` on the 4x4 built-in quad-shadow scene, with the sizes its
-    options declare for it (`Option.warm_up`), which runs every kernel a render with these options runs."""
+    options declare for it (`Option.warm_up`), which runs every kernel a render with these options runs (silent:
+    its warnings would be about that scene)."""
     from .scene.builtin import quad_shadow
 
     sizes = {o.name: o.warm_up for o in cls.options if o.warm_up is not None}
-    render_pass(quad_shadow(res=4), RenderSettings(spp=1, shadow_rays=2), cls(**{**options, **sizes}))
+    with warnings.catch_warnings(action="ignore"):
+        render_pass(quad_shadow(res=4), RenderSettings(spp=1, shadow_rays=2), cls(**{**options, **sizes}))
 
 
 def _warm_up(cls, options, progress):
@@ -276,8 +279,7 @@ def _warm_up(cls, options, progress):
     t0 = time.perf_counter()
     cold = progress and _cold_cache()
     if cold:
-        print(f"probvis: compiling kernels (first run only: {COMPILE_TIME} on 2 cores)", file=sys.stderr,
-              flush=True)
+        print(f"probvis: compiling kernels (first run only: {COMPILE_TIME} on 2 cores)", file=sys.stderr, flush=True)
     threads = numba.get_num_threads()
     with _CompileProgress() if cold and sys.stderr.isatty() else nullcontext() as shown:
         if cold and threads > 1:
@@ -292,8 +294,7 @@ def _warm_up(cls, options, progress):
 
 
 def _check_arguments(scene, settings, resolution, defines, options, numbers, flags):
-    """The API's arguments of the wrong type, as one ProbvisError naming the argument (ranges are checked where
-    the values are used)."""
+    """The API's arguments of the wrong type, as one ProbvisError naming the argument (ranges: where used)."""
     if not (isinstance(scene, Scene) or is_path(scene)):
         raise ProbvisError(f"scene must be a Scene, a scene file path or a built-in name, got {type(scene).__name__}")
     if settings is not None and not isinstance(settings, RenderSettings):

@@ -1,5 +1,7 @@
 """Proxy visibility (the control variate V_P + B (V - V_P) / q): unbiased against exact visibility, per segment
 and per image; proxies built, cached and refused as documented."""
+import warnings
+
 import numpy as np
 import pytest
 import trimesh
@@ -191,10 +193,24 @@ def test_a_mesh_the_decimator_cannot_handle_keeps_its_triangles(monkeypatch):
     ({"q": "0"}, "q must be auto or a probability from 0.001 to 1"),
     ({"q": "1.5"}, "q must be auto or a probability from 0.001 to 1"),
     ({"triangles": 30000, "min_triangles": 1000}, "triangles 30000 is not below the 20480 of mesh 'blob'"),
+    ({"triangles": 99999999999, "min_triangles": 1000},  # named before the memory estimate takes it
+     "triangles 99999999999 is not below the 20480 of mesh 'blob'"),
 ])
 def test_bad_options_name_the_option(options, message):
     with pytest.raises(ProbvisError, match=message.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[")):
         probvis.render(blob_scene(8), spp=1, shadow_rays=1, visibility="proxy", visibility_options=options)
+
+
+@pytest.mark.parametrize("options, named", [({"ratio": 0.5}, "ratio changes"), ({"q": "0.5", "kind": "volume"},
+                                                                               "kind, q change")])
+def test_options_that_change_nothing_without_a_heavy_mesh_are_named(options, named):
+    """No mesh of min_triangles or more: every segment is tested exactly, and the options that shape proxies are
+    said to change nothing (not a silent exact render); options left at their defaults say nothing."""
+    with pytest.warns(UserWarning, match=f"no mesh of 'blob' has min_triangles \\(100000\\) triangles or more, so "
+                                         f"every segment is tested exactly and {named} nothing"):
+        probvis.render(blob_scene(8), spp=1, shadow_rays=1, visibility="proxy", visibility_options=options)
+    with warnings.catch_warnings(action="error"):
+        probvis.render(blob_scene(8), spp=1, shadow_rays=1, visibility="proxy", visibility_options={"ratio": 0.01})
 
 
 def test_cli_names_the_flag(capsys):

@@ -257,17 +257,23 @@ class VisibilityEstimator(abc.ABC):
         self.seconds = {p.name: 0.0 for p in self.phases}
 
     @classmethod
-    def refuse_both(cls, options, first, second):
-        """An error if `options` set both `first` and `second`, which exclude each other. An option given at its
-        default counts as unset: `settings()` hands every option back, defaults included."""
-        def given(name):
-            value, default = options.get(name), next(o.default for o in cls.options if o.name == name)
-            try:
-                return value is not None and (default is None or float(value) != float(default))
-            except (TypeError, ValueError):
-                return False  # parse_options names the bad value
+    def given(cls, options, name):
+        """Whether `options` set option `name` to other than its default. An option given at its default counts
+        as unset: `settings()` hands every option back, defaults included."""
+        value, default = options.get(name), next(o.default for o in cls.options if o.name == name)
+        if value is None:
+            return False
+        if isinstance(default, str):  # a word: auto, mesh
+            return str(value).strip().lower() != default.lower()
+        try:
+            return default is None or float(value) != float(default)
+        except (TypeError, ValueError):
+            return False  # parse_options names the bad value
 
-        if given(first) and given(second):
+    @classmethod
+    def refuse_both(cls, options, first, second):
+        """An error if `options` set both `first` and `second`, which exclude each other."""
+        if cls.given(options, first) and cls.given(options, second):
             raise ProbvisError(f"visibility '{cls.name}': give {first} or {second}, not both")
 
     @classmethod

@@ -13,6 +13,8 @@ A proxy strays from its mesh by about its edge length, so a segment leaving a he
 often hit the proxy at once: the proxy test ignores the first `ProxyGeometry.clearance` of every segment (any
 V_P is a valid control variate; this one just agrees with V more often).
 """
+import warnings
+
 import numba
 import numpy as np
 
@@ -32,6 +34,7 @@ from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TR
 from .proxy_plan import REGIONS, Decision, Pilot, decision_key, film_regions
 
 PILOT_Q = 0.5  # q where the pilot measured nothing (it found no segment)
+SHAPING = ("ratio", "triangles", "min_triangles", "kind", "q", "shells")  # what changes nothing without a heavy mesh
 
 
 def _parse_q(value):
@@ -71,14 +74,25 @@ class ProxyVisibility(VisibilityEstimator):
     def __init__(self, **options):
         self.refuse_both(options, "ratio", "triangles")
         super().__init__(**options)
+        self.shaping = [o.name for o in self.options if o.name in SHAPING and self.given(options, o.name)]
 
-    def prepare(self, scene, bvh, emitters, settings, integrator):
-        super().prepare(scene, bvh, emitters, settings, integrator)
+    def _check_meshes(self, scene):
+        """Refuse a proxy size not below a heavy mesh's (before the memory estimate, which would take it)."""
         p = self.params
         for shape in scene.shapes:
             if p.triangles is not None and p.min_triangles <= shape.n_triangles <= p.triangles:
                 raise ProbvisError(f"triangles {p.triangles} is not below the {shape.n_triangles} of mesh "
                                    f"'{shape.name}' (or raise min_triangles above it)")
+
+    def prepare(self, scene, bvh, emitters, settings, integrator):
+        super().prepare(scene, bvh, emitters, settings, integrator)
+        p = self.params
+        self._check_meshes(scene)
+        if self.shaping and not any(s.n_triangles >= p.min_triangles and s.emitter < 0 for s in scene.shapes):
+            warnings.warn(f"visibility 'proxy': no mesh of '{scene.name}' has min_triangles ({p.min_triangles}) "
+                          f"triangles or more, so every segment is tested exactly and {', '.join(self.shaping)} "
+                          f"change{'s' * (len(self.shaping) == 1)} nothing: lower min_triangles to give a mesh a "
+                          "proxy", stacklevel=2)
         e, r = scene.n_emitters, REGIONS * REGIONS
         self.fixed_q = None if p.q == "auto" else float(p.q)
         self.q = np.full((r, e), self.fixed_q or PILOT_Q)  # per region and emitter
@@ -238,6 +252,7 @@ class ProxyVisibility(VisibilityEstimator):
         return VisibilityResult(value, node, tri)
 
     def memory_estimate(self, scene, settings, batch_samples):
+        self._check_meshes(scene)
         p = self.params
         heavy = [s.n_triangles for s in scene.shapes if s.n_triangles >= p.min_triangles and s.emitter < 0]
         proxy = p.ratio * sum(heavy) if p.triangles is None else p.triangles * len(heavy)
