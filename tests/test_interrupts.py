@@ -61,3 +61,24 @@ def test_a_deferred_signal_whose_interrupt_was_swallowed_is_still_a_stop():
         check_stop()
     reset_stop()
     check_stop()
+
+
+def test_a_stop_as_a_study_finishes_says_its_report_is_complete(monkeypatch, tmp_path, capsys):
+    """A stop that arrived while the report was written (deferred, then swallowed) still ends the command with
+    130, but the report is whole: the message says so, not "run the same command to resume"."""
+    import probvis.experiments
+    from probvis.cli import main
+
+    def finished_study(exp, out, *args):
+        try:
+            with deferred_interrupts():
+                os.kill(os.getpid(), signal.SIGTERM)
+        except KeyboardInterrupt:
+            pass  # swallowed, as `experiment` swallows one that arrives while its report is written
+        return None, out / "index.html", None
+
+    monkeypatch.setattr(probvis.experiments, "experiment", finished_study)
+    assert main(["experiment", "--quick", "-o", str(tmp_path / "rep")]) == 130
+    err = capsys.readouterr().err
+    assert f"interrupted as the study finished; its report is complete: {tmp_path / 'rep' / 'index.html'}" in err
+    assert "resume" not in err

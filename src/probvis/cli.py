@@ -593,12 +593,16 @@ def _cmd_experiment(args):
     command = "probvis " + shlex.join(args.argv)
     try:  # `main` made SIGTERM and SIGHUP stop as Ctrl-C does
         _, index, run = experiment(exp, out, args.cache, args.workers, args.scheduler, not args.quiet, command)
-        check_stop()  # a stop that a library swallowed (while the cluster started, or the report was written)
     except KeyboardInterrupt:
         cache = Path(args.cache or out / "cache")
         kept = cache.is_dir() and any(cache.glob("*.json"))
         print(f"probvis: interrupted; finished renders are kept in {cache}, run the same command to resume" if kept
               else "probvis: interrupted before any render finished", file=sys.stderr)
+        return 130
+    try:
+        check_stop()  # a stop that a library swallowed (while the cluster started, or the report was written)
+    except KeyboardInterrupt:  # the study ran to its end all the same: nothing to resume
+        print(f"probvis: interrupted as the study finished; its report is complete: {index}", file=sys.stderr)
         return 130
     _say(f"{run.computed} renders computed, {run.cells_cached} of {len(run.tasks)} cells from the cache; "
          f"report: {index}")
