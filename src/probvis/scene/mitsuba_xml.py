@@ -1161,6 +1161,10 @@ class _Reader:
         own_mirror = (np.linalg.det(m[:3, :3]) < 0) != outer_mirror
         if kind in ("rectangle", "cube", "disk", "sphere") and own_mirror:
             flip = not flip
+        if kind == "cylinder" and own_mirror and radiance is not None:
+            warnings.warn(f"{self.where(node)}: a cylinder emitter under a mirroring to_world emits here as the "
+                          "unmirrored one; Mitsuba 3 splits its light between its sides (less outward, some inward "
+                          "even with flip_normals): to match it, leave the mirror out", stacklevel=2)
         if outer_mirror != (kind in ("cylinder", "sphere") and own_mirror):
             f = f[:, ::-1]
             if uv is not None and np.ndim(uv) == 3:
