@@ -357,6 +357,9 @@ def test_missing_file_no_emitter_nan_vertices(tmp_path):
     with pytest.raises(ProbvisError, match=r"contains no \(non-degenerate\) triangles \(an environment alone is a "
                                            "background with nothing for it to light"):
         probvis.load_scene(write_scene(tmp_path / "sky.xml", sensor() + "<emitter type='constant'/>"))
+    with pytest.raises(ProbvisError, match=r"scene 'empty' contains no \(non-degenerate\) triangles: nothing to "
+                                           r"light, the image would be black \(as Mitsuba renders it\): add a shape"):
+        probvis.load_scene(write_scene(tmp_path / "empty.xml", sensor()))
     (tmp_path / "nan.obj").write_text("v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n")
     body = sensor() + LIGHT + "<shape type='obj'><string name='filename' value='nan.obj'/></shape>"
     with pytest.raises(ProbvisError, match="nan.obj:2: mesh nan.obj has NaN or infinite vertex coordinates"):

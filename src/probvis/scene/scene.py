@@ -327,7 +327,8 @@ class SceneBuilder:
         """The `Scene`; `defaults` are the render settings the scene declares."""
         if self._n == 0:
             seen = " (an environment alone is a background with nothing for it to light, which probvis does not " \
-                   "render: add a shape)" if self.environment is not None else ""
+                   "render: add a shape)" if self.environment is not None else \
+                ": nothing to light, the image would be black (as Mitsuba renders it): add a shape"
             raise ProbvisError(f"scene '{self.name}' contains no (non-degenerate) triangles{seen}")
         if not self.emitter_radiance:
             raise ProbvisError(f"scene '{self.name}' has no emitter: add an area emitter to a shape, or a point, "
