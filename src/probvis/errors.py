@@ -44,7 +44,7 @@ def checked_call(func, name=None):
             if unknown:
                 close = difflib.get_close_matches(unknown.group(1), names, 1)
                 hint = f" (did you mean {close[0]}=?)" if close else f" (its arguments: {', '.join(names)})"
-            given = [name for name in by_position if name in kwargs]
+            given = [arg for arg in by_position if arg in kwargs]
             if given:
                 hint = f" ({given[0]} is given first, by position: {name}(value, ...))"
             raise ProbvisError(f"{name}(): {text}{hint}") from None
