@@ -28,10 +28,10 @@ def pytest_configure(config):
         return
     if config.getoption("numprocesses", None) in (None, 0):
         return
-    from probvis import integrator, precompile
+    from probvis import integrator, precompile, warm_up
     from probvis.visibility import estimator_class
 
-    if integrator._cold_cache():
+    if warm_up.cold_cache():
         calls = [(integrator.warm_up_render, (estimator_class(v), {})) for group in WARM_UP_GROUPS for v in group]
         precompile.fill_cache(calls, min(4, os.cpu_count() or 1))  # what it misses, the warm-ups compile
     procs = [subprocess.Popen([sys.executable, "-c", WARM_UP, *group]) for group in WARM_UP_GROUPS]

@@ -169,14 +169,14 @@ def test_estimators_lists_every_estimator_with_its_options(capsys):
 
 def test_first_run_says_it_compiles_kernels(tmp_path, capsys, monkeypatch):
     """On a cold kernel cache the CLI says so before compiling (here the cache is warm: pretend it is not)."""
-    from probvis import integrator
+    from probvis import warm_up
 
-    monkeypatch.setattr(integrator, "_cold_cache", lambda: True)
-    monkeypatch.setattr(integrator, "_warmed", set())
+    monkeypatch.setattr(warm_up, "cold_cache", lambda: True)
+    monkeypatch.setattr(warm_up, "_warmed", set())
     assert main(["render", "quad-shadow", "-D", "res=8", "-o", str(tmp_path / "c.exr")]) == 0
-    said = f"probvis: compiling kernels (first run only: {integrator.COMPILE_TIME} on 2 cores)"
+    said = f"probvis: compiling kernels (first run only: {warm_up.COMPILE_TIME} on 2 cores)"
     assert said in capsys.readouterr().err
-    monkeypatch.setattr(integrator, "_warmed", set())
+    monkeypatch.setattr(warm_up, "_warmed", set())
     assert main(["render", "quad-shadow", "-D", "res=8", "-o", str(tmp_path / "c.exr"), "-q"]) == 0
     assert "compiling" not in capsys.readouterr().err  # -q: nothing
 

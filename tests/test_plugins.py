@@ -618,3 +618,24 @@ def test_declarations_that_cannot_be_printed_are_named(field):
     cls = type("Unprintable", (_Exact,), attrs)
     with pytest.raises(ProbvisError, match=r"(name|names|help|summary).* got <Bad: its repr\(\) failed>"):
         probvis.render("quad-shadow", spp=1, visibility=cls)
+
+
+class _RefusesTheWarmUp(probvis.visibility.estimator_class("exact")):
+    """A plug-in whose own check refuses the warm-up's scene (as one that needs a named mesh would)."""
+
+    name = "picky"
+    summary = "refuses scenes without a light named 'light' in a Cornell box"
+
+    def prepare(self, scene, bvh, emitters, settings, integrator):
+        if scene.name != "cornell-box":
+            raise ProbvisError(f"needs the Cornell box, got '{scene.name}'")
+        super().prepare(scene, bvh, emitters, settings, integrator)
+
+
+def test_a_plugin_that_refuses_the_warm_up_s_scene_renders_its_own(monkeypatch):
+    """The warm-up renders a scene of its own first; a plug-in that refuses it is not warmed up (its render
+    compiles what it runs), and still reports what it refuses in the render itself."""
+    monkeypatch.setattr(probvis.warm_up, "_warmed", set())
+    assert probvis.render("cornell-box", resolution=(4, 4), spp=1, visibility=_RefusesTheWarmUp).image.shape == (4, 4, 3)
+    with pytest.raises(ProbvisError, match="needs the Cornell box, got 'quad-shadow'"):
+        probvis.render("quad-shadow", resolution=(4, 4), spp=1, visibility=_RefusesTheWarmUp)

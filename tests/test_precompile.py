@@ -1,18 +1,24 @@
+import functools
 import os
 import signal
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
+import pytest
 from numba import types
 
-from probvis import integrator, precompile
+import probvis
+from probvis import integrator, precompile, warm_up
+from probvis.scene import builtin
 from probvis.visibility import estimator_class
 
 
 def test_discovery_types_each_kernel_as_its_dispatcher_does():
     """The plain-Python run finds the warm-up's kernels with the argument types Numba gives them: each is one
-    of the signatures the same warm-up, compiled, loads; the fused kernel, the largest, comes first."""
+    of the signatures the same warm-up, compiled, loads; the fused kernel and the shells' kernel (exact's warm-up
+    for any scene), the largest, come first."""
     cls = estimator_class("exact")
     jobs = precompile._discover([(integrator.warm_up_render, (cls, {}))])
     integrator.warm_up_render(cls, {})
@@ -22,7 +28,8 @@ def test_discovery_types_each_kernel_as_its_dispatcher_does():
         for part in name.split("."):
             kernel = getattr(kernel, part)
         assert argtypes in kernel.signatures, (module, name)
-    assert (jobs[0][0], jobs[0][1]) == ("probvis.fused_exact", "_shade_blocks")
+    assert {(j[0], j[1]) for j in jobs[:2]} == {("probvis.fused_exact", "_shade_blocks"),
+                                                 ("probvis.visibility.proxy_kernel", "shade_proxy")}
     assert [j[3] for j in jobs] == sorted((j[3] for j in jobs), reverse=True)
 
 
@@ -102,7 +109,8 @@ def test_the_warm_up_uses_the_sizes_options_declare(monkeypatch):
     """The occlusion map's photons are a size, not a choice of kernels: the warm-up shoots its declared few,
     whatever the render asks for."""
     seen = []
-    monkeypatch.setattr(integrator, "render_pass", lambda scene, settings, estimator: seen.append(estimator))
+    done = SimpleNamespace(bvh=SimpleNamespace(stats=dict))
+    monkeypatch.setattr(integrator, "render_pass", lambda scene, settings, estimator: seen.append(estimator) or done)
     integrator.warm_up_render(estimator_class("occlusion-map"), {"photons": 10**6, "neighbours": 7})
     assert (seen[0].params.photons, seen[0].params.neighbours) == (4096, 7)
 
@@ -110,7 +118,52 @@ def test_the_warm_up_uses_the_sizes_options_declare(monkeypatch):
 def test_the_first_run_s_progress_bar_starts():
     """On a terminal a cold first run shows a bar over Numba's compile events (it failed Numba's check that a
     listener is an `event.Listener`) and the workers' kernels."""
-    with integrator._CompileProgress() as shown:
+    with warm_up.CompileProgress() as shown:
         shown.bar.reset(total=2)
         shown.bar.update(1)
         assert shown.bar.n == 1
+
+
+@pytest.mark.parametrize("visibility, options", [
+    ("occlusion-map", {"radius": 50.0}), ("occlusion-map", {"radius": 1e-10}), ("probvis", {"radius": 50.0}),
+    ("proxy", {"triangles": 1000}), ("proxy", {"triangles": 1000, "min_triangles": 4}),
+])
+def test_the_warm_up_leaves_out_what_fits_only_the_real_scene(visibility, options):
+    """A radius for a 100 m scene, or one for a 3 mm one, and a proxy size below a real scene's heavy mesh are
+    the user's: the warm-up's own scene (a diagonal of 11.5) was refused them before the render began."""
+    integrator.warm_up_render(estimator_class(visibility), options)
+
+
+def test_the_warm_up_runs_every_kernel_a_render_of_heavy_meshes_runs(tmp_path, monkeypatch):
+    """What a first render's kernels are compiled by is the warm-up: a render of scenes with and without heavy
+    meshes (shells, decimated and volumetric proxies, the fused kernel) calls no kernel the warm-up did not
+    for that scene (a first proxy render compiled for 40 s inside its prepare and render). Kernels are found as
+    the parallel compile finds them; an empty disk cache so that every build runs."""
+    monkeypatch.setenv("PROBVIS_CACHE_DIR", str(tmp_path))
+    scan = builtin.heavy_scan(res=8, spp=1, shadow_rays=4, subdivisions=3)
+    leaves = builtin.canopy(res=8, spp=1, shadow_rays=4, leaves=1500, leaf_size=0.02)
+    city = builtin.box_city(res=8, spp=1, shadow_rays=4, blocks=6)
+
+    def kernels(call):
+        return {(module, name, argtypes) for module, name, argtypes, _ in precompile._discover([call])}
+
+    for visibility, options, scenes in [("exact", {}, (scan, city)), ("proxy", {}, (scan, city)),
+                                         ("proxy", {"q": "0.5"}, (scan, leaves))]:
+        options = {**options, "min_triangles": 1000}
+        for scene in scenes:
+            warmed = kernels((integrator.warm_up_render, (estimator_class(visibility), options,
+                                                       warm_up.largest_mesh(scene))))
+            ran = kernels((functools.partial(probvis.render, scene, visibility=visibility,
+                                             visibility_options=options), ()))
+            assert ran and ran <= warmed, (visibility, options, scene.name, sorted(k[:2] for k in ran - warmed))
+
+
+def test_a_scene_without_heavy_meshes_warms_up_no_heavy_mesh_kernels():
+    """A first `exact` render of the Cornell box waits for no shell or proxy kernel: the warm-up renders heavy
+    meshes only for a scene that has one (by the estimator's min_triangles), and it is keyed by that."""
+    small = warm_up.largest_mesh(builtin.cornell_box(res=4))
+    for name in ("exact", "proxy"):
+        cls = estimator_class(name)
+        assert [run["min_triangles"] for run in cls.warm_ups({}, small)] == [cls().params.min_triangles]
+        assert len(cls.warm_ups({}, 10**6)) >= 2 and len(cls.warm_ups({"min_triangles": small}, small)) >= 2
+    assert len(estimator_class("exact").warm_ups({"shells": "off"}, 10**6)) == 1

@@ -15,16 +15,13 @@ import os
 import sys
 import time
 import warnings
-from contextlib import nullcontext
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numba
 import numpy as np
-from numba.core import event
 from threadpoolctl import threadpool_limits
 
-from . import memory, precompile
+from . import memory
 from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
@@ -38,14 +35,15 @@ from .plugin_checks import (arrays_digest, check_unchanged, checked_cases, check
                             checked_shaded, checked_stats, plugin_errors)
 from .render_stats import render_stats
 from .scene import Scene, open_scene
+from .scene.builtin import warm_up_scene
 from .segments import SegmentBuffers, compact, sample_emitters, sample_radiance
 from .settings import RenderSettings, whole_number
 from .shading import ShadedBatch, ShadingBatch
 from .visibility import RenderPath, ShadingPoints, ShadowQuery, VisibilityEstimator, estimator_class
+from .warm_up import ensure_warm, is_warm, largest_mesh
 
 TARGET_SLOTS = 1 << 18  # shadow-ray slots per staged batch (bounds memory, keeps progress and Ctrl-C prompt)
 TARGET_LOOKUPS = 1 << 15  # at least this many (camera sample, emitter) pairs per batch of a kernel path
-COMPILE_TIME = "about half a minute"  # a first run's compilation on 2 cores (17-26 s exact, 33-36 s probvis)
 
 
 def render_memory(scene, settings, estimator):
@@ -223,74 +221,12 @@ def render_pass(scene, settings, estimator, progress=False):
                  case_totals if film.case_counts is not None else None, seconds)
 
 
-_warmed = set()
-
-
-def _cold_cache():
-    """Whether Numba's on-disk cache lacks the kernels (a first run, or a changed probvis); under
-    NUMBA_DISABLE_JIT the kernels are plain functions: nothing to compile, no cache."""
-    from .fused_exact import _shade_blocks
-
-    index = getattr(getattr(getattr(_shade_blocks, "_cache", None), "_cache_file", None), "_index_path", None)
-    return index is not None and not Path(index).exists()
-
-
-class _CompileProgress(event.Listener):
-    """A progress bar over the kernels compiled in this process (Numba's compile events) or, through `bar`,
-    by `precompile`."""
-
-    def __init__(self):
-        from tqdm import tqdm
-        self.bar = tqdm(desc="compiling kernels", unit=" kernels", leave=False)
-        self.listener = event.install_listener("numba:compile", self)
-
-    def on_start(self, ev):
-        pass
-
-    def on_end(self, ev):
-        self.bar.update(1)
-
-    def __enter__(self):
-        self.listener.__enter__()
-        return self
-
-    def __exit__(self, *exc):
-        self.listener.__exit__(*exc)
-        self.bar.close()
-
-
-def warm_up_render(cls, options):
-    """The warm-up: a render of `cls(**options)` on the 4x4 built-in quad-shadow scene, with the sizes its
-    options declare for it (`Option.warm_up`), which runs every kernel a render with these options runs (silent:
-    its warnings would be about that scene)."""
-    from .scene.builtin import quad_shadow
-
-    sizes = {o.name: o.warm_up for o in cls.options if o.warm_up is not None}
+def warm_up_render(cls, options, largest=None):
+    """Renders of `cls` on the warm-up scene with each of `cls.warm_ups(options, largest)`: every kernel a render
+    with `options` runs, the BVH's stats' too (silent: its warnings would be about that scene); see `warm_up`."""
     with warnings.catch_warnings(action="ignore"):
-        render_pass(quad_shadow(res=4), RenderSettings(spp=1, shadow_rays=2), cls(**{**options, **sizes}))
-
-
-def _warm_up(cls, options, progress):
-    """Compile (or load from Numba's cache) every kernel of the pipeline on a tiny scene; returns seconds. A
-    first run with more than one thread compiles them in that many processes first (`precompile`)."""
-    key = (cls, repr(sorted(options.items())))
-    if key in _warmed:
-        return 0.0
-    t0 = time.perf_counter()
-    cold = progress and _cold_cache()
-    if cold:
-        print(f"probvis: compiling kernels (first run only: {COMPILE_TIME} on 2 cores)", file=sys.stderr, flush=True)
-    threads = numba.get_num_threads()
-    with _CompileProgress() if cold and sys.stderr.isatty() else nullcontext() as shown:
-        if cold and threads > 1:
-            precompile.fill_cache([(warm_up_render, (cls, options))], threads, shown.bar if shown else None)
-        numba.set_num_threads(1)  # compile in this thread: a pool thread's compile would hold an interrupt's exit
-        try:
-            warm_up_render(cls, options)
-        finally:
-            numba.set_num_threads(threads)
-    _warmed.add(key)
-    return time.perf_counter() - t0
+        for opts in cls.warm_ups(options, largest):
+            render_pass(warm_up_scene(), RenderSettings(spp=1, shadow_rays=2), cls(**opts)).bvh.stats()
 
 
 def _check_arguments(scene, settings, resolution, defines, options, numbers, flags):
@@ -368,13 +304,14 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
         with plugin_errors(cls, "__init__"):
             estimator = cls(**options)
     need = render_memory(scene, settings, estimator)
-    if (type(estimator), repr(sorted(options.items()))) not in _warmed:
+    largest = largest_mesh(scene)
+    if not is_warm(type(estimator), options, largest):
         need["kernels"] = memory.KERNEL_BYTES  # loading (or compiling) the kernels comes after the estimate
     memory.check(need, memory.render_hints(scene), estimator.name)
     with threadpool_limits(limits=threads):  # one budget: BLAS and OpenMP pools get no more than Numba
         with plugin_errors(type(estimator), "the render (prepare, classify, evaluate or shade)"):
             cpu_compile = time.process_time()
-            compile_seconds = _warm_up(type(estimator), options, progress)
+            compile_seconds = ensure_warm(warm_up_render, type(estimator), options, largest, progress)
             cpu_render = time.process_time()
             cpu_compile = cpu_render - cpu_compile
             result = render_pass(scene, settings, estimator, progress)

@@ -169,6 +169,26 @@ def heavy_canopy(res=256, spp=16, shadow_rays=16, seed=0, leaves=1_000_000, layo
     return scene
 
 
+def warm_up_scene(res=4):
+    """The warm-up renders' scene (`VisibilityEstimator.warm_ups`): quad-shadow's floor and light over a closed
+    scan of 80 triangles and a cluster of 48 leaf triangles, each heavy at a warm-up's min_triangles, so that
+    the kernels of heavy meshes (shells, decimated and volumetric proxies) run too; not a listed built-in."""
+    rng = np.random.default_rng(2013)
+    b = SceneBuilder("warm-up", "builtin:warm-up")
+    grey = b.material((0.8, 0.8, 0.8))
+    v, f = shp.rectangle()
+    b.add_mesh("floor", "rectangle", v, f, tf.scale([4, 4, 1]), grey)
+    sv, sf = _scan(1, 0.002)
+    b.add_mesh("scan", "mesh", sv, sf, tf.translate([0, 0, 1.1]) @ tf.scale([0.6, 0.6, 0.6]), grey)
+    leaves = rng.uniform(-0.3, 0.3, (48, 1, 3)) + rng.normal(scale=0.08, size=(48, 3, 3)) + [1.2, 0.4, 0.8]
+    b.add_mesh("leaves", "mesh", leaves.reshape(-1, 3), np.arange(3 * 48).reshape(-1, 3), None,
+               b.material((0.2, 0.55, 0.15), twosided=True))
+    light = tf.translate([0, 0, 2]) @ tf.rotate([1, 0, 0], 180) @ tf.scale([0.25, 0.25, 1])
+    b.add_mesh("light", "rectangle", v, f, light, None, radiance=(10.0, 10.0, 10.0))
+    cam = Camera(tf.look_at([0, -3.5, 4.5], [0, 0, 0], [0, 0, 1]), 45.0, res, res)
+    return b.build(cam, RenderSettings(1, 2, 0))
+
+
 BUILTINS = {
     "cornell-box": (cornell_box, "Cornell box with two boxes and a sphere, small ceiling light"),
     "canopy": (canopy, "3,000 random leaf triangles over the ground: penumbra everywhere"),

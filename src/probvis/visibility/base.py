@@ -55,8 +55,8 @@ class Option:
     count: int | None = None
     check: object = None
     metavar: str | None = None
-    warm_up: object = None  # its value in the first run's warm-up render (4x4 pixels): a size or a switch of caches,
-    # never a choice of kernels
+    warm_up: object = None  # its value in the warm-up renders (`VisibilityEstimator.warm_ups`): a size or a switch of
+    # caches, never a choice of kernels
 
     def __post_init__(self):
         """NumPy scalars among the declared values as Python's: they reach JSON (stats, `estimators --json`)."""
@@ -290,6 +290,15 @@ class VisibilityEstimator(abc.ABC):
             value = options.get(name)
             out[name] = opt.default if value is None else opt.parse(value)
         return out
+
+    @classmethod
+    def warm_ups(cls, options, largest=None):
+        """The options of the warm-up renders (`probvis.warm_up`, on a 4x4 scene of 132 triangles) that together
+        run every kernel a render with `options` may run on a scene whose largest mesh that does not emit has
+        `largest` triangles (None: any scene): by default one, with the sizes the options declare for it
+        (`Option.warm_up`). Override to leave out an option that only makes sense at the real scene's scale (a
+        length), or to add a render for kernels that only some scenes reach."""
+        return [{**options, **{o.name: o.warm_up for o in cls.options if o.warm_up is not None}}]
 
     def settings(self):
         """The estimator's settings, as reported in the render stats."""

@@ -26,6 +26,7 @@ from .proxy_kernel import N_TESTS, Correction, geometry_tests, shade_proxy
 PILOT_SIDE = 32  # `shells auto`'s pilot: shading points along each side of the image,
 PILOT_RAYS = 4  # shadow segments from each
 PILOT_SALT = 0x5E11  # its camera samples apart from the render's
+WARM_UP_MIN_TRIANGLES = 32  # the warm-up scene's scan (80 triangles) and leaves (48) are heavy meshes at this
 CROSSING_SHARE = 0.25  # a closed heavy mesh gets shells when at least this share of the pilot's segments cross its box
 
 
@@ -36,13 +37,23 @@ class ExactVisibility(VisibilityEstimator):
         Option("shells", Switch, "auto", "decide segments by conservative shells of heavy meshes first (same image); "
                "auto: of the closed ones that the segments often cross"),
         Option("min_triangles", int, MIN_TRIANGLES, "with shells: meshes of at least this many triangles get them",
-               minimum=4),
-        Option("cache", bool, True, "cache shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
+               minimum=4, warm_up=WARM_UP_MIN_TRIANGLES),
+        Option("cache", bool, True, "cache shells on disk ($PROBVIS_CACHE_DIR, default ~/.cache/probvis)",
+               warm_up=False),
     )
     phases = (
         Phase("shells", "prepare", "building the shells' voxel grid and the BVH of the rest of the scene (or reading the cache)"),
         Phase("render_kernel", "batch", "with shells: sampling, shell and scene tests and the film, fused"),
     )
+
+    @classmethod
+    def warm_ups(cls, options, largest=None):
+        """With no mesh heavy (the fused kernel); if the scene has a mesh of min_triangles and shells are not off,
+        also with the warm-up scene's meshes heavy (the survey, shells and their kernel)."""
+        run = super().warm_ups(options, largest)[0]
+        p = cls.parse_options(options)
+        heavy = p["shells"] != "off" and (largest is None or largest >= p["min_triangles"])
+        return [{**run, "min_triangles": MIN_TRIANGLES}] + ([run] if heavy else [])
 
     def prepare(self, scene, bvh, emitters, settings, integrator):
         super().prepare(scene, bvh, emitters, settings, integrator)

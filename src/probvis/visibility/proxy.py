@@ -26,7 +26,7 @@ from ..shading import ShadedBatch
 from ..shells import ShellTests, shell_memory, shell_tests
 from ..transmittance import RESOLUTION as VOLUME_RESOLUTION, transmittances
 from .base import Option, Phase, RenderPath, Switch, VisibilityEstimator, VisibilityResult
-from .exact import meshes_for_shells, survey_heavy_meshes
+from .exact import WARM_UP_MIN_TRIANGLES, meshes_for_shells, survey_heavy_meshes
 from .occlusion_map.verification import probability_problem
 from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SUM_BOTH,
                            SUM_INV_P, SUM_MISMATCH, SUM_MISMATCH_W, SUM_W, SUM_WV, SUM_WV2, VOLUME_VOXEL,
@@ -49,7 +49,7 @@ class ProxyVisibility(VisibilityEstimator):
                check=lambda r: None if 0.0 < r < 1.0 else f"must be in (0, 1), got {r:g}"),
         Option("triangles", int, None, "triangles of each proxy (instead of ratio)", minimum=4),
         Option("min_triangles", int, MIN_TRIANGLES, "meshes with fewer triangles are used as they are",
-               minimum=4),
+               minimum=4, warm_up=WARM_UP_MIN_TRIANGLES),
         Option("kind", str, "auto", "proxy of a heavy mesh: a decimated mesh, an extinction grid (volume), or auto: "
                "volume for meshes of mostly separate small parts (foliage), mesh otherwise", choices=KINDS),
         Option("q", str, "auto", "probability of also testing a segment exactly: auto (efficiency-aware, per "
@@ -75,6 +75,19 @@ class ProxyVisibility(VisibilityEstimator):
         self.refuse_both(options, "ratio", "triangles")
         super().__init__(**options)
         self.shaping = [o.name for o in self.options if o.name in SHAPING and self.given(options, o.name)]
+
+    @classmethod
+    def warm_ups(cls, options, largest=None):
+        """With no mesh heavy (exact visibility's fused kernel); if the scene has a mesh of min_triangles, also
+        with the warm-up scene's meshes heavy (a proxy size below theirs) and, with q auto, with a fixed q: the
+        proxies the pilot may choose on the real scene (on the warm-up's it never runs, over its budget)."""
+        run = super().warm_ups(options, largest)[0]
+        if cls.given(options, "triangles"):
+            run["triangles"] = 4
+        plain = [{**run, "min_triangles": MIN_TRIANGLES}]
+        if largest is not None and largest < cls.parse_options(options)["min_triangles"]:
+            return plain
+        return plain + [run] + ([] if cls.given(options, "q") else [{**run, "q": str(PILOT_Q)}])
 
     def _check_meshes(self, scene):
         """Refuse a proxy size not below a heavy mesh's (before the memory estimate, which would take it)."""

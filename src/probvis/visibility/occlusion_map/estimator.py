@@ -49,7 +49,7 @@ MAP_OPTIONS = (
                                   "its photons), a probability from 0.001 to 1, or off (biased)",
            check=verification.parse_verify, metavar="auto|Q|off"),
     Option("cache", bool, True, "cache the scene's connected components and closed meshes' orientation on disk "
-                                "($PROBVIS_CACHE_DIR, default ~/.cache/probvis)"),
+                                "($PROBVIS_CACHE_DIR, default ~/.cache/probvis)", warm_up=False),
 )
 MAP_PHASES = (
     Phase("photons", "prepare", "tracing the first pass of photon rays"),
@@ -113,6 +113,11 @@ class OcclusionMapVisibility(VisibilityEstimator):
         """None (off), 'auto' or a fixed probability."""
         v = self.params.verify
         return None if v == "off" else v if v == "auto" else float(v)
+
+    @classmethod
+    def warm_ups(cls, options, largest=None):
+        """Without radius, a length at the real scene's scale: the warm-up scene takes its automatic one."""
+        return [{k: v for k, v in run.items() if k != "radius"} for run in super().warm_ups(options, largest)]
 
     def prepare(self, scene, bvh, emitters, settings, integrator):
         super().prepare(scene, bvh, emitters, settings, integrator)
