@@ -300,6 +300,9 @@ def _raise(*args, **kwargs):
     ({"memory_estimate": lambda self, *a: {"x": "lots"}}, "memory_estimate\\(\\) must return a dict of byte counts"),
     ({"memory_estimate": lambda self, *a: {"x": -10 ** 12}}, "memory_estimate\\(\\) must return a dict of byte counts"),
     ({"classify": lambda self, points: np.zeros(3, np.int8)}, "classify returned int8 of shape \\(3,\\)"),
+    # a code out of range was named as a wrong dtype or shape
+    ({"classify": lambda self, points: np.full((len(points.position), 1), 9, np.int8)},
+     "classify returned \\d+ values that are no case, such as 9: use probvis.cases' CASE_UNKNOWN"),
     ({"evaluate": lambda self, query: sys.exit(5)}, "raised SystemExit in the render .*: 5"),
     ({"evaluate": lambda self, q: probvis.visibility.VisibilityResult(np.ones(len(q.tmax)), np.zeros(len(q.tmax)),
                                                                       np.full(len(q.tmax), 2 ** 62))},

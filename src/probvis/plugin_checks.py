@@ -159,11 +159,17 @@ def checked_cases(estimator, cases, like):
     """`classify`'s result if it has one int8 CASE_* value per camera sample and emitter (the shape of `like`)."""
     arr = np.asarray(cases)
     highest = (N_CASES - 1) | CASE_VERIFIED  # every value from 0 to this is a case, flagged verified or not
-    if arr.shape != like.shape or arr.dtype.kind not in "iu" or arr.size and not 0 <= arr.min() <= arr.max() <= highest:
-        cls = type(estimator)
+    cls = type(estimator)
+    if arr.shape != like.shape or arr.dtype.kind not in "iu":
         raise ProbvisError(f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): classify returned "
                            f"{arr.dtype} of shape {arr.shape}; it needs CASE_* values (int8) of shape {like.shape}, "
                            "one per camera sample and emitter")
+    bad = arr[(arr < 0) | (arr > highest)]
+    if bad.size:
+        raise ProbvisError(f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): classify returned "
+                           f"{bad.size} values that are no case, such as {int(bad[0])}: use probvis.cases' "
+                           "CASE_UNKNOWN, CASE_LIT, CASE_SHADOWED or CASE_PENUMBRA (0 to 3), a lit or shadowed one "
+                           "flagged with | CASE_VERIFIED")
     return arr.astype(np.int8, copy=False)
 
 
