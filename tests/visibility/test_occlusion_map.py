@@ -1,5 +1,7 @@
 """The occlusion map: cases on a quad over a plane, analytic polygon light, volumetric culling, determinism,
 bad input and the no-photon fallback."""
+import warnings
+
 import numba
 import numpy as np
 import pytest
@@ -183,6 +185,18 @@ def test_no_photon_hits_anything_falls_back_to_exact(tmp_path):
     ex = probvis.render(path, visibility="exact")
     np.testing.assert_array_equal(om.image, ex.image)
     assert om.stats["cases"]["unknown"]["share"] == 1.0
+
+
+def test_an_automatic_radius_beyond_the_scene_warns():
+    """Too few photons for the neighbours asked: the radius the map picks spans the whole Cornell box (diagonal
+    3.46), which the user is told, naming what to change; the defaults stay silent."""
+    with pytest.warns(UserWarning, match=r"automatic radius [\d.]+ is larger than the scene \(diagonal 3.464\): "
+                                         r"\d+ photons are too few for neighbours 1024.*more photons or fewer"):
+        probvis.render("cornell-box", resolution=(8, 8), spp=1, visibility="occlusion-map",
+                       visibility_options={"photons": 1000, "neighbours": 1024})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        probvis.render("cornell-box", resolution=(8, 8), spp=1, visibility="occlusion-map")
 
 
 def test_the_scene_structure_is_cached_by_content(tmp_path, monkeypatch):

@@ -162,6 +162,11 @@ class OcclusionMapVisibility(VisibilityEstimator):
         if len(photons) == 0:
             warnings.warn(f"occlusion map: no photon of scene '{scene.name}' hit anything; every point is "
                           "'unknown' and tested against the whole scene (exact visibility)", stacklevel=2)
+        elif p.radius is None and self.map.radius > diagonal:
+            warnings.warn(f"occlusion map: the automatic radius {self.map.radius:.4g} is larger than the scene "
+                          f"(diagonal {diagonal:.4g}): {len(photons)} photons are too few for neighbours "
+                          f"{p.neighbours}, so every photon is every point's neighbour; give more photons or fewer "
+                          "neighbours", stacklevel=2)
         shadow = photons.shadow
         self._stats = {
             "photon_rays": photons.rays, "photon_rays_first_pass": n, "photons": len(photons),
