@@ -147,15 +147,19 @@ def test_the_warm_up_runs_every_kernel_a_render_of_heavy_meshes_runs(tmp_path, m
     def kernels(call):
         return {(module, name, argtypes) for module, name, argtypes, _ in precompile._discover([call])}
 
+    warmed = {}  # by the warm-up's runs: one discovery for the scenes that warm up alike
     for visibility, options, scenes in [("exact", {}, (scan, city)), ("proxy", {}, (scan, city)),
                                          ("proxy", {"q": "0.5"}, (scan, leaves))]:
-        options = {**options, "min_triangles": 1000}
+        options, cls = {**options, "min_triangles": 1000}, estimator_class(visibility)
         for scene in scenes:
-            warmed = kernels((integrator.warm_up_render, (estimator_class(visibility), options,
-                                                       warm_up.largest_mesh(scene))))
+            largest = warm_up.largest_mesh(scene)
+            key = (visibility, repr(cls.warm_ups(options, largest)))
+            if key not in warmed:
+                warmed[key] = kernels((integrator.warm_up_render, (cls, options, largest)))
             ran = kernels((functools.partial(probvis.render, scene, visibility=visibility,
                                              visibility_options=options), ()))
-            assert ran and ran <= warmed, (visibility, options, scene.name, sorted(k[:2] for k in ran - warmed))
+            missing = ran - warmed[key]
+            assert ran and not missing, (visibility, options, scene.name, sorted(k[:2] for k in missing))
 
 
 def test_a_scene_without_heavy_meshes_warms_up_no_heavy_mesh_kernels():
