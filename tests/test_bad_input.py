@@ -405,6 +405,26 @@ def test_a_standard_output_that_fails_is_one_line(tmp_path, stdout):
     assert r.returncode == 1 and r.stderr == f"probvis: error: cannot write to the standard output: {reason}\n"
 
 
+@pytest.mark.parametrize("args, flag", [
+    (["render", "quad-shadow", "--strict=yes"], "--strict"), (["render", "quad-shadow", "--clamp-negative", "true"],
+                                                             "--clamp-negative"),
+    (["render", "quad-shadow", "--filter-importance=1"], "--filter-importance"),
+    (["render", "quad-shadow", "-q", "true"], "-q"), (["info", "quad-shadow", "--json=true"], "--json"),
+    (["render", "quad-shadow", "--quiet=1"], "--quiet"),
+])
+def test_an_on_only_switch_given_a_value_says_it_is_a_switch(args, flag, capsys):
+    """`--strict=yes` was argparse's 'ignored explicit argument', `-q true` 'unrecognized arguments: true': neither
+    said the flag takes no value."""
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.endswith(f"({flag} is a switch: give {flag} alone, without a value, or leave it out)\n"), err
+
+
+def test_an_on_off_switch_given_a_value_names_both_forms(capsys):
+    assert main(["render", "quad-shadow", "--no-cache=1"]) == 2
+    assert capsys.readouterr().err.endswith("(--cache is a switch: give --cache or --no-cache, without a value)\n")
+
+
 def test_a_non_ascii_name_under_an_ascii_locale_is_escaped(tmp_path):
     """With PYTHONIOENCODING=ascii the summary's 'wrote sortie-é.exr' was a UnicodeEncodeError after the render."""
     r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-D", "res=8", "--spp", "1",

@@ -142,8 +142,10 @@ class _Parser(argparse.ArgumentParser):
             message = "unrecognized argument '' (an empty string: check the command's quoting)"
         switch = self._switch_given_a_value(message)
         if switch:
-            raise ProbvisError(f"{message} ({switch} is a switch: give {switch} or --no-{switch[2:]}, without a "
-                               "value)")
+            flag, negated = switch
+            raise ProbvisError(f"{message} ({flag} is a switch: give {flag} or --no-{flag[2:]}, without a value)"
+                               if negated else f"{message} ({flag} is a switch: give {flag} alone, without a "
+                               "value, or leave it out)")
         if message.startswith("unrecognized arguments: ") and "--" in message:
             given = [a for a in message.split(": ", 1)[1].split() if a.startswith("--")]
             flags, owners = [f for a in self._actions for f in a.option_strings], {}
@@ -165,17 +167,24 @@ class _Parser(argparse.ArgumentParser):
         raise ProbvisError(message)
 
     def _switch_given_a_value(self, message):
-        """The on/off flag that an unrecognised true/false (yes/no, on/off, 1/0) follows in the command, if any."""
+        """(flag, whether it has a --no- form) of the switch given a value: `--strict=yes` (argparse ignores the
+        value) or an unrecognised true/false (yes/no, on/off, 1/0) after it in the command; None if none was."""
+        parsers = [self, *(p for sub in (self._subparsers._group_actions if self._subparsers else ())
+                           for p in sub.choices.values())]
+        switches = {f: isinstance(a, argparse.BooleanOptionalAction) for p in parsers for a in p._actions
+                    if a.nargs == 0 and not isinstance(a, (argparse._HelpAction, argparse._VersionAction))
+                    for f in a.option_strings}
+        named = re.match(r"argument (\S+): ignored explicit argument ", message)
+        if named:
+            flag = max((f for f in named.group(1).split("/") if not f.startswith("--no-")), key=len)
+            return (flag, switches.get(flag, False)) if flag in switches else None
         if not message.startswith("unrecognized arguments: "):
             return None
         words = {"true", "false", "yes", "no", "on", "off", "1", "0"}
         argv = getattr(self, "argv", [])
-        switches = {f for sub in (self._subparsers._group_actions if self._subparsers else ())
-                    for p in sub.choices.values() for a in p._actions
-                    if isinstance(a, argparse.BooleanOptionalAction) for f in a.option_strings}
         for before, word in zip(argv, argv[1:]):
             if before in switches and word.lower() in words and word in message.split(": ", 1)[1].split():
-                return before
+                return before, switches[before]
         return None
 
 
