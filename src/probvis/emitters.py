@@ -92,7 +92,9 @@ def build_emitter_sampler(scene):
                       np.pi * sphere[3] ** 2 * lum)
     area = np.where(kind == EMITTER_AREA, area, 1.0)
     if not np.any(power > 0):
-        raise ProbvisError(f"scene '{scene.name}' has emitters, but all of them have zero power")
+        raise ProbvisError(f"scene '{scene.name}' has emitters, but all of them have zero power (a radiance, "
+                           "intensity or irradiance of 0, or a scale of 0): the image would be black (as Mitsuba "
+                           "renders it); give an emitter a positive one")
     pmf = power / power.sum()
     return EmitterSampler(EmitterArrays(pmf, area, offsets, order.astype(np.int64), tri_prob, tri_alias,
                                         kind.astype(np.int8), scene.emitter_position, scene.emitter_axis,
