@@ -1,5 +1,6 @@
 """The runner on a tiny study: cached renders, resume, identical numbers on 1 or 2 workers, clear failures."""
 import errno
+import os
 import json
 import socket
 import threading
@@ -639,3 +640,19 @@ def test_a_renamed_method_s_files_leave_the_report(tiny_run, tmp_path):
     assert not old.exists() and (folder / "images" / "quad" / "shifted2-4.png").is_file()
     assert outside.is_file() and (folder / "images" / "quad" / "mine.png").is_file()
     assert "images/quad/shifted2-4.png" in json.loads((folder / "results.json").read_text())["report_files"]
+
+
+def test_a_study_under_numba_num_threads_gives_each_render_no_more(tmp_path):
+    """With NUMBA_NUM_THREADS=1 in the environment every render of a study failed: each worker was given the
+    machine's cores (2 here), which no render may use then."""
+    import subprocess
+    import sys
+
+    study = tmp_path / "one.toml"
+    study.write_text('spp = 1\nshadow_rays = [1]\nseeds = [0]\nresolution = [8, 8]\n[reference]\nspp = 1\n'
+                     'shadow_rays = 1\n[[scenes]]\nname = "quad"\nsource = "quad-shadow"\n'
+                     '[[methods]]\nname = "exact"\nvisibility = "exact"\n')
+    r = subprocess.run([sys.executable, "-m", "probvis.cli", "experiment", str(study), "-o", str(tmp_path / "r")],
+                       capture_output=True, text=True, timeout=300, env={**os.environ, "NUMBA_NUM_THREADS": "1"})
+    assert r.returncode == 0, r.stderr
+    assert "1 worker x 1 thread" in r.stderr

@@ -424,6 +424,13 @@ def _reference_file(spec, scene):
     return img
 
 
+def _numba_threads():
+    """The threads a render may use here: NUMBA_NUM_THREADS (the cores unless the environment sets fewer)."""
+    import numba
+
+    return numba.config.NUMBA_NUM_THREADS
+
+
 def check_run_options(workers, scheduler, progress, log):
     """Refuse run options of the wrong kind before anything is read or rendered."""
     if not is_number(workers, whole=True) or workers < 1:
@@ -533,7 +540,8 @@ def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, c
                                f"start some (`dask worker {scheduler}`), or run without a scheduler for a "
                                "local cluster") from None
     n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) or workers
-    threads = None if scheduler else max(1, (os.cpu_count() or 1) // workers)
+    cores = min(os.cpu_count() or 1, _numba_threads())  # NUMBA_NUM_THREADS bounds every render's threads
+    threads = None if scheduler else max(1, cores // workers)
     log(f"computing {len(todo)} renders on {'scheduler ' + scheduler if scheduler else 'a LocalCluster'} "
         f"with {n_workers} worker{'s' if n_workers > 1 else ''}"
         + (f" x {threads} thread{'s' if threads > 1 else ''}" if threads else ""))
@@ -573,4 +581,6 @@ def _run_tasks(client, workers, scheduler, todo, scenes, cache, progress, log, c
                 bar.update(1)
             submit(len(done))
     if failures:
-        raise ProbvisError(f"{len(failures)} render(s) failed (finished ones are cached): " + "; ".join(failures))
+        kept = len(todo) - len(failures)
+        raise ProbvisError(f"{len(failures)} of {len(todo)} renders failed"
+                           + (f" ({kept} finished, cached): " if kept else ": ") + "; ".join(failures))
