@@ -366,7 +366,16 @@ def test_a_plugin_s_own_memory_is_named_with_it():
      "expects a finite number, got 1000"),
     ((probvis.visibility.Option("t", tuple, (1.0, 2.0), "no count"),), "option 't' is a tuple and needs count"),
     ((probvis.visibility.Option("k", int, 1, "raises", check=lambda v: 1 / 0),),
-     "option 'k': its check raised ZeroDivisionError on the default 1"),
+     "the default of option 'k' is invalid: k: its check raised ZeroDivisionError on 1: division by zero (a bug"),
+    # choices and ranges a parse could not use: a traceback, a valid value refused, a substring taken for a choice
+    ((probvis.visibility.Option("k", int, None, "int choices", choices=(1, 2)),),
+     "option 'k': choices must be a tuple of words for a str option, got (1, 2) for a int option"),
+    ((probvis.visibility.Option("k", str, "a", "choices as one string", choices="abc"),),
+     "option 'k': choices must be a tuple of words for a str option, got 'abc'"),
+    ((probvis.visibility.Option("k", float, 1.0, "minimum as text", minimum="0"),),
+     "option 'k': minimum must be a finite number for an int, float or tuple option, got '0'"),
+    ((probvis.visibility.Option("k", float, None, "reversed", minimum=5, maximum=1),),
+     "option 'k': minimum 5 is above maximum 1: no value would be accepted"),
     (probvis.visibility.Option("k", int, 1, "not in a tuple"), "options must be a tuple of Options"),
     (None, "options must be a tuple of Options, got None"),
     ((probvis.visibility.Option("x", bool, False, "a"), probvis.visibility.Option("no_x", int, 1, "b")),
@@ -382,6 +391,20 @@ def test_a_plugin_s_options_are_checked_when_it_loads(options, message):
     cls = type("Declared", (_Exact,), {"options": options})
     with pytest.raises(ProbvisError, match=re.escape(message)):
         estimator_class(cls)
+
+
+@pytest.mark.parametrize("check, value, message", [
+    (lambda v: None if 10 // (v - 9) else None, "9", "k: its check raised ZeroDivisionError on '9': integer division or modulo by zero "
+                                   "(a bug in the estimator's option check)"),
+    (lambda v: v > 2, "3", "k: its check returned True on '3', not an error message (a string) or None"),
+])
+def test_a_plugin_s_option_check_that_fails_on_a_value_is_named(check, value, message):
+    """A check that raised on a user's value was a traceback; one returning True for 'bad' read 'k True'. A check
+    returning False (no problem) is taken as None."""
+    cls = type("Checked", (_Exact,), {"options": (probvis.visibility.Option("k", int, 1, "checked", check=check),)})
+    with pytest.raises(ProbvisError, match=re.escape(message)):
+        estimator_class(cls)(k=value)
+    assert estimator_class(cls)(k="1").params.k == 1
 
 
 @pytest.mark.parametrize("declared, message", [
@@ -595,7 +618,8 @@ def test_unprintable_plugin_exceptions_are_named_wherever_they_arise(tmp_path, c
                  "-o", str(tmp_path / "o.exr")])
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("probvis: error: ") and err.count("\n") == 1, err
-    assert "its str() failed" in err and not (tmp_path / "o.exr").exists()
+    said = "its check returned Bad() on 3, not an error message" if where == "check" else "its str() failed"
+    assert said in err and not (tmp_path / "o.exr").exists()
 
 
 @pytest.mark.parametrize("field", ["name", "summary", "option name", "phase help", "AOV name"])

@@ -4,6 +4,7 @@ entry-point group `probvis.visibility`, and any importable class given as `packa
 import importlib
 import importlib.util
 import inspect
+import math
 import re
 import sys
 import threading
@@ -175,6 +176,7 @@ def _check_declarations(cls, what):
             raise ProbvisError(f"{where}: option '{o.name}' ({o.flag}) clashes with probvis's own {o.flag} (rename it)")
         if o.type is tuple and not (isinstance(o.count, int) and not isinstance(o.count, bool) and o.count > 0):
             raise ProbvisError(f"{where}: option '{o.name}' is a tuple and needs count, how many numbers it takes")
+        _check_limits(where, o)
         for flag in [o.flag] + (["--no-" + o.flag[2:]] if o.type in (bool, Switch) else []):
             if flags.setdefault(flag, o.name) != o.name:
                 raise ProbvisError(f"{where}: options '{flags[flag]}' and '{o.name}' both make the flag {flag}")
@@ -189,6 +191,24 @@ def _check_declarations(cls, what):
             if not (_DEFAULT_TYPES[o.type](o.default) and parsed == o.default):  # reaches the estimator as written
                 raise ProbvisError(f"{where}: the default of option '{o.name}' is {shown(o.default, repr)} (type "
                                    f"{type(o.default).__name__}), not a value of the option's type: write {parsed!r}")
+
+
+def _check_limits(where, o):
+    """An option's choices (words, for a text option) and range (numbers, for a numeric one, not reversed)."""
+    if o.choices and not (o.type is str and isinstance(o.choices, (tuple, list))
+                          and all(type(c) is str for c in o.choices)):
+        raise ProbvisError(f"{where}: option '{o.name}': choices must be a tuple of words for a str option, got "
+                           f"{shown(o.choices, repr)} for a {getattr(o.type, '__name__', o.type)} option"[:300])
+    for bound in ("minimum", "maximum"):
+        value = getattr(o, bound)
+        if value is not None and not (o.type in (int, float, tuple) and isinstance(value, (int, float))
+                                      and not isinstance(value, bool) and math.isfinite(value)):
+            raise ProbvisError(f"{where}: option '{o.name}': {bound} must be a finite number for an int, float or "
+                               f"tuple option, got {shown(value, repr)} for a {getattr(o.type, '__name__', o.type)} "
+                               "option"[:300])
+    if o.minimum is not None and o.maximum is not None and o.minimum > o.maximum:
+        raise ProbvisError(f"{where}: option '{o.name}': minimum {o.minimum:g} is above maximum {o.maximum:g}: no "
+                           "value would be accepted")
 
 
 # the Python values an option's default may be: it reaches the estimator as declared, unparsed

@@ -90,7 +90,14 @@ class Option:
                 if self.minimum is not None and x < self.minimum or self.maximum is not None and x > self.maximum:
                     raise ProbvisError(f"{self.name} must be {self._range()}, got {value!r}")
         if self.check is not None:
-            message = self.check(v)
+            try:
+                message = self.check(v)
+            except Exception as exc:  # noqa: BLE001 - a plug-in's check that fails on a value it was given
+                raise ProbvisError(f"{self.name}: its check raised {type(exc).__name__} on {shown(value, repr)}: "
+                                   f"{shown(exc)} (a bug in the estimator's option check)") from None
+            if message and not isinstance(message, str):  # True for 'bad': say what the contract is
+                raise ProbvisError(f"{self.name}: its check returned {shown(message, repr)} on {shown(value, repr)}, "
+                                   "not an error message (a string) or None (a bug in the estimator's option check)")
             if message:
                 raise ProbvisError(f"{self.name} {shown(message)}")
         return v
