@@ -276,6 +276,22 @@ def test_a_stop_signal_while_the_report_is_written_leaves_a_complete_study(tiny_
     assert numbers(again) == numbers(results)
 
 
+def test_a_folder_holding_the_user_s_own_results_is_not_overwritten(tiny_run, tmp_path):
+    """`-o` naming a folder of the user's own results.csv and results.md (no report there) replaced both without
+    a word; an empty folder is written."""
+    out, _, _, _ = tiny_run
+    work = tmp_path / "mywork"
+    work.mkdir()
+    (work / "results.csv").write_text("mine\n")
+    with pytest.raises(ProbvisError, match="holds 'results.csv' but no probvis report .* give -o a new folder"):
+        experiment(parse_experiment(TINY), work, cache=out / "cache", progress=False, log=lambda m: None)
+    assert (work / "results.csv").read_text() == "mine\n"
+    (tmp_path / "empty").mkdir()
+    _, index, _ = experiment(parse_experiment(TINY), tmp_path / "empty", cache=out / "cache", progress=False,
+                             log=lambda m: None)
+    assert index.is_file()
+
+
 def test_a_folder_holding_another_index_html_is_not_overwritten(tiny_run, tmp_path):
     """`-o` naming a web site's folder replaced its index.html and results.csv without a word; a report's own
     folder is written again (resumed)."""

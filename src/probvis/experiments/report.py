@@ -571,6 +571,11 @@ def report_problem(exp, folder, inputs=None):
         if not ours:
             return (f"'{folder}' holds an index.html that is not a probvis report, which the report would replace: "
                     "give -o a new folder, or a report's own")
+    else:  # no report here: a file of the user's own under one of the report's names would be replaced
+        theirs = next((name for name in files if (folder / name).exists()), None)
+        if theirs is not None:
+            return (f"'{folder}' holds '{theirs}' but no probvis report (its index.html), and the report would "
+                    "replace it: give -o a new folder, or a report's own")
     return None
 
 
