@@ -367,7 +367,8 @@ def test_a_report_whose_writing_fails_leaves_no_file_of_it(tmp_path, monkeypatch
 def test_a_reference_that_would_share_a_cell_s_samples_or_a_target_beyond_reach_is_refused(tmp_path):
     """A rendered reference with a cell's seed made that cell's relMSE 0 (a NaN in the report's JSON, a
     traceback after every render); a target relMSE of 1e300 overflowed in the time-to-target fit."""
-    with pytest.raises(ProbvisError, match=r"reference.seed: 0 is one of the cells' seeds"):
+    with pytest.raises(ProbvisError, match=r"reference.seed: 0 \(the rendered reference's seed\) is one of the "
+                                           r"cells' seeds \(seeds, or --seeds\).*choose other seeds, or set "):
         parse_experiment(doc(seeds=[0], reference={"seed": 0}))
     from probvis.io import write_exr
 

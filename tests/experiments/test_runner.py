@@ -292,6 +292,14 @@ def test_a_folder_holding_the_user_s_own_results_is_not_overwritten(tiny_run, tm
     assert index.is_file()
 
 
+def test_a_report_folder_under_a_file_is_named_as_such(tmp_path):
+    """`-o afile/rep` was 'cannot create cache folder afile/rep/cache: Not a directory', naming a folder the user
+    never gave."""
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(ProbvisError, match="report folder '.*afile/rep' cannot be made: '.*afile' is a file"):
+        experiment(parse_experiment(TINY), tmp_path / "afile" / "rep", progress=False, log=lambda m: None)
+
+
 def test_a_folder_holding_another_index_html_is_not_overwritten(tiny_run, tmp_path):
     """`-o` naming a web site's folder replaced its index.html and results.csv without a word; a report's own
     folder is written again (resumed)."""

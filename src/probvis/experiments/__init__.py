@@ -37,6 +37,10 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ProbvisError(f"report folder '{out}' is a file: give -o a folder (new or existing)")
+    above = next((p for p in out.parents if p.exists()), None)
+    if above is not None and not above.is_dir():
+        raise ProbvisError(f"report folder '{out}' cannot be made: '{above}' is a file: give -o a folder (new or "
+                           "existing)")
     scenes = load_scenes(exp)
     if (problem := report_problem(exp, out, {name: scene.inputs for name, scene in scenes.items()})) is not None:
         raise ProbvisError(problem)

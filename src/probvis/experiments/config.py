@@ -317,8 +317,10 @@ def parse_experiment(data, base=Path("."), source=""):
                      f"{MAX_CELLS:,}): split it into several experiments")
     rendered = any(spec.reference is None for spec in scene_specs)
     if rendered and reference.seed in seeds:
-        _fail("reference.seed", f"{reference.seed} is one of the cells' seeds: a rendered reference must be "
-                                "independent of the renders it judges (a cell with its samples would measure no error)")
+        _fail("reference.seed", f"{reference.seed} (the rendered reference's seed) is one of the cells' seeds "
+                                "(seeds, or --seeds): a rendered reference must be independent of the renders it "
+                                "judges (a cell with its samples would measure no error); choose other seeds, or set "
+                                "[reference] seed")
     table_rays = data.get("table_shadow_rays", 16 if 16 in shadow_rays else max(shadow_rays))
     if _int("table_shadow_rays", table_rays) not in shadow_rays:
         _fail("table_shadow_rays", f"{table_rays} is not one of shadow_rays {list(shadow_rays)}")
