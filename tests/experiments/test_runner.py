@@ -680,3 +680,16 @@ def test_a_study_under_numba_num_threads_gives_each_render_no_more(tmp_path):
                        capture_output=True, text=True, timeout=300, env={**os.environ, "NUMBA_NUM_THREADS": "1"})
     assert r.returncode == 0, r.stderr
     assert "1 worker x 1 thread" in r.stderr
+
+
+def test_a_bar_in_a_name_keeps_the_markdown_tables_columns(tmp_path):
+    """A method named 'exact|fast' added a column to its rows of results.md; its '|' is escaped."""
+    doc = dict(TINY, shadow_rays=[1], resolution=[8, 8], scenes=[{"name": "q|uad", "source": "quad-shadow"}],
+               methods=[{"name": "exact|fast", "visibility": "exact", "baseline": True}])
+    experiment(parse_experiment(doc), tmp_path / "r", progress=False, log=lambda m: None)
+    text = (tmp_path / "r" / "results.md").read_text()
+    assert "exact\\|fast" in text and "q\\|uad" in text
+    tables = [t.splitlines() for t in text.split("\n\n") if t.startswith("|")]
+    assert len(tables) >= 3
+    for table in tables:  # every row has its header's columns
+        assert len({row.replace("\\|", "").count("|") for row in table}) == 1, table

@@ -324,13 +324,13 @@ class Report:
             for m in exp.methods:
                 r = self.results.summary_row(spec.name, m.name, rays)
                 cells = _summary_cells(r, m.name == exp.baseline)
-                lines.append(f"| {spec.name} | {m.name} | {' | '.join(cells)} |")
+                lines.append(f"| {_md(spec.name)} | {_md(m.name)} | {' | '.join(cells)} |")
         lines += ["", GEOMETRY_NOTE, "", "| scene | " + " | ".join(GEOMETRY_HEAD) + " |",
                   "|---|---|---:|---:|---:|---:|---:|"]
         for spec in exp.scenes:
             for m in exp.methods:
                 r = self.results.summary_row(spec.name, m.name, rays)
-                lines.append(f"| {spec.name} | {m.name} | {' | '.join(_geometry_cells(r))} |")
+                lines.append(f"| {_md(spec.name)} | {_md(m.name)} | {' | '.join(_geometry_cells(r))} |")
         lines += ["", "## Ranking", ""] + self._ranking()
         return "\n".join(lines) + "\n"
 
@@ -356,22 +356,23 @@ class Report:
                      for c, x in zip(cells, eff)]
             ranked.append((-(gmean or 0.0), m.name, gmean, wins, shown, worst))
         ranked.sort()
-        head = ["rank", "method", "geo. mean"] + [f"{s} ×{sr}" for s, sr in cells] + ["best in", "worst bias"]
+        head = ["rank", "method", "geo. mean"] + [f"{_md(s)} ×{sr}" for s, sr in cells] + ["best in", "worst bias"]
         lines = [f"Efficiency 1/(relMSE × seconds) as a multiple of {exp.baseline}'s, at {exp.spp} spp × the shadow "
                  f"rays shown; methods ranked by its geometric mean over these {len(cells)} cells; best per cell in "
                  f"bold; 'best in' counts those cells; worst bias = the largest block-bias ratio (about 1: "
                  f"converges; 'biased': biased by construction).", "",
                  "| " + " | ".join(head) + " |", "|" + "---|" * 2 + "---:|" * (len(head) - 2)]
         for k, (_, name, gmean, wins, shown, worst) in enumerate(ranked, 1):
-            lines.append(f"| {k} | {name} | {_fmt(gmean, 2) if gmean else '–'} | {' | '.join(shown)} | {wins} | "
+            lines.append(f"| {k} | {_md(name)} | {_fmt(gmean, 2) if gmean else '–'} | {' | '.join(shown)} | {wins} | "
                          f"{worst} |")
         scenes = [spec.name for spec in exp.scenes]
         lines += ["", "Seconds to reach each scene's target relMSE (log–log interpolation between the shadow-ray "
                   "counts; – = not reached), in the same order:", "",
-                  "| method | " + " | ".join(f"{s} ({self.results.targets[s]['target_relmse']:.3g})" for s in scenes)
+                  "| method | " + " | ".join(f"{_md(s)} ({self.results.targets[s]['target_relmse']:.3g})"
+                                             for s in scenes)
                   + " |", "|---|" + "---:|" * len(scenes)]
         for _, name, *_ in ranked:
-            lines.append(f"| {name} | " + " | ".join(_fmt(self.results.targets[s]["methods"][name]["seconds"])
+            lines.append(f"| {_md(name)} | " + " | ".join(_fmt(self.results.targets[s]["methods"][name]["seconds"])
                                                   for s in scenes) + " |")
         return lines
 
@@ -503,6 +504,11 @@ Data: <a href=results.csv>results.csv</a>, <a href=results.json>results.json</a>
 {''.join(sections)}
 <script src=viewer.js></script></body></html>
 """
+
+
+def _md(name):
+    """A scene or method name in a Markdown table cell: its '|' escaped, which would start another column."""
+    return name.replace("\\", "\\\\").replace("|", "\\|")
 
 
 def report_files(exp):
