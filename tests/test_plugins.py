@@ -666,3 +666,28 @@ def test_a_plugin_that_refuses_the_warm_up_s_scene_renders_its_own(monkeypatch):
     assert probvis.render("cornell-box", resolution=(4, 4), spp=1, visibility=_RefusesTheWarmUp).image.shape == (4, 4, 3)
     with pytest.raises(ProbvisError, match="needs the Cornell box, got 'quad-shadow'"):
         probvis.render("quad-shadow", resolution=(4, 4), spp=1, visibility=_RefusesTheWarmUp)
+
+
+class _FakeFused(probvis.visibility.VisibilityEstimator):
+    """Says the fused kernel renders it, whose evaluate is not exact visibility."""
+
+    name = "fake-fused"
+    summary = "a quarter of every segment"
+
+    def render_path(self):
+        return probvis.visibility.RenderPath.FUSED_EXACT
+
+    def evaluate(self, query):
+        n = len(query.tmax)
+        return probvis.visibility.VisibilityResult(np.full(n, 0.25), np.zeros(n, np.int64), np.zeros(n, np.int64))
+
+
+def test_a_plugin_on_the_fused_path_must_be_exact_visibility():
+    """FUSED_EXACT renders exact visibility instead of `evaluate`: a plug-in whose evaluate is not exact got
+    exact visibility's image under its own name (exit 0); its first batch's segments are compared."""
+    with pytest.raises(ProbvisError, match=r"render_path\(\) returned FUSED_EXACT, which renders exact visibility "
+                                           r"instead of evaluate, but evaluate returned 0.25 where it is (1|0): return "
+                                           r"STAGED"):
+        probvis.render("quad-shadow", resolution=(8, 8), spp=1, visibility=_FakeFused)
+    exact = type("Exactly", (_Exact,), {"render_path": lambda self: probvis.visibility.RenderPath.FUSED_EXACT})
+    assert probvis.render("quad-shadow", resolution=(8, 8), spp=1, visibility=exact).image.mean() > 0

@@ -11,6 +11,7 @@ are in cache, the staged path's numbers bit for bit); an estimator with a kernel
 itself (`shade`). This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0`: each camera sample takes
 `shadow_rays` emitter samples (emitter by power, triangle by area, uniform point) with a Lambertian BRDF.
 """
+import dataclasses
 import os
 import sys
 import time
@@ -22,7 +23,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from . import memory
-from .accel import build_bvh, nearest_hits
+from .accel import build_bvh, nearest_hits, occluded_segments
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler
@@ -141,7 +142,8 @@ def make_path(integrator, estimator, path, n_slots):
     """The render path `path` (a `RenderPath`, the estimator's choice after `prepare`) as a function of a
     `ShadingBatch` to its `ShadedBatch`."""
     if path == RenderPath.FUSED_EXACT:
-        return integrator.shade_exact
+        own = type(estimator).__module__.split(".")[0] == "probvis"
+        return integrator.shade_exact if own else _checked_fused(integrator, estimator)
     if path == RenderPath.OWN_KERNEL:
         if type(estimator).__module__.split(".")[0] == "probvis":
             return estimator.shade
@@ -149,6 +151,32 @@ def make_path(integrator, estimator, path, n_slots):
     if path == RenderPath.STAGED:
         return StagedPath(integrator, estimator, n_slots)
     raise ProbvisError(f"visibility '{estimator.name}': render_path() returned {path!r}, not a RenderPath")
+
+
+def _checked_fused(integrator, estimator, n_checked=4096):
+    """A plug-in's FUSED_EXACT path: the fused kernel renders exact visibility in place of its `evaluate`, so its
+    `evaluate` on the first batch's first `n_checked` segments must return exactly that, or the image would not
+    be the estimator's."""
+    pending = [True]
+
+    def shade(batch):
+        if pending[0]:
+            pending[0] = False
+            q = integrator.shadow_query(batch)
+            q = dataclasses.replace(q, **{f.name: getattr(q, f.name)[:n_checked] for f in dataclasses.fields(q)
+                                          if getattr(q, f.name) is not None})
+            value = checked_result(estimator, estimator.evaluate(q), len(q.tmax)).value
+            exact = 1.0 - occluded_segments(integrator.bvh, q.origin, q.direction, q.tmax, q.point)[0]
+            if not np.array_equal(value, exact):
+                k = int(np.flatnonzero(value != exact)[0])
+                cls = type(estimator)
+                raise ProbvisError(f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): "
+                                   "render_path() returned FUSED_EXACT, which renders exact visibility instead of "
+                                   f"evaluate, but evaluate returned {value[k]:g} where it is {exact[k]:g}: return "
+                                   "STAGED (or make evaluate exact)")
+        return integrator.shade_exact(batch)
+
+    return shade
 
 
 @dataclass
