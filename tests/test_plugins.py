@@ -691,3 +691,14 @@ def test_a_plugin_on_the_fused_path_must_be_exact_visibility():
         probvis.render("quad-shadow", resolution=(8, 8), spp=1, visibility=_FakeFused)
     exact = type("Exactly", (_Exact,), {"render_path": lambda self: probvis.visibility.RenderPath.FUSED_EXACT})
     assert probvis.render("quad-shadow", resolution=(8, 8), spp=1, visibility=exact).image.mean() > 0
+
+
+def test_a_percent_sign_in_an_option_s_help_reaches_the_help(capsys):
+    """`--help` with a plug-in whose option help says '50% by default' was argparse's formatting traceback."""
+    cls = type("Pct", (_Exact,), {"options": (probvis.visibility.Option("share", float, 0.5, "a share, 50% by "
+                                                                                       "default"),)})
+    from probvis import cli
+
+    with pytest.raises(SystemExit):
+        cli._parser(cls).parse_args(["render", "x", "--help"])
+    assert "a share, 50% by default" in capsys.readouterr().out

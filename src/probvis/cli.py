@@ -190,7 +190,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _add_option(group, opt):
     """The command-line flag of an estimator's `Option`."""
-    help_text = opt.help + ("" if opt.default is None else f" (default {_show(opt.default)})")
+    help_text = (opt.help + ("" if opt.default is None else f" (default {_show(opt.default)})")).replace("%", "%%")
     if opt.type is bool:
         group.add_argument(opt.flag, dest=opt.name, action=argparse.BooleanOptionalAction, default=None,
                            help=help_text)

@@ -396,3 +396,10 @@ def test_a_scene_or_reference_that_loops_is_named(tmp_path, key):
     scene = {"name": "q", "source": "quad-shadow", key: "loop.xml"}
     with pytest.raises(ProbvisError, match=rf"scenes\[0\]\.{key}: .*loop.xml: a symbolic link that loops"):
         parse_experiment(doc(scenes=[scene]), tmp_path)
+
+
+def test_a_scene_define_of_res_beside_the_study_s_resolution_is_refused():
+    """`resolution = [8, 8]` with a scene's `defines = { res = 16 }` rendered 8x8: the define did nothing."""
+    with pytest.raises(ProbvisError, match=r"scenes\[0\].defines.res: the study sets every cell's film size"):
+        parse_experiment(doc(resolution=[8, 8], scenes=[dict(MINIMAL["scenes"][0], defines={"res": 16})]))
+    assert parse_experiment(doc(scenes=[dict(MINIMAL["scenes"][0], defines={"res": 16})])).scenes[0].defines

@@ -846,6 +846,14 @@ def test_value_mixed_with_x_y_z_is_refused_as_in_mitsuba(tmp_path, op, mixed):
                        + re.escape(f"not both (here also {mixed})")):
         probvis.load_scene(write_scene(tmp_path / "bad.xml", sensor() + body + LIGHT))
 
+def test_a_point_property_mixing_value_and_x_y_z_is_refused(tmp_path):
+    """`<point name="center" value="0,0,0" x="1"/>` dropped x without a word; Mitsuba refuses the mix."""
+    body = "<shape type='sphere'><point name='center' value='0,0,0' x='1'/></shape>"
+    with pytest.raises(ProbvisError, match=r"bad.xml:\d+: <point>: give either 'value' or x/y/z, not both "
+                                           r"\(here also 'x'\)"):
+        probvis.load_scene(write_scene(tmp_path / "bad.xml", sensor() + body + LIGHT))
+
+
 def test_a_reflectance_texture_outside_the_unit_range_warns(tmp_path):
     """Mitsuba renders such a bitmap as given; probvis does too, with a warning naming the file and line."""
     from probvis.io import write_pfm

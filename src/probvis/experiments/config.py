@@ -297,6 +297,10 @@ def parse_experiment(data, base=Path("."), source=""):
             resolution = resolution * 2
         if len(resolution) != 2:
             _fail("resolution", "expected [width, height]")
+        for i, spec in enumerate(scene_specs):  # as for spp: the study's setting wins, the define would do nothing
+            if "res" in spec.defines:
+                _fail(f"scenes[{i}].defines.res", "the study sets every cell's film size (resolution at the top of "
+                                                  "the file): a scene's define of res would change nothing")
     shadow_rays = _int_list("shadow_rays", data.get("shadow_rays", [1, 4, 16, 64, 256]), highest=MAX_SHADOW_RAYS)
     target = data.get("target_relmse")
     if target is not None and (isinstance(target, bool) or not isinstance(target, (int, float))

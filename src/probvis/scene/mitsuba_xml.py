@@ -406,6 +406,9 @@ class _Reader:
         tag = node.tag
         if tag in ("point", "vector"):
             self.check_attrs(node, ("name", "x", "y", "z", "value"))
+            mixed = [a for a in "xyz" if a in node.attrs]
+            if "value" in node.attrs and mixed:  # Mitsuba refuses the mix; which one wins would be a guess
+                self.fail(node, f"give either 'value' or x/y/z, not both (here also {', '.join(map(repr, mixed))})")
             if "value" in node.attrs:
                 return np.array(self.numbers(node, self.attr(node, "value"), (1, 3))) * np.ones(3)
             return np.array([self.number(node, a, "0") for a in "xyz"])
