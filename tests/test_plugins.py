@@ -702,3 +702,23 @@ def test_a_percent_sign_in_an_option_s_help_reaches_the_help(capsys):
     with pytest.raises(SystemExit):
         cli._parser(cls).parse_args(["render", "x", "--help"])
     assert "a share, 50% by default" in capsys.readouterr().out
+
+
+def _slow_prepare(self, *args):
+    _Exact.prepare(self, *args)
+    with self.timed("late"):
+        time.sleep(0.2)
+
+
+@pytest.mark.parametrize("declared, message", [
+    ({"phases": (probvis.visibility.Phase("late", "batch"),), "prepare": _slow_prepare},
+     r"its batch phases \(late\) took 0.2\d* s, more than the render \(the batches\) took"),
+    ({"stats": lambda self: {**_Exact.stats(self), "tests": {"proxy": {"node": 10 ** 9, "triangle": 0}}}},
+     r"\['tests'\]\['proxy'\]\['node'\] is 1,000,000,000, more than the [\d,]+ node tests its evaluate returned"),
+])
+def test_a_plugin_s_accounts_must_fit_the_render_s(declared, message):
+    """A phase declared "batch" but timed in prepare made a study's render seconds negative, and proxy tests
+    beyond the shadow rays' made its scene tests negative (exit 0 both)."""
+    cls = type("Accounts", (_Exact,), declared)
+    with pytest.raises(ProbvisError, match=message):
+        probvis.render("quad-shadow", resolution=(8, 8), spp=1, visibility=cls)

@@ -32,8 +32,8 @@ from .film import Film, splat_chunk, splat_filter, warn_if_black
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
-from .plugin_checks import (arrays_digest, check_unchanged, checked_cases, checked_result, checked_settings,
-                            checked_shaded, checked_stats, plugin_errors)
+from .plugin_checks import (arrays_digest, check_accounts, check_unchanged, checked_cases, checked_result,
+                            checked_settings, checked_shaded, checked_stats, plugin_errors)
 from .render_stats import render_stats
 from .scene import Scene, open_scene
 from .scene.builtin import warm_up_scene
@@ -361,4 +361,5 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
         stats = render_stats(scene, settings, estimator, result, image, clamp, seconds, mem)
     if type(estimator).__module__.split(".")[0] != "probvis":
         checked_stats(type(estimator), stats["estimator"])
+        check_accounts(type(estimator), stats)
     return RenderResult(image, stats, result.film.aovs())

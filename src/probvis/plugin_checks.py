@@ -173,6 +173,29 @@ def checked_cases(estimator, cases, like):
     return arr.astype(np.int8, copy=False)
 
 
+def check_accounts(cls, stats):
+    """A plug-in's own accounts within the render's: its phases' seconds within their stage's (a phase declared
+    "batch" but timed in prepare made a study's render time negative), its proxy tests within the shadow
+    rays' (the rest are the scene's)."""
+    where = f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): stats()"
+    own = stats["estimator"].get("seconds") or {}
+    for stage in ("prepare", "batch"):
+        names = [p.name for p in cls.phases if p.stage == stage]
+        spent = sum(float(own.get(n, 0.0)) for n in names)
+        total = stats["seconds"]["prepare" if stage == "prepare" else "render"]
+        if spent > total * 1.05 + 0.01:  # timers nest inside the stage's: a margin for their rounding only
+            raise ProbvisError(f"{where}: its {stage} phases ({', '.join(names)}) took {spent:.3g} s, more than the "
+                               f"{'prepare' if stage == 'prepare' else 'render (the batches)'} took ({total:.3g} s): "
+                               "time each phase in the stage it declares (`Phase(name, stage)`)")
+    proxy = (stats["estimator"].get("tests") or {}).get("proxy") or {}
+    shadow = stats["intersection_tests"]["shadow"]
+    for kind in ("node", "triangle"):
+        if int(proxy.get(kind, 0)) > int(shadow[kind]):
+            raise ProbvisError(f"{where}: ['tests']['proxy']['{kind}'] is {int(proxy[kind]):,}, more than the "
+                               f"{int(shadow[kind]):,} {kind} tests its evaluate returned for the shadow rays: "
+                               "count the proxy's tests in them too")
+
+
 def checked_stats(cls, stats):
     """The estimator's `stats()` if JSON can hold it (no NaN, no arrays or sets): the stats file must be JSON."""
     if not isinstance(stats, dict):
