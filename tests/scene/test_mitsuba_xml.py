@@ -1382,3 +1382,21 @@ def test_a_reference_to_a_bsdf_or_texture_defined_below_reads_it_as_mitsuba_does
     mi = pytest.importorskip("mitsuba")
     mi.set_variant("scalar_rgb")
     assert len(mi.load_file(str(below)).shapes()) == 1  # a scene Mitsuba loads
+
+
+def test_a_mitsuba_0_6_scene_s_error_names_its_format(tmp_path):
+    """A 0.6 scene's camelCase parameter was only 'unsupported parameter sampleCount'."""
+    path = write_scene(tmp_path / "old.xml", sensor() + LIGHT)
+    text = path.read_text().replace('version="3.0.0"', 'version="0.6.0"').replace("sample_count", "sampleCount")
+    assert "sampleCount" in text
+    path.write_text(text)
+    with pytest.raises(ProbvisError, match=r"unsupported parameter 'sampleCount'.*Mitsuba 0.6.0's format; probvis "
+                                           r"reads Mitsuba 3's, whose names are snake_case"):
+        probvis.load_scene(path)
+
+
+def test_an_include_that_names_a_folder_says_so(tmp_path):
+    (tmp_path / "inc.xml").mkdir()
+    path = write_scene(tmp_path / "s.xml", sensor() + "<include filename='inc.xml'/>" + LIGHT)
+    with pytest.raises(ProbvisError, match=r"s.xml:\d+: <include>: included file 'inc.xml' is a folder"):
+        probvis.load_scene(path)

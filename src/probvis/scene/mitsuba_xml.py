@@ -152,6 +152,8 @@ def with_includes(root, path, fail, filename):
             name = filename(ch, list(defaults))
             here = Path(file).parent if file is not None else scene_folder
             target = next((f / name for f in (here, scene_folder) if (f / name).is_file()), here / name)
+            if target.is_dir():
+                fail(ch, f"included file '{name}' is a folder ({target}): include a scene file")
             if not target.is_file():
                 fail(ch, f"included file '{name}' not found (looked beside {'this file and ' if file else ''}"
                          f"the scene file{f', {here}' if file else ''})")
@@ -294,6 +296,7 @@ class _Reader:
         self.strict = strict
         self.approximated = set()  # plugin types already warned about
         self.overrides = {k: str(v) for k, v in overrides.items()}
+        self.old_version = None  # a Mitsuba 0.x scene's version, which its errors name
         self.defaults = {}
         self.default_nodes = {}  # the element of each <default>
         self.used = set()  # overridden parameters the scene refers to
@@ -313,6 +316,9 @@ class _Reader:
         given = sorted({m.group(1) for v in node.attrs.values() for m in variables.finditer(v)} & set(self.overrides))
         if given:  # the value came from the command line, not from the line named
             msg += f" (with {', '.join(f'-D {n}={self.overrides[n]}' for n in given)})"
+        if self.old_version:
+            msg += (f" (the scene is in Mitsuba {self.old_version}'s format; probvis reads Mitsuba 3's, whose names "
+                    "are snake_case, such as sample_count for sampleCount: convert it)")
         raise ProbvisError(f"{self.where(node)}: <{node.tag}>: {msg}")
 
     def where(self, node):
@@ -1540,6 +1546,8 @@ class _Reader:
         self.check_attrs(root, ("version",))
         if "version" in root.attrs and not re.fullmatch(r"\d+(\.\d+){0,2}", root.attrs["version"].strip()):
             self.fail(root, f"version must be a version number such as 3.0.0, got '{root.attrs['version']}'")
+        if int(root.attrs.get("version", "3").strip().split(".")[0]) < 2:  # its errors say which format it is in
+            self.old_version = root.attrs["version"].strip()
         self.id_nodes = _unique_ids(root, self.fail, self.line_of)
         for ch in root.children:
             if ch.tag == "path" and "$" not in ch.attrs.get("value", ""):
