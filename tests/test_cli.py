@@ -139,6 +139,7 @@ def test_unknown_define_on_an_xml_scene_is_a_warning(tmp_path, capsys):
     assert main(["render", str(xml), "-D", "spp=2", "-o", str(tmp_path / "w.exr"), "-q"]) == 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "-D spp: the scene declares no such parameter" in err[0]
+    assert err[0].endswith("; for the render's own setting give --spp 2")  # what was meant, most likely
 
 
 @pytest.mark.parametrize("define, warned", [("a=0.5", True), ("ab=0.5", False)])

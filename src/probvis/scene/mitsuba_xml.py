@@ -1618,8 +1618,11 @@ class _Reader:
             raise ProbvisError(f"{self.path}: the scene has no <sensor>")
         unused = sorted(set(self.overrides) - self.used - set(self.defaults))
         if unused:
+            flags = [f"--{n.replace('_', '-')} {self.overrides[n]}" for n in unused
+                     if n in ("spp", "shadow_rays", "seed")]  # the render's settings, which the command sets
             warnings.warn(f"{self.path}: -D {', '.join(unused)}: the scene declares no such parameter "
-                          f"(its parameters: {', '.join(sorted(self.defaults)) or 'none'})", stacklevel=2)
+                          f"(its parameters: {', '.join(sorted(self.defaults)) or 'none'})"
+                          + (f"; for the render's own setting give {' '.join(flags)}" if flags else ""), stacklevel=2)
         unread = sorted(set(self.overrides) - self.used - set(unused))
         if unread:  # Mitsuba refuses them ("unused parameters"); the scene renders as written
             warnings.warn(f"{self.path}: -D {', '.join(unread)}: the scene declares "
