@@ -2,6 +2,7 @@
 camera sample adds w·L and w to the pixels its reconstruction filter covers; a pixel is Σ w·L / Σ w."""
 import json
 import math
+import warnings
 from types import SimpleNamespace
 
 import numba
@@ -210,3 +211,15 @@ def test_one_sample_per_pixel_has_no_noise_estimate():
     one = probvis.render("quad-shadow", resolution=(8, 8), spp=1, shadow_rays=1)
     two = probvis.render("quad-shadow", resolution=(8, 8), spp=2, shadow_rays=1)
     assert one.stats["noise_relmse"] is None and two.stats["noise_relmse"] > 0.0
+
+
+def test_a_new_resolution_on_a_cropped_film_says_the_crop_is_dropped(tmp_path):
+    """`resolution=` on a scene with a crop window rendered the whole view without a word."""
+    path = film_scene(tmp_path, '<rfilter type="box"/>', CROP)
+    with pytest.warns(UserWarning, match=r"the new resolution renders the whole view, not the film's crop window "
+                                         r"\(30x20 at \(5, 3\) of 48x40\)"):
+        img = probvis.render(path, spp=1, resolution=(12, 10)).image
+    assert img.shape == (10, 12, 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        probvis.render(film_scene(tmp_path, '<rfilter type="box"/>'), spp=1, resolution=(12, 10))

@@ -1,5 +1,6 @@
 """The scene as flat arrays: triangles, materials, emitters and a camera (with its film's resolution)."""
 import dataclasses
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -105,6 +106,11 @@ class Scene:
         """A copy whose film has another size, uncropped, its declared field of view kept along its axis (geometry
         arrays are shared, not copied)."""
         cam = self.camera
+        fw, fh = cam.film_width or cam.width, cam.film_height or cam.height
+        if (fw, fh, cam.crop_x, cam.crop_y) != (cam.width, cam.height, 0, 0):  # the user set a crop window
+            warnings.warn(f"scene '{self.name}': the new resolution renders the whole view, not the film's crop "
+                          f"window ({cam.width}x{cam.height} at ({cam.crop_x}, {cam.crop_y}) of {fw}x{fh})",
+                          stacklevel=3)
         cam = cam.resized(cam.width if width is None else width, cam.height if height is None else height)
         out = dataclasses.replace(self, camera=cam)
         out.validate_camera()
