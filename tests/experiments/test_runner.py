@@ -276,22 +276,6 @@ def test_a_stop_signal_while_the_report_is_written_leaves_a_complete_study(tiny_
     assert numbers(again) == numbers(results)
 
 
-def test_a_folder_holding_the_user_s_own_results_is_not_overwritten(tiny_run, tmp_path):
-    """`-o` naming a folder of the user's own results.csv and results.md (no report there) replaced both without
-    a word; an empty folder is written."""
-    out, _, _, _ = tiny_run
-    work = tmp_path / "mywork"
-    work.mkdir()
-    (work / "results.csv").write_text("mine\n")
-    with pytest.raises(ProbvisError, match="holds 'results.csv' but no probvis report .* give -o a new folder"):
-        experiment(parse_experiment(TINY), work, cache=out / "cache", progress=False, log=lambda m: None)
-    assert (work / "results.csv").read_text() == "mine\n"
-    (tmp_path / "empty").mkdir()
-    _, index, _ = experiment(parse_experiment(TINY), tmp_path / "empty", cache=out / "cache", progress=False,
-                             log=lambda m: None)
-    assert index.is_file()
-
-
 def test_a_report_folder_under_a_file_is_named_as_such(tmp_path):
     """`-o afile/rep` was 'cannot create cache folder afile/rep/cache: Not a directory', naming a folder the user
     never gave."""
@@ -300,16 +284,20 @@ def test_a_report_folder_under_a_file_is_named_as_such(tmp_path):
         experiment(parse_experiment(TINY), tmp_path / "afile" / "rep", progress=False, log=lambda m: None)
 
 
-def test_a_folder_holding_another_index_html_is_not_overwritten(tiny_run, tmp_path):
-    """`-o` naming a web site's folder replaced its index.html and results.csv without a word; a report's own
-    folder is written again (resumed)."""
+@pytest.mark.parametrize("name, content, message", [
+    ("index.html", "<html><title>my site</title></html>", "holds an index.html that is not a probvis report"),
+    ("results.csv", "mine\n", "holds 'results.csv' but no probvis report .* give -o a new folder"),
+])
+def test_a_folder_holding_files_of_the_user_s_own_is_not_overwritten(tiny_run, tmp_path, name, content, message):
+    """`-o` naming a web site's folder, or one of the user's own results.csv, replaced those files without a
+    word; a report's own folder is written again (resumed)."""
     out, _, _, _ = tiny_run
     site = tmp_path / "site"
     site.mkdir()
-    (site / "index.html").write_text("<html><title>my site</title></html>")
-    with pytest.raises(ProbvisError, match="holds an index.html that is not a probvis report"):
+    (site / name).write_text(content)
+    with pytest.raises(ProbvisError, match=message):
         experiment(parse_experiment(TINY), site, cache=out / "cache", progress=False, log=lambda m: None)
-    assert (site / "index.html").read_text() == "<html><title>my site</title></html>"
+    assert (site / name).read_text() == content
     _, index, run = experiment(parse_experiment(TINY), out, progress=False, log=lambda m: None)
     assert index.is_file() and run.computed == 0
 
