@@ -772,13 +772,14 @@ def test_one_neighbour_gives_a_radius_not_numpy_warnings(visibility):
                                      '<emitter type="point"><point name="position" x="0" y="0" z="2"/>'
                                      '<rgb name="intensity" value="0"/></emitter>'])
 def test_emitters_that_all_emit_nothing_say_what_to_give(tmp_path, emitter, capsys):
-    """Emitters of zero radiance or intensity: refused (nothing to sample by power; Mitsuba renders black) with
-    what would come of it and what to change, where it was the bare fact."""
-    body = sensor(spp=1, sr=1, w=8, h=8) + '<shape type="rectangle"><bsdf type="diffuse"/></shape>' + emitter
+    """Emitters of zero radiance or intensity: refused (nothing to sample by power; Mitsuba renders black) at the
+    first emitter's element, with what would come of it and what to change, where it was the bare fact."""
+    body = sensor(spp=1, sr=1, w=8, h=8) + '<shape type="rectangle"><bsdf type="diffuse"/></shape>\n' + emitter
     path = write_scene(tmp_path / "dark.xml", body)
+    line = next(i for i, text in enumerate(path.read_text().splitlines(), 1) if "<emitter" in text)
     assert main(["render", str(path), "-o", str(tmp_path / "out.exr")]) == 2
     assert capsys.readouterr().err == (
-        "probvis: error: scene 'dark' has emitters, but all of them have zero power (a radiance, intensity or "
+        f"probvis: error: {path}:{line}: <emitter>: the scene's 1 emitter has zero power (a radiance, intensity or "
         "irradiance of 0, or a scale of 0): the image would be black (as Mitsuba renders it); give an emitter a "
         "positive one\n")
     assert not (tmp_path / "out.exr").exists()

@@ -308,6 +308,7 @@ class _Reader:
         self.search_paths = []  # the folders of <path> elements, searched before the scene's
         self.hide_emitters = False  # the integrator's option
         self.dark = []  # (element, kind, why) of area emitters on shapes without area (`dark_emitters`)
+        self.emitter_elements = []  # every <emitter>, in the order read (`zero_power`)
         self.root = None  # the document's tree, once parsed
 
     # --- errors and values -------------------------------------------------------------------
@@ -1098,6 +1099,7 @@ class _Reader:
                 if radiance is not None:
                     self.fail(ch, "a shape can carry only one emitter")
                 radiance = self.emitter_radiance(ch)
+                self.emitter_elements.append(ch)
             else:
                 if material is not None:
                     self.fail(ch, "a shape can carry only one bsdf")
@@ -1207,6 +1209,15 @@ class _Reader:
         for node, kind, why in self.dark:
             warnings.warn(f"{self.where(node)}: shape '{kind}' has no area ({why}): it is left out with its area "
                           "emitter, which emits nothing; check its size and to_world", stacklevel=3)
+
+    def zero_power(self, builder):
+        """Emitters that all emit nothing (a radiance, intensity or scale of 0) are refused at the first one's
+        element: there is nothing to sample by power, and Mitsuba renders the scene black."""
+        if builder.emitter_radiance and not np.any(np.array(builder.emitter_radiance)):
+            self.fail(self.emitter_elements[0], f"the scene's {len(builder.emitter_radiance)} emitter"
+                                                f"{'s all have' if len(builder.emitter_radiance) > 1 else ' has'} "
+                      "zero power (a radiance, intensity or irradiance of 0, or a scale of 0): the image would be "
+                      "black (as Mitsuba renders it); give an emitter a positive one")
 
     def cylinder_frame(self, node, props):
         """Object-to-shape transform of Mitsuba's cylinder from p0 to p1 with a radius (the unit cylinder's z
@@ -1591,6 +1602,7 @@ class _Reader:
                 self.shape(ch, builder)
             elif ch.tag == "emitter":
                 self.delta_emitter(ch, builder)
+                self.emitter_elements.append(ch)
             elif ch.tag == "alias":
                 self.check_attrs(ch, ("id", "as"))
                 source = self.attr(ch, "id")
@@ -1633,6 +1645,7 @@ class _Reader:
         builder.hide_emitters = self.hide_emitters
         builder.parameters = tuple(sorted(self.defaults))
         self.dark_emitters(builder)
+        self.zero_power(builder)
         try:
             return builder.build(camera, RenderSettings(spp, shadow_rays, seed))
         except ProbvisError as exc:
