@@ -37,6 +37,17 @@ def numbers(results):
 
 
 @pytest.fixture(scope="module")
+def scheduler():
+    """An in-process Dask cluster for the tests whose subject is not the local cluster (a cache, a report): a study
+    on it renders what one on its own LocalCluster does (`test_an_existing_scheduler_gives_the_same_numbers`)
+    without starting a worker process, which loads the libraries and kernels anew, for every study."""
+    from dask.distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        yield cluster.scheduler_address
+
+
+@pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("tiny")
     results, index, run = experiment(parse_experiment(TINY), out, progress=False, log=lambda m: None)
@@ -77,21 +88,23 @@ def test_results_rank_the_methods_by_efficiency(tiny_run):
     assert "Seconds to reach each scene's target relMSE" in ranking
 
 
-def test_resume_recomputes_nothing_then_only_what_is_missing(tiny_run, tmp_path):
+def test_resume_recomputes_nothing_then_only_what_is_missing(tiny_run, tmp_path, scheduler):
     out, results, _, run = tiny_run
-    again, _, run2 = experiment(parse_experiment(TINY), out, progress=False, log=lambda m: None)
+    again, _, run2 = experiment(parse_experiment(TINY), out, scheduler=scheduler, progress=False,
+                                log=lambda m: None)
     assert run2.computed == 0 and run2.cells_cached == 6
     assert numbers(again) == numbers(results)
     victim = next(t for t in run.tasks if t.method.name == "shifted" and t.shadow_rays == 4)
     (out / "cache" / f"{victim.key}.json").unlink()
-    again, _, run3 = experiment(parse_experiment(TINY), out, progress=False, log=lambda m: None)
+    again, _, run3 = experiment(parse_experiment(TINY), out, scheduler=scheduler, progress=False,
+                                log=lambda m: None)
     assert run3.computed == 1
     assert numbers(again) == numbers(results)
 
 
 @pytest.mark.parametrize("damage", ["nan-image", "empty-json", "other-size", "loop", "other-stats", "no-seconds",
                                     "seconds-text", "seconds-nan"])
-def test_a_damaged_cache_entry_is_rendered_again(tiny_run, tmp_path, damage):
+def test_a_damaged_cache_entry_is_rendered_again(tiny_run, tmp_path, damage, scheduler):
     """An edited entry was trusted (NaN pixels: relmse nan, exit 0) or failed late (a KeyError, a broadcasting
     ValueError, 'folder does not exist' for a link that loops, a KeyError traceback for stats of another shape
     under the same digest, stats without a number the tables read or with one of another type, under a digest
@@ -124,8 +137,8 @@ def test_a_damaged_cache_entry_is_rendered_again(tiny_run, tmp_path, damage):
     else:
         img.unlink()
         img.symlink_to(img.name)
-    again, _, run2 = experiment(parse_experiment(TINY), tmp_path / "r", cache=cache, progress=False,
-                                log=lambda m: None)
+    again, _, run2 = experiment(parse_experiment(TINY), tmp_path / "r", cache=cache, scheduler=scheduler,
+                                progress=False, log=lambda m: None)
     assert run2.computed == 1
     assert numbers(again) == numbers(results)
 
@@ -488,7 +501,7 @@ def test_sigterm_stops_the_study_keeping_finished_renders(tmp_path):
     assert bad.returncode == 2 and "distinct seeds" in bad.stderr
 
 
-def test_two_seeds_give_a_bias_column_and_biased_shortcuts_are_labelled(tmp_path):
+def test_two_seeds_give_a_bias_column_and_biased_shortcuts_are_labelled(tmp_path, scheduler):
     study = {
         "name": "bias", "spp": 2, "shadow_rays": [4], "seeds": [0, 1], "resolution": [48, 48],
         "reference": {"spp": 16, "shadow_rays": 16},
@@ -498,16 +511,18 @@ def test_two_seeds_give_a_bias_column_and_biased_shortcuts_are_labelled(tmp_path
                      "options": {"penumbra": "list", "photons": 20000, "verify": "off"}},
                     {"name": "om", "visibility": "occlusion-map", "options": {"penumbra": "list", "photons": 20000}}],
     }
-    results, index, _ = experiment(parse_experiment(study), tmp_path, progress=False, log=lambda m: None)
+    results, index, _ = experiment(parse_experiment(study), tmp_path, scheduler=scheduler, progress=False,
+                                   log=lambda m: None)
     row = {r["method"]: r for r in results.summary}
     assert row["exact"]["bias_ratio"] < 2.5 and row["om"]["bias_ratio"] < 2.5
     assert row["om-off"]["bias_ratio"] > 10 and row["om-off"]["biased"] and not row["om"]["biased"]
     assert "(biased)" in index.read_text() and "(biased)" in (tmp_path / "results.md").read_text()
 
 
-def test_timing_repeats_take_the_fastest_and_flag_disagreement(tmp_path):
+def test_timing_repeats_take_the_fastest_and_flag_disagreement(tmp_path, scheduler):
     study = dict(TINY, timing_repeats=3, shadow_rays=[1])
-    results, _, run = experiment(parse_experiment(study), tmp_path, progress=False, log=lambda m: None)
+    results, _, run = experiment(parse_experiment(study), tmp_path, scheduler=scheduler, progress=False,
+                                 log=lambda m: None)
     for r in results.cells:
         assert len(r["seconds_repeats"]) == 3 and r["seconds"] == min(r["seconds_repeats"])
         spread = (max(r["seconds_repeats"]) - r["seconds"]) / r["seconds"]
@@ -535,9 +550,10 @@ def test_each_repeat_s_render_seconds_leave_out_its_own_load_and_bvh(monkeypatch
     assert stats["seconds"]["repeats_render"] == [0.25, 0.125, 0.125]
 
 
-def test_timing_seconds_stop_the_repeats_once_the_renders_took_that_long(tmp_path):
+def test_timing_seconds_stop_the_repeats_once_the_renders_took_that_long(tmp_path, scheduler):
     study = dict(TINY, timing_repeats=3, timing_seconds=1e-6, shadow_rays=[1])
-    results, _, run = experiment(parse_experiment(study), tmp_path, progress=False, log=lambda m: None)
+    results, _, run = experiment(parse_experiment(study), tmp_path, scheduler=scheduler, progress=False,
+                                 log=lambda m: None)
     assert all(len(r["seconds_repeats"]) == 1 for r in results.cells)
     assert "up to 3 repeats (fewer once they took 1e-06 s together)" in (tmp_path / "results.md").read_text()
 
@@ -670,11 +686,11 @@ def test_a_study_under_numba_num_threads_gives_each_render_no_more(tmp_path):
     assert "1 worker x 1 thread" in r.stderr
 
 
-def test_a_bar_in_a_name_keeps_the_markdown_tables_columns(tmp_path):
+def test_a_bar_in_a_name_keeps_the_markdown_tables_columns(tmp_path, scheduler):
     """A method named 'exact|fast' added a column to its rows of results.md; its '|' is escaped."""
     doc = dict(TINY, shadow_rays=[1], resolution=[8, 8], scenes=[{"name": "q|uad", "source": "quad-shadow"}],
                methods=[{"name": "exact|fast", "visibility": "exact", "baseline": True}])
-    experiment(parse_experiment(doc), tmp_path / "r", progress=False, log=lambda m: None)
+    experiment(parse_experiment(doc), tmp_path / "r", scheduler=scheduler, progress=False, log=lambda m: None)
     text = (tmp_path / "r" / "results.md").read_text()
     assert "exact\\|fast" in text and "q\\|uad" in text
     tables = [t.splitlines() for t in text.split("\n\n") if t.startswith("|")]
