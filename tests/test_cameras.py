@@ -123,7 +123,8 @@ def edge_scene(tmp_path, rfilter):
         <film type="hdrfilm"><integer name="width" value="48"/><integer name="height" value="40"/>{rfilter}</film>
         </sensor><integrator type="direct"><integer name="bsdf_samples" value="0"/></integrator>
         <shape type="rectangle"><transform name="to_world"><rotate z="1" angle="17"/><scale value="0.7"/></transform>
-            <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""", '<default name="spp" value="16"/>')
+            <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>""",
+        '<default name="spp" value="16"/>')
 
 
 @pytest.fixture(scope="module")
