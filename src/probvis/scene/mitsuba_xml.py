@@ -702,11 +702,7 @@ class _Reader:
                 if ch.tag not in want:
                     self.fail(ch, f"'{name}' of a {kind} bsdf is given as <{'> or <'.join(want)}>"
                                   f"{' or a <texture>' if 'rgb' in want else ''}")
-                raw = self.attr(ch, "value")
-                if ch.tag == "spectrum" and ":" not in raw and len(raw.replace(",", " ").split()) != 1:
-                    props[name] = np.full(3, 0.5)  # not a spectrum Mitsuba would read: its colour is not modelled
-                else:
-                    props[name] = self.value(ch)
+                props[name] = self.value(ch)  # read and checked as diffuse's, though only its mean is modelled
                 if ch.tag == "rgb" and name not in _UNBOUNDED_RGB and not np.all((props[name] >= 0) &
                                                                                   (props[name] <= 1)):
                     self.fail(ch, f"'{name}' of a {kind} bsdf is a reflectance: an <rgb> must be within [0, 1], got "
