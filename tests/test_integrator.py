@@ -214,6 +214,20 @@ def test_a_numpy_time_span_is_no_number(kwargs, message):
         scene.with_resolution(np.timedelta64(8), 8)
 
 
+def test_settings_the_api_would_drop_are_refused():
+    """`strict` with a loaded scene did nothing (it applies when a file is read), `defines` with res beside
+    `resolution` lost to it, and `with_resolution((w, h))` blamed an internal field (sweep 42)."""
+    scene = probvis.load_scene("quad-shadow", res=8)
+    with pytest.raises(ProbvisError, match=r"strict applies when a scene is loaded: give it to load_scene"):
+        probvis.render(scene, spp=1, shadow_rays=1, strict=True)
+    with pytest.raises(ProbvisError, match=r"resolution= and the scene parameter res \(defines\) both set"):
+        probvis.render("quad-shadow", spp=1, shadow_rays=1, defines={"res": 8}, resolution=(16, 16))
+    with pytest.raises(ProbvisError, match=r"with_resolution takes the width and height as two arguments, got "
+                                           r"\(16, 16\): with_resolution\(w, h\)"):
+        scene.with_resolution((16, 16))
+    assert probvis.render(scene, spp=1, shadow_rays=1, resolution=(16, 12)).image.shape == (12, 16, 3)
+
+
 def test_numpy_values_are_taken_alike_everywhere():
     """A NumPy bool is a flag and a whole NumPy number a count wherever the API takes one (it was a flag for
     `strict` but not for `filter_importance` or an estimator's switch; a long double was no number to an

@@ -305,10 +305,15 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     early = threads if threads is not None else getattr(settings, "threads", None)
     if early is not None and 1 <= early <= numba.config.NUMBA_NUM_THREADS:  # loading keeps to the budget too
         numba.set_num_threads(early)
+    if resolution is not None and "res" in (defines or {}):  # the film's size is set once, as in a study
+        raise ProbvisError("resolution= and the scene parameter res (defines) both set the film's size: give one")
     if not isinstance(scene, Scene):
         scene = open_scene(scene, defines or {}, strict)
     elif defines:
         raise ProbvisError(f"scene parameters {sorted(defines)} apply only when loading a scene from a file")
+    elif strict:
+        raise ProbvisError("strict applies when a scene is loaded: give it to load_scene(path, strict=True), or "
+                           "give render() the path")
     else:
         scene.validate()  # a Scene may have been changed since it was loaded
     load_seconds = time.perf_counter() - t_start

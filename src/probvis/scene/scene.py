@@ -105,6 +105,9 @@ class Scene:
     def with_resolution(self, width=None, height=None):
         """A copy whose film has another size, uncropped, its declared field of view kept along its axis (geometry
         arrays are shared, not copied)."""
+        if isinstance(width, (tuple, list, np.ndarray)):  # with_resolution((w, h)): the film's (w, h) whole
+            raise ProbvisError(f"with_resolution takes the width and height as two arguments, got {width!r}: "
+                               "with_resolution(w, h)")
         cam = self.camera
         fw, fh = cam.film_width or cam.width, cam.film_height or cam.height
         if (fw, fh, cam.crop_x, cam.crop_y) != (cam.width, cam.height, 0, 0):  # the user set a crop window
