@@ -334,6 +334,15 @@ def test_a_plugin_s_every_method_is_checked(methods, message):
     assert probvis.render("quad-shadow", spp=1, defines={"res": 8}, visibility=_Exact).image.mean() > 0
 
 
+def test_numpy_byte_counts_are_byte_counts():
+    """`memory_bytes()` of NumPy integers (a sum of arrays' nbytes) passed the check, then failed the render as
+    "stats() returned a value JSON cannot hold" though the plug-in had no stats() (sweep 42)."""
+    cls = type("NumpyBytes", (_Exact,), {"memory_bytes": lambda self: {"table": np.int64(4096)}})
+    stats = probvis.render("quad-shadow", spp=1, defines={"res": 8}, visibility=cls).stats
+    assert stats["estimator"]["memory_bytes"] == {"table": 4096}
+    assert type(stats["estimator"]["memory_bytes"]["table"]) is int
+
+
 def test_a_plugin_s_own_memory_is_named_with_it():
     """A plug-in's part of an estimate beyond the machine was named only by its key ('mine'), with "lower the
     settings"."""

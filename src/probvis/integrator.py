@@ -365,6 +365,6 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
     with plugin_errors(type(estimator), "stats"):
         stats = render_stats(scene, settings, estimator, result, image, clamp, seconds, mem)
     if type(estimator).__module__.split(".")[0] != "probvis":
-        checked_stats(type(estimator), stats["estimator"])
+        stats["estimator"] = checked_stats(type(estimator), stats["estimator"])
         check_accounts(type(estimator), stats)
     return RenderResult(image, stats, result.film.aovs())

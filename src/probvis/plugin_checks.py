@@ -206,6 +206,8 @@ def checked_stats(cls, stats):
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_bytes() must "
                            f"return a dict of byte counts (whole numbers from 0 to 2**63: no machine holds more), "
                            f"got {memory!r}")
+    if memory:  # NumPy's integers (a sum of arrays' nbytes) are counts too, written as JSON's
+        stats = {**stats, "memory_bytes": {k: int(v) for k, v in memory.items()}}
     try:
         json.dumps(stats, allow_nan=False)
     except (TypeError, ValueError, RecursionError) as exc:
