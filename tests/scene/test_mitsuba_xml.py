@@ -1368,6 +1368,22 @@ def test_a_sphere_stretched_or_sheared_stays_round_as_in_mitsuba(tmp_path, trans
     np.testing.assert_allclose(np.linalg.norm(sphere - [0.0, 0.5, 0.0], axis=1), radius, rtol=1e-9)
 
 
+def test_a_spot_light_stretched_warns_that_its_cone_stays_round(tmp_path):
+    """Mitsuba 3's spot light tests directions in its own frame, so a non-uniform scale makes the cone elliptical;
+    probvis's cone is round about its axis: the same image with and without the scale, so it warns (it was
+    silent, sweep 42). A uniform scale changes nothing in either and does not warn."""
+    def spot(transform):
+        return write_scene(tmp_path / "spot.xml", sensor() + "<shape type='rectangle'/><emitter type='spot'>"
+                           f"<transform name='to_world'>{transform}<lookat origin='0, 0, 2' target='0, 0, 0'/>"
+                           "</transform></emitter>")
+    with pytest.warns(UserWarning, match=r"spot.xml:\d+: the spot light's to_world has a non-uniform "
+                                         "scale or a shear, which makes its cone elliptical in Mitsuba 3"):
+        probvis.load_scene(spot("<scale x='3' y='1' z='1'/>"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        probvis.load_scene(spot("<scale value='2'/>"))
+
+
 def test_a_reference_to_a_bsdf_or_texture_defined_below_reads_it_as_mitsuba_does(tmp_path):
     """Mitsuba resolves a <ref> to a top-level object defined further down the file; so does probvis (it reads
     the object ahead, once): the image is the one of the file in the usual order."""

@@ -1001,6 +1001,11 @@ class _Reader:
         axis = tf.tamed(m[:3, :3] @ np.array([0.0, 0.0, 1.0]))
         if not np.linalg.norm(axis) > 0 or not np.all(np.isfinite(axis)):
             self.fail(node, "the spot light's to_world is singular: it maps its +z axis to no direction")
+        sig = np.linalg.svd(m[:3, :3], compute_uv=False)
+        if sig.min() > 0 and sig.max() - sig.min() > 1e-6 * sig.max():
+            warnings.warn(f"{self.where(node)}: the spot light's to_world has a non-uniform scale or a shear, which "
+                          "makes its cone elliptical in Mitsuba 3: probvis renders a round cone about its axis; "
+                          "scale it uniformly (or not at all)", stacklevel=2)
         builder.add_point_emitter(intensity, m[:3, 3], axis, cutoff, beam)
 
     def environment(self, node, kind, builder):
