@@ -1167,8 +1167,10 @@ def test_an_empty_define_name_is_refused():
 def test_a_parameter_value_that_is_no_string_or_number_is_refused():
     """`defines={"res": 8}` was one parameter named 'defines', with a warning worded for the command line."""
     with pytest.raises(ProbvisError, match=r"parameter defines=\{'res': 8\}: a scene parameter's value is a string "
-                                           r"or a number; give each as a keyword argument"):
+                                           r"or a number; give each parameter its own: load_scene\(path, "):
         probvis.load_scene("quad-shadow", defines={"res": 8})
+    with pytest.raises(ProbvisError, match=r"parameter res=\[8\]: .* or render\(path, defines=\{'name': value"):
+        probvis.render("quad-shadow", defines={"res": [8]})  # the advice fits render's defines too (sweep 42)
     assert probvis.load_scene("quad-shadow", res=np.int64(8)).camera.width == 8
     assert probvis.load_scene("quad-shadow", strict=np.True_, res=8).camera.width == 8  # as render's flags
 
@@ -1366,6 +1368,18 @@ def test_a_sphere_stretched_or_sheared_stays_round_as_in_mitsuba(tmp_path, trans
         scene = probvis.load_scene(write_scene(tmp_path / "s.xml", body))
     sphere = scene.triangles[scene.tri_emitter < 0].reshape(-1, 3)
     np.testing.assert_allclose(np.linalg.norm(sphere - [0.0, 0.5, 0.0], axis=1), radius, rtol=1e-9)
+
+
+def test_an_area_emitter_without_radiance_emits_one_as_in_mitsuba(tmp_path):
+    """Mitsuba 3's area emitter defaults its radiance to 1, as probvis's point and spot lights did; it was refused
+    (sweep 42)."""
+    def scene(emitter):
+        return probvis.load_scene(write_scene(tmp_path / "a.xml", sensor() + "<shape type='rectangle'>"
+                                              f"{emitter}</shape>"))
+    implicit = scene("<emitter type='area'/>")
+    explicit = scene("<emitter type='area'><rgb name='radiance' value='1'/></emitter>")
+    np.testing.assert_array_equal(implicit.emitter_radiance, explicit.emitter_radiance)
+    np.testing.assert_array_equal(implicit.emitter_radiance, [[1.0, 1.0, 1.0]])
 
 
 def test_a_spot_light_stretched_warns_that_its_cone_stays_round(tmp_path):

@@ -38,7 +38,8 @@ def open_scene(path, defines, strict=False):
     for name, value in defaults.items():  # `defines={...}` would be one parameter named "defines"
         if not isinstance(value, (str, numbers.Real)):
             raise ProbvisError(f"parameter {name}={value!r}: a scene parameter's value is a string or a number; "
-                               "give each as a keyword argument: load_scene(path, name=value, ...)")
+                               "give each parameter its own: load_scene(path, name=value, ...), or "
+                               "render(path, defines={'name': value, ...})")
     if not str(path).strip():
         raise ProbvisError(f"the scene name is empty: give a scene file or a built-in scene ({', '.join(BUILTINS)})")
     try:

@@ -926,10 +926,7 @@ class _Reader:
         props, _ = self.params(node, {"radiance": ("rgb", "spectrum", "float"), **_SAMPLING_WEIGHT},
                                unknown=self.textured_emission)
         self.sampling_weight(node, props)
-        if "radiance" not in props:
-            self.fail(node, "area emitter needs a 'radiance'")
-        rad = self.emission(node, "radiance", props["radiance"])
-        return rad
+        return self.emission(node, "radiance", props.get("radiance", np.ones(3)))  # Mitsuba's default: 1
 
     def emission(self, node, name, value):
         """An emitter's radiance, intensity or scale as RGB: non-negative and at most MAX_EMISSION."""
