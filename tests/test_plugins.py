@@ -308,6 +308,9 @@ def _raise(*args, **kwargs):
                                                                       np.full(len(q.tmax), 2 ** 62))},
      "returned triangle_tests above 2,147,483,648 for one segment"),
     ({"stats": lambda self: [1]}, "stats\\(\\) returned a list, not a dict"),
+    ({"evaluate": lambda self, q: probvis.visibility.VisibilityResult(np.ones(len(q.tmax)), np.zeros(len(q.tmax)),
+                                                                      np.zeros(len(q.tmax)), [])},
+     "returned aovs as a list: give a dict"),  # probvis's own check raised an AttributeError (sweep 42)
     ({"memory_bytes": lambda self: {"x": "lots"}}, "memory_bytes\\(\\) must return a dict of byte counts"),
     ({"prepare": lambda self, *a: open("no-such-weights.dat")}, "raised FileNotFoundError in the render"),
     ({"prepare": _scales_triangles}, "changed the arrays of the scene, its emitters or its BVH"),

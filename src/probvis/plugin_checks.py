@@ -62,6 +62,9 @@ def checked_result(estimator, res, n):
             raise ProbvisError(f"{where} returned {field} above {MAX_TESTS:,} for one segment (the sums would "
                                "overflow): count the tests a segment made")
     declared = {a.name for a in estimator.aovs if a.kind == "segment"}
+    if res.aovs is not None and not isinstance(res.aovs, dict):
+        raise ProbvisError(f"{where} returned aovs as a {type(res.aovs).__name__}: give a dict of the declared "
+                           "AOVs' names to one number per segment, or None")
     for name, arr in (res.aovs or {}).items():
         arr = np.asarray(arr)
         if name not in declared:
@@ -94,6 +97,9 @@ def checked_shaded(estimator, shaded, batch):
         if arr.shape != shape or arr.dtype.kind not in "iu" or np.any(arr < 0) or np.any(arr > MAX_TESTS * m):
             raise ProbvisError(f"{where} returned {name} of shape {arr.shape} ({arr.dtype}): it needs whole "
                                f"numbers >= 0 per pixel ({n_pix})")
+    if shaded.aovs is not None and not isinstance(shaded.aovs, dict):
+        raise ProbvisError(f"{where} returned aovs as a {type(shaded.aovs).__name__}: give a dict of the declared "
+                           "AOVs' names to one number per pixel, or None")
     aovs = shaded.aovs or {}
     _refuse_missing(where, {a.name for a in estimator.aovs if a.kind == "segment"} - set(aovs), "pixel")
     for name, arr in aovs.items():
