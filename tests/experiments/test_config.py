@@ -403,3 +403,20 @@ def test_a_scene_define_of_res_beside_the_study_s_resolution_is_refused():
     with pytest.raises(ProbvisError, match=r"scenes\[0\].defines.res: the study sets every cell's film size"):
         parse_experiment(doc(resolution=[8, 8], scenes=[dict(MINIMAL["scenes"][0], defines={"res": 16})]))
     assert parse_experiment(doc(scenes=[dict(MINIMAL["scenes"][0], defines={"res": 16})])).scenes[0].defines
+
+
+def test_a_scene_define_the_scene_does_not_declare_is_refused(tmp_path):
+    """A misspelt define of a scene file (`rez` for `res`) was a warning worded for -D, and the study rendered
+    every cell without it (sweep 42); a built-in scene refused it already."""
+    from probvis.experiments.runner import load_scenes
+    from tests.conftest import sensor, write_scene
+
+    path = write_scene(tmp_path / "s.xml", sensor(w="$res", h="$res") + "<shape type='rectangle'/><emitter "
+                       "type='point'><point name='position' x='0' y='0' z='1'/></emitter>",
+                       '<default name="res" value="8"/>')
+    exp = parse_experiment(doc(scenes=[{"name": "s", "source": str(path), "defines": {"rez": 16}}]))
+    with pytest.raises(ProbvisError, match=r"scenes\[0\].defines: scene 's' declares no parameter rez \(its "
+                                           r"parameters: res\): correct or remove it"):
+        load_scenes(exp)
+    exp = parse_experiment(doc(scenes=[{"name": "s", "source": str(path), "defines": {"res": 16}}]))
+    assert load_scenes(exp)["s"].camera.width == 16

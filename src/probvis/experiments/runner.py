@@ -340,11 +340,20 @@ def _open_client(workers, scheduler):
 def load_scenes(exp):
     """Each of the study's scenes read (its defines applied, at the study's resolution), by name."""
     scenes = {}
-    for spec in exp.scenes:
+    for i, spec in enumerate(exp.scenes):
         try:
-            scene = open_scene(spec.source, spec.defines)
+            with warnings.catch_warnings(record=True) as said:
+                warnings.simplefilter("always")
+                scene = open_scene(spec.source, spec.defines)
         except ProbvisError as exc:
             raise ProbvisError(f"scene '{spec.name}': {exc}") from None
+        unknown = sorted(set(spec.defines) - set(scene.parameters))
+        if unknown:  # a misspelt define would change nothing in every cell: refused, as a built-in's is
+            raise ProbvisError(f"scenes[{i}].defines: scene '{spec.name}' declares no parameter "
+                               f"{', '.join(unknown)} (its parameters: {', '.join(scene.parameters) or 'none'}): "
+                               "correct or remove it")
+        for w in said:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         if exp.resolution is not None:
             scene = scene.with_resolution(*exp.resolution)
         scenes[spec.name] = scene
