@@ -405,9 +405,14 @@ def test_a_plugin_s_options_are_checked_when_it_loads(options, message):
         estimator_class(cls)
 
 
+def _refuse(message):
+    raise ProbvisError(message)
+
+
 @pytest.mark.parametrize("check, value, message", [
-    (lambda v: None if 10 // (v - 9) else None, "9", "k: its check raised ZeroDivisionError on '9': integer division or modulo by zero "
-                                   "(a bug in the estimator's option check)"),
+    (lambda v: None if 10 // (v - 9) else None, "9",
+     "k: its check raised ZeroDivisionError on '9': integer division or modulo by zero (a bug in the estimator's "
+     "option check)"),
     (lambda v: v > 2, "3", "k: its check returned True on '3', not an error message (a string) or None"),
 ])
 def test_a_plugin_s_option_check_that_fails_on_a_value_is_named(check, value, message):
@@ -417,6 +422,14 @@ def test_a_plugin_s_option_check_that_fails_on_a_value_is_named(check, value, me
     with pytest.raises(ProbvisError, match=re.escape(message)):
         estimator_class(cls)(k=value)
     assert estimator_class(cls)(k="1").params.k == 1
+
+
+def test_a_plugin_s_option_check_may_refuse_in_its_own_words():
+    """A check that raises ProbvisError refuses the value with its message, not as 'a bug in the check'."""
+    check = probvis.visibility.Option("k", int, 1, "odd", check=lambda v: _refuse("k must be odd") if v % 2 == 0
+                                      else None)
+    with pytest.raises(ProbvisError, match=r"^k must be odd$"):
+        estimator_class(type("Odd", (_Exact,), {"options": (check,)}))(k="4")
 
 
 @pytest.mark.parametrize("declared, message", [

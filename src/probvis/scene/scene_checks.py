@@ -78,8 +78,8 @@ def check_scene(scene):
                                f"{dict(f='floats (32 or 64 bits)', iu='integers (not uint64)', b='booleans')[kinds]} "
                                f"in the machine's byte order, got {getattr(a, 'shape', type(a).__name__)} "
                                f"{getattr(a, 'dtype', '')}".rstrip()
-                               + (f": use scene.{name}.astype(np.int32)" if getattr(a, "dtype", None) == np.uint64
-                                  else ""))
+                               + (f": use scene.{name}.astype(np.int32)"
+                                  if kinds == "iu" and getattr(a, "dtype", None) == np.uint64 else ""))
     for name in ("triangles", "vertex_normals", "emitter_radiance", "emitter_position", "emitter_axis",
                  "emitter_cone"):
         if not np.all(np.isfinite(getattr(scene, name))):

@@ -92,6 +92,8 @@ class Option:
         if self.check is not None:
             try:
                 message = self.check(v)
+            except ProbvisError:  # the check's own refusal of the value, in its words
+                raise
             except Exception as exc:  # noqa: BLE001 - a plug-in's check that fails on a value it was given
                 raise ProbvisError(f"{self.name}: its check raised {type(exc).__name__} on {shown(value, repr)}: "
                                    f"{shown(exc)} (a bug in the estimator's option check)") from None
