@@ -688,7 +688,8 @@ def test_a_plugin_that_refuses_the_warm_up_s_scene_renders_its_own(monkeypatch):
     """The warm-up renders a scene of its own first; a plug-in that refuses it is not warmed up (its render
     compiles what it runs), and still reports what it refuses in the render itself."""
     monkeypatch.setattr(probvis.warm_up, "_warmed", set())
-    assert probvis.render("cornell-box", resolution=(4, 4), spp=1, visibility=_RefusesTheWarmUp).image.shape == (4, 4, 3)
+    image = probvis.render("cornell-box", resolution=(4, 4), spp=1, visibility=_RefusesTheWarmUp).image
+    assert image.shape == (4, 4, 3)
     with pytest.raises(ProbvisError, match="needs the Cornell box, got 'quad-shadow'"):
         probvis.render("quad-shadow", resolution=(4, 4), spp=1, visibility=_RefusesTheWarmUp)
 

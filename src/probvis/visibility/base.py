@@ -55,8 +55,8 @@ class Option:
     count: int | None = None
     check: object = None
     metavar: str | None = None
-    warm_up: object = None  # its value in the warm-up renders (`VisibilityEstimator.warm_ups`): a size or a switch of
-    # caches, never a choice of kernels
+    warm_up: object = None  # its value in the warm-up renders (`VisibilityEstimator.warm_ups`): a size, a switch of
+    # caches or a threshold scaled to the warm-up's small meshes, never a choice the user's render does not make
 
     def __post_init__(self):
         """NumPy scalars among the declared values as Python's: they reach JSON (stats, `estimators --json`)."""
