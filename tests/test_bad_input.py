@@ -783,3 +783,8 @@ def test_emitters_that_all_emit_nothing_say_what_to_give(tmp_path, emitter, caps
         "irradiance of 0, or a scale of 0): the image would be black (as Mitsuba renders it); give an emitter a "
         "positive one\n")
     assert not (tmp_path / "out.exr").exists()
+    # an area emitter on a shape without area is no emitter of the scene: not the one named
+    dark = '<shape type="sphere"><float name="radius" value="0"/><emitter type="area"/></shape>\n'
+    path = write_scene(tmp_path / "dark.xml", body.replace(emitter, dark + emitter))
+    assert main(["render", str(path), "-o", str(tmp_path / "out.exr")]) == 2
+    assert f"dark.xml:{line + 1}: <emitter>: the scene's 1 emitter has zero power" in capsys.readouterr().err

@@ -308,7 +308,7 @@ class _Reader:
         self.search_paths = []  # the folders of <path> elements, searched before the scene's
         self.hide_emitters = False  # the integrator's option
         self.dark = []  # (element, kind, why) of area emitters on shapes without area (`dark_emitters`)
-        self.emitter_elements = []  # every <emitter>, in the order read (`zero_power`)
+        self.emitter_elements = []  # (its shape or None, element) of every <emitter>, in order (`zero_power`)
         self.root = None  # the document's tree, once parsed
 
     # --- errors and values -------------------------------------------------------------------
@@ -1097,7 +1097,7 @@ class _Reader:
                 if radiance is not None:
                     self.fail(ch, "a shape can carry only one emitter")
                 radiance = self.emitter_radiance(ch)
-                self.emitter_elements.append(ch)
+                self.emitter_elements.append((node, ch))
             else:
                 if material is not None:
                     self.fail(ch, "a shape can carry only one bsdf")
@@ -1212,10 +1212,12 @@ class _Reader:
         """Emitters that all emit nothing (a radiance, intensity or scale of 0) are refused at the first one's
         element: there is nothing to sample by power, and Mitsuba renders the scene black."""
         if builder.emitter_radiance and not np.any(np.array(builder.emitter_radiance)):
-            self.fail(self.emitter_elements[0], f"the scene's {len(builder.emitter_radiance)} emitter"
-                                                f"{'s all have' if len(builder.emitter_radiance) > 1 else ' has'} "
-                      "zero power (a radiance, intensity or irradiance of 0, or a scale of 0): the image would be "
-                      "black (as Mitsuba renders it); give an emitter a positive one")
+            left_out = {id(shape) for shape, _, _ in self.dark}  # without area: not among the scene's emitters
+            first = next(e for shape, e in self.emitter_elements if shape is None or id(shape) not in left_out)
+            n = len(builder.emitter_radiance)
+            self.fail(first, f"the scene's {n} emitter{'s all have' if n > 1 else ' has'} zero power (a radiance, "
+                             "intensity or irradiance of 0, or a scale of 0): the image would be black (as Mitsuba "
+                             "renders it); give an emitter a positive one")
 
     def cylinder_frame(self, node, props):
         """Object-to-shape transform of Mitsuba's cylinder from p0 to p1 with a radius (the unit cylinder's z
@@ -1600,7 +1602,7 @@ class _Reader:
                 self.shape(ch, builder)
             elif ch.tag == "emitter":
                 self.delta_emitter(ch, builder)
-                self.emitter_elements.append(ch)
+                self.emitter_elements.append((None, ch))
             elif ch.tag == "alias":
                 self.check_attrs(ch, ("id", "as"))
                 source = self.attr(ch, "id")
