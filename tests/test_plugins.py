@@ -687,9 +687,13 @@ class _RefusesTheWarmUp(probvis.visibility.estimator_class("exact")):
 def test_a_plugin_that_refuses_the_warm_up_s_scene_renders_its_own(monkeypatch):
     """The warm-up renders a scene of its own first; a plug-in that refuses it is not warmed up (its render
     compiles what it runs), and still reports what it refuses in the render itself."""
-    monkeypatch.setattr(probvis.warm_up, "_warmed", set())
+    from probvis import warm_up
+
+    monkeypatch.setattr(warm_up, "_warmed", set())
+    monkeypatch.setattr(warm_up, "_failed", set())
     image = probvis.render("cornell-box", resolution=(4, 4), spp=1, visibility=_RefusesTheWarmUp).image
     assert image.shape == (4, 4, 3)
+    assert warm_up._failed and not warm_up._warmed  # not warm: its kernels count in the estimate
     with pytest.raises(ProbvisError, match="needs the Cornell box, got 'quad-shadow'"):
         probvis.render("quad-shadow", resolution=(4, 4), spp=1, visibility=_RefusesTheWarmUp)
 

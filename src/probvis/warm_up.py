@@ -15,6 +15,7 @@ from . import precompile
 COMPILE_TIME = "about half a minute"  # a first run's compilation on 2 cores (17-26 s exact, 33-36 s probvis)
 
 _warmed = set()
+_failed = set()  # plug-ins whose warm-up raised: not warm (their first render compiles), not tried again
 
 
 def largest_mesh(scene):
@@ -22,9 +23,13 @@ def largest_mesh(scene):
     return max((s.n_triangles for s in scene.shapes if s.emitter < 0), default=0)
 
 
+def _key(cls, options, largest):
+    return cls, repr(sorted(options.items())), largest
+
+
 def is_warm(cls, options, largest):
     """Whether this process warmed `cls` up for `options` and a scene whose largest mesh has `largest` triangles."""
-    return (cls, repr(sorted(options.items())), largest) in _warmed
+    return _key(cls, options, largest) in _warmed
 
 
 def cold_cache():
@@ -64,7 +69,8 @@ def ensure_warm(warm_up_render, cls, options, largest, progress):
     """Run `warm_up_render(cls, options, largest)` (see the module docstring) unless this process did; returns
     seconds. A plug-in whose warm-up fails (its own checks refuse that scene) is not warmed up: its render says
     why."""
-    if is_warm(cls, options, largest):
+    key = _key(cls, options, largest)
+    if key in _warmed or key in _failed:
         return 0.0
     t0 = time.perf_counter()
     cold = progress and cold_cache()
@@ -80,7 +86,9 @@ def ensure_warm(warm_up_render, cls, options, largest, progress):
         except Exception:  # noqa: BLE001 - the warm-up only saves time; a built-in's failure is a bug
             if cls.__module__.split(".")[0] == "probvis":
                 raise
+            _failed.add(key)
+            return time.perf_counter() - t0
         finally:
             numba.set_num_threads(threads)
-    _warmed.add((cls, repr(sorted(options.items())), largest))
+    _warmed.add(key)
     return time.perf_counter() - t0
