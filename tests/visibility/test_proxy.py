@@ -211,6 +211,11 @@ def test_options_that_change_nothing_without_a_heavy_mesh_are_named(options, nam
         probvis.render(blob_scene(8), spp=1, shadow_rays=1, visibility="proxy", visibility_options=options)
     with warnings.catch_warnings(action="error"):
         probvis.render(blob_scene(8), spp=1, shadow_rays=1, visibility="proxy", visibility_options={"ratio": 0.01})
+    # a min_triangles above every mesh is the cause, not an option that changes nothing
+    with pytest.warns(UserWarning, match=r"has min_triangles \(1000000\) triangles or more, so every segment is "
+                                         r"tested exactly: lower min_triangles"):
+        probvis.render(blob_scene(8), spp=1, shadow_rays=1, visibility="proxy",
+                       visibility_options={"min_triangles": 10 ** 6})
 
 
 def test_cli_names_the_flag(capsys):

@@ -34,7 +34,7 @@ from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TR
 from .proxy_plan import REGIONS, Decision, Pilot, decision_key, film_regions
 
 PILOT_Q = 0.5  # q where the pilot measured nothing (it found no segment)
-SHAPING = ("ratio", "triangles", "min_triangles", "kind", "q", "shells")  # what changes nothing without a heavy mesh
+SHAPING = ("ratio", "triangles", "kind", "q", "shells")  # what changes nothing without a heavy mesh
 
 
 def _parse_q(value):
@@ -75,6 +75,7 @@ class ProxyVisibility(VisibilityEstimator):
         self.refuse_both(options, "ratio", "triangles")
         super().__init__(**options)
         self.shaping = [o.name for o in self.options if o.name in SHAPING and self.given(options, o.name)]
+        self.threshold_given = self.given(options, "min_triangles")
 
     @classmethod
     def warm_ups(cls, options, largest=None):
@@ -101,11 +102,13 @@ class ProxyVisibility(VisibilityEstimator):
         super().prepare(scene, bvh, emitters, settings, integrator)
         p = self.params
         self._check_meshes(scene)
-        if self.shaping and not any(s.n_triangles >= p.min_triangles and s.emitter < 0 for s in scene.shapes):
+        if (self.shaping or self.threshold_given) and not any(s.n_triangles >= p.min_triangles and s.emitter < 0
+                                                              for s in scene.shapes):
+            unused = (f" and {', '.join(self.shaping)} change{'s' * (len(self.shaping) == 1)} nothing"
+                      if self.shaping else "")
             warnings.warn(f"visibility 'proxy': no mesh of '{scene.name}' has min_triangles ({p.min_triangles}) "
-                          f"triangles or more, so every segment is tested exactly and {', '.join(self.shaping)} "
-                          f"change{'s' * (len(self.shaping) == 1)} nothing: lower min_triangles to give a mesh a "
-                          "proxy", stacklevel=2)
+                          f"triangles or more, so every segment is tested exactly{unused}: lower min_triangles to "
+                          "give a mesh a proxy", stacklevel=2)
         e, r = scene.n_emitters, REGIONS * REGIONS
         self.fixed_q = None if p.q == "auto" else float(p.q)
         self.q = np.full((r, e), self.fixed_q or PILOT_Q)  # per region and emitter
