@@ -1427,6 +1427,12 @@ def test_a_mitsuba_0_6_scene_s_error_names_its_format(tmp_path):
     with pytest.raises(ProbvisError, match=r"unsupported parameter 'sampleCount'.*Mitsuba 0.6.0's format; probvis "
                                            r"reads Mitsuba 3's, whose names are snake_case"):
         probvis.load_scene(path)
+    path.write_text(text.replace("sampleCount", "sample_count").replace('name="width" value="16"',
+                                                                         'name="width" value="-16"'))
+    assert 'value="-16"' in path.read_text()  # an error that is no matter of the format: no hint
+    with pytest.raises(ProbvisError) as caught:
+        probvis.load_scene(path)
+    assert "Mitsuba 0.6.0's format" not in str(caught.value)
 
 
 def test_an_include_that_names_a_folder_says_so(tmp_path):

@@ -317,7 +317,7 @@ class _Reader:
         given = sorted({m.group(1) for v in node.attrs.values() for m in variables.finditer(v)} & set(self.overrides))
         if given:  # the value came from the command line, not from the line named
             msg += f" (with {', '.join(f'-D {n}={self.overrides[n]}' for n in given)})"
-        if self.old_version:
+        if self.old_version and ("unsupported" in msg or "unknown" in msg):  # a name 0.x spelt otherwise
             msg += (f" (the scene is in Mitsuba {self.old_version}'s format; probvis reads Mitsuba 3's, whose names "
                     "are snake_case, such as sample_count for sampleCount: convert it)")
         raise ProbvisError(f"{self.where(node)}: <{node.tag}>: {msg}")
