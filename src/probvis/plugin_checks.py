@@ -174,7 +174,7 @@ def checked_cases(estimator, cases, like):
     if bad.size:
         raise ProbvisError(f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): classify returned "
                            f"{bad.size} values that are no case, such as {int(bad[0])}: use probvis.cases' "
-                           "CASE_UNKNOWN, CASE_LIT, CASE_SHADOWED or CASE_PENUMBRA (0 to 3), a lit or shadowed one "
+                           "CASE_UNKNOWN, CASE_LIT, CASE_SHADOWED or CASE_PENUMBRA (0 to 3), each may be "
                            "flagged with | CASE_VERIFIED")
     return arr.astype(np.int8, copy=False)
 
