@@ -8,6 +8,12 @@ class ProbvisError(Exception):
     """A mistake in the user's input (scene file, option, output path)."""
 
 
+def is_builtin(cls):
+    """Whether a class is probvis's own, not a plug-in's: a built-in's failure is a bug of probvis, a plug-in's
+    is named with the plug-in."""
+    return cls.__module__.split(".")[0] == "probvis"
+
+
 def is_number(value, whole=False):
     """Whether `value` is a number the API takes: an int or, unless `whole`, a float, Python's or NumPy's; not a
     bool, and not a NumPy time span (`np.timedelta64` is an integer to NumPy and to `numbers`, but int() of one

@@ -27,7 +27,7 @@ from .accel import build_bvh, nearest_hits, occluded_segments
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler
-from .errors import ProbvisError, checked_call, is_flag, is_path
+from .errors import ProbvisError, checked_call, is_builtin, is_flag, is_path
 from .film import Film, splat_chunk, splat_filter, warn_if_black
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
@@ -142,10 +142,10 @@ def make_path(integrator, estimator, path, n_slots):
     """The render path `path` (a `RenderPath`, the estimator's choice after `prepare`) as a function of a
     `ShadingBatch` to its `ShadedBatch`."""
     if path == RenderPath.FUSED_EXACT:
-        own = type(estimator).__module__.split(".")[0] == "probvis"
+        own = is_builtin(type(estimator))
         return integrator.shade_exact if own else _checked_fused(integrator, estimator)
     if path == RenderPath.OWN_KERNEL:
-        if type(estimator).__module__.split(".")[0] == "probvis":
+        if is_builtin(type(estimator)):
             return estimator.shade
         return lambda batch: checked_shaded(estimator, estimator.shade(batch), batch)
     if path == RenderPath.STAGED:
@@ -199,7 +199,7 @@ def render_pass(scene, settings, estimator, progress=False):
     emitters = build_emitter_sampler(scene)
     integrator = Integrator(scene, bvh, emitters, settings.filter_importance)
     t1 = time.perf_counter()
-    own = type(estimator).__module__.split(".")[0] == "probvis"
+    own = is_builtin(type(estimator))
     watched = None if own else arrays_digest(integrator)
     estimator.prepare(scene if own else scene.read_only(), bvh, emitters, settings, integrator)
     t2 = time.perf_counter()
@@ -364,7 +364,7 @@ def render(scene, settings=None, *, spp=None, shadow_rays=None, seed=None, threa
            "process_peak_rss_bytes": memory.peak_rss()}
     with plugin_errors(type(estimator), "stats"):
         stats = render_stats(scene, settings, estimator, result, image, clamp, seconds, mem)
-    if type(estimator).__module__.split(".")[0] != "probvis":
+    if not is_builtin(type(estimator)):
         stats["estimator"] = checked_stats(type(estimator), stats["estimator"])
         check_accounts(type(estimator), stats)
     return RenderResult(image, stats, result.film.aovs())

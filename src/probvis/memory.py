@@ -10,7 +10,7 @@ from pathlib import Path
 import psutil
 
 from .cases import N_CASES
-from .errors import is_number
+from .errors import is_builtin, is_number
 
 GIB = float(1 << 30)
 ENV_PIXEL_BYTES = 170  # an environment map's sampling tables as they are built, per pixel (tracemalloc's peak)
@@ -57,7 +57,7 @@ def estimate(scene, settings, estimator, batch_pixels, staged=True, splat_bytes=
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): memory_estimate() names "
                            f"{', '.join(clash)}, which probvis counts itself ({', '.join(PARTS)}): name the "
                            "estimator's own parts")
-    if type(estimator).__module__.split(".")[0] != "probvis":  # a plug-in's parts, named with it in an error
+    if not is_builtin(type(estimator)):  # a plug-in's parts, named with it in an error
         own = {f"visibility '{estimator.name}': {k}": v for k, v in own.items()}
     parts.update(own)
     return parts

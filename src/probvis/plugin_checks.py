@@ -11,7 +11,7 @@ import numpy as np
 import xxhash
 
 from .cases import CASE_VERIFIED, N_CASES
-from .errors import ProbvisError, shown
+from .errors import ProbvisError, is_builtin, shown
 from .memory import is_byte_counts
 from .shading import N_COUNTS, ShadedBatch
 from .visibility import VisibilityResult
@@ -125,18 +125,18 @@ def plugin_errors(cls, stage):
     except (ProbvisError, KeyboardInterrupt):
         raise
     except OSError as exc:  # the machine's, unless the plug-in's own code raised it (a data file it reads)
-        if cls.__module__.split(".")[0] == "probvis" or not _raised_in_plugin(exc):
+        if is_builtin(cls) or not _raised_in_plugin(exc):
             raise
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "
                            f"{type(exc).__name__} in {stage}: {shown(exc)}") from None
     except MemoryError as exc:
-        if cls.__module__.split(".")[0] == "probvis" or not _raised_in_plugin(exc):  # probvis's own buffers: the
+        if is_builtin(cls) or not _raised_in_plugin(exc):  # probvis's own buffers: the
             raise  # command line's out-of-memory line, naming the settings that size them
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) ran out of memory in "
                            f"{stage}: an allocation of its own was larger than the machine or the process's limit "
                            "allows") from None
     except (Exception, SystemExit, GeneratorExit) as exc:  # sys.exit() too: it would end probvis without a word
-        if cls.__module__.split(".")[0] == "probvis":
+        if is_builtin(cls):
             raise
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) raised "
                            f"{type(exc).__name__} in {stage}: {shown(exc)} (a bug in the estimator; rerunning "
@@ -220,7 +220,7 @@ def checked_stats(cls, stats):
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}): stats() returned a value "
                            f"JSON cannot hold ({type(exc).__name__}: {str(exc)[:200]}); return numbers, strings, "
                            "lists and dicts") from None
-    if cls.__module__.split(".")[0] != "probvis":
+    if not is_builtin(cls):
         _check_read_keys(cls, stats)
     return stats
 

@@ -11,6 +11,7 @@ import numba
 from numba.core import event
 
 from . import precompile
+from .errors import is_builtin
 
 COMPILE_TIME = "about half a minute"  # a first run's compilation on 2 cores (17-26 s exact, 33-36 s probvis)
 
@@ -84,7 +85,7 @@ def ensure_warm(warm_up_render, cls, options, largest, progress):
         try:
             warm_up_render(cls, options, largest)
         except Exception:  # noqa: BLE001 - the warm-up only saves time; a built-in's failure is a bug
-            if cls.__module__.split(".")[0] == "probvis":
+            if is_builtin(cls):
                 raise
             _failed.add(key)
             return time.perf_counter() - t0

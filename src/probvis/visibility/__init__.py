@@ -12,7 +12,7 @@ import unicodedata
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from ..errors import ProbvisError, shown
+from ..errors import ProbvisError, is_builtin, shown
 from .base import (CASE_LIT, CASE_NAMES, CASE_PENUMBRA, CASE_SHADOWED, CASE_UNKNOWN, N_CASES, OPTION_TYPES, Aov,
                    Option, Phase, RenderPath, ShadingPoints, ShadowQuery, Switch, VisibilityEstimator, VisibilityResult)
 
@@ -120,7 +120,7 @@ def _check_declarations(cls, what):
     """A plug-in's options as the command line and `parse` will take them: distinct names, none of probvis's own
     flags, defaults their own checks accept."""
     where = f"{what}: {cls.__module__}.{cls.__qualname__}"
-    own = cls.__module__.split(".")[0] == "probvis"
+    own = is_builtin(cls)
     # exactly str, here and below: a subclass's own __str__ or __format__ could fail wherever it is printed
     if type(cls.name) is not str or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.+-]*", cls.name):
         raise ProbvisError(f"{where}: name must be one word (letters, digits, '-', '_', '.', '+'), got "
