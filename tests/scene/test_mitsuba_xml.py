@@ -850,6 +850,7 @@ def test_value_mixed_with_x_y_z_is_refused_as_in_mitsuba(tmp_path, op, mixed):
                        + re.escape(f"not both (here also {mixed})")):
         probvis.load_scene(write_scene(tmp_path / "bad.xml", sensor() + body + LIGHT))
 
+
 def test_a_point_property_mixing_value_and_x_y_z_is_refused(tmp_path):
     """`<point name="center" value="0,0,0" x="1"/>` dropped x without a word; Mitsuba refuses the mix."""
     body = "<shape type='sphere'><point name='center' value='0,0,0' x='1'/></shape>"

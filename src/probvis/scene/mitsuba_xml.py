@@ -408,14 +408,19 @@ class _Reader:
             self.fail(node, f"non-finite number in '{text}'")
         return vals
 
+    def refuse_mixed(self, node, names=("x", "y", "z")):
+        """A 'value' beside x/y/z is refused, as Mitsuba refuses it: which one wins would be a guess."""
+        mixed = [a for a in names if a in node.attrs]
+        if "value" in node.attrs and mixed:
+            self.fail(node, f"give either 'value' or {'/'.join(names)}, not both (here also "
+                            f"{', '.join(map(repr, mixed))})")
+
     def value(self, node):
         """Value of a property element (integer, float, boolean, string, rgb, spectrum, point, vector)."""
         tag = node.tag
         if tag in ("point", "vector"):
             self.check_attrs(node, ("name", "x", "y", "z", "value"))
-            mixed = [a for a in "xyz" if a in node.attrs]
-            if "value" in node.attrs and mixed:  # Mitsuba refuses the mix; which one wins would be a guess
-                self.fail(node, f"give either 'value' or x/y/z, not both (here also {', '.join(map(repr, mixed))})")
+            self.refuse_mixed(node)
             if "value" in node.attrs:
                 return np.array(self.numbers(node, self.attr(node, "value"), (1, 3))) * np.ones(3)
             return np.array([self.number(node, a, "0") for a in "xyz"])
@@ -528,10 +533,7 @@ class _Reader:
 
         def vec(names=("x", "y", "z"), default="0"):
             if "value" in op.attrs:
-                mixed = [a for a in names if a in op.attrs]
-                if mixed:  # Mitsuba refuses the mix; which one wins would be a guess
-                    self.fail(op, f"give either 'value' or {'/'.join(names)}, not both (here also "
-                                  f"{', '.join(repr(a) for a in mixed)})")
+                self.refuse_mixed(op, names)
                 vals = self.numbers(op, self.attr(op, "value"), (1, 3))
                 return np.array(vals) * np.ones(3)
             return np.array([self.number(op, a, default) for a in names])
