@@ -171,3 +171,15 @@ def test_a_scene_without_heavy_meshes_warms_up_no_heavy_mesh_kernels():
         assert [run["min_triangles"] for run in cls.warm_ups({}, small)] == [cls().params.min_triangles]
         assert len(cls.warm_ups({}, 10**6)) >= 2 and len(cls.warm_ups({"min_triangles": small}, small)) >= 2
     assert len(estimator_class("exact").warm_ups({"shells": "off"}, 10**6)) == 1
+
+
+def test_scenes_that_warm_up_alike_share_one_warm_up(monkeypatch):
+    """The warm-up was keyed by the scene's largest mesh: every scene of another size rendered the warm-up again
+    (and counted its kernels in the memory estimate) though it would run the same renders."""
+    monkeypatch.setattr(warm_up, "_warmed", set())
+    ran = []
+    cls = estimator_class("exact")
+    for largest in (12, 500, 10 ** 6, 2 * 10 ** 6):  # two below min_triangles, two above
+        warm_up.ensure_warm(lambda *args: ran.append(args[2]), cls, {}, largest, False)
+    assert ran == [12, 10 ** 6]
+    assert warm_up.is_warm(cls, {}, 800) and not warm_up.is_warm(cls, {"shells": "off"}, 800)

@@ -25,7 +25,12 @@ def largest_mesh(scene):
 
 
 def _key(cls, options, largest):
-    return cls, repr(sorted(options.items())), largest
+    """What a warm-up ran: the estimator and its warm-up renders' options (scenes that warm up alike share it)."""
+    try:
+        runs = cls.warm_ups(options, largest)
+    except Exception:  # noqa: BLE001 - a plug-in's warm_ups that fails: keyed by what it was given
+        runs = (sorted(options.items()), largest)
+    return cls, repr(runs)
 
 
 def is_warm(cls, options, largest):
