@@ -11,7 +11,6 @@ are in cache, the staged path's numbers bit for bit); an estimator with a kernel
 itself (`shade`). This is Mitsuba 3's `direct` integrator with `bsdf_samples = 0`: each camera sample takes
 `shadow_rays` emitter samples (emitter by power, triangle by area, uniform point) with a Lambertian BRDF.
 """
-import dataclasses
 import os
 import sys
 import time
@@ -23,7 +22,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from . import memory
-from .accel import build_bvh, nearest_hits, occluded_segments
+from .accel import build_bvh, nearest_hits
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler
@@ -32,8 +31,8 @@ from .film import Film, splat_chunk, splat_filter, warn_if_black
 from .fused_exact import shade_exact
 from .interaction import scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
-from .plugin_checks import (arrays_digest, check_accounts, check_unchanged, checked_cases, checked_result,
-                            checked_settings, checked_shaded, checked_stats, plugin_errors)
+from .plugin_checks import (arrays_digest, check_accounts, check_unchanged, checked_cases, checked_fused,
+                            checked_result, checked_settings, checked_shaded, checked_stats, plugin_errors)
 from .render_stats import render_stats
 from .scene import Scene, open_scene
 from .scene.builtin import warm_up_scene
@@ -143,7 +142,7 @@ def make_path(integrator, estimator, path, n_slots):
     `ShadingBatch` to its `ShadedBatch`."""
     if path == RenderPath.FUSED_EXACT:
         own = is_builtin(type(estimator))
-        return integrator.shade_exact if own else _checked_fused(integrator, estimator)
+        return integrator.shade_exact if own else checked_fused(integrator, estimator)
     if path == RenderPath.OWN_KERNEL:
         if is_builtin(type(estimator)):
             return estimator.shade
@@ -151,32 +150,6 @@ def make_path(integrator, estimator, path, n_slots):
     if path == RenderPath.STAGED:
         return StagedPath(integrator, estimator, n_slots)
     raise ProbvisError(f"visibility '{estimator.name}': render_path() returned {path!r}, not a RenderPath")
-
-
-def _checked_fused(integrator, estimator, n_checked=4096):
-    """A plug-in's FUSED_EXACT path: the fused kernel renders exact visibility in place of its `evaluate`, so its
-    `evaluate` on the first batch's first `n_checked` segments must return exactly that, or the image would not
-    be the estimator's."""
-    pending = [True]
-
-    def shade(batch):
-        if pending[0]:
-            pending[0] = False
-            q = integrator.shadow_query(batch)
-            q = dataclasses.replace(q, **{f.name: getattr(q, f.name)[:n_checked] for f in dataclasses.fields(q)
-                                          if getattr(q, f.name) is not None})
-            value = checked_result(estimator, estimator.evaluate(q), len(q.tmax)).value
-            exact = 1.0 - occluded_segments(integrator.bvh, q.origin, q.direction, q.tmax, q.point)[0]
-            if not np.array_equal(value, exact):
-                k = int(np.flatnonzero(value != exact)[0])
-                cls = type(estimator)
-                raise ProbvisError(f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): "
-                                   "render_path() returned FUSED_EXACT, which renders exact visibility instead of "
-                                   f"evaluate, but evaluate returned {value[k]:g} where it is {exact[k]:g}: return "
-                                   "STAGED (or make evaluate exact)")
-        return integrator.shade_exact(batch)
-
-    return shade
 
 
 @dataclass

@@ -10,6 +10,7 @@ from contextlib import contextmanager
 import numpy as np
 import xxhash
 
+from .accel import occluded_segments
 from .cases import CASE_VERIFIED, N_CASES
 from .errors import ProbvisError, is_builtin, shown
 from .memory import is_byte_counts
@@ -264,3 +265,30 @@ def check_unchanged(estimator, integrator, digest):
         raise ProbvisError(f"visibility '{cls.name}' ({cls.__module__}.{cls.__qualname__}) changed the arrays of the "
                            "scene, its emitters or its BVH that the integrator handed it: the image is not the "
                            "scene's (a bug in the estimator: treat them as read-only)")
+
+
+def checked_fused(integrator, estimator, n_checked=4096):
+    """A plug-in's FUSED_EXACT path: the fused kernel renders exact visibility in place of its `evaluate`, so its
+    `evaluate` on the first batch's first `n_checked` segments must return exactly that, or the image would not
+    be the estimator's. Returns the path's `shade`."""
+    checked = False
+
+    def shade(batch):
+        nonlocal checked
+        if not checked:
+            checked = True
+            q = integrator.shadow_query(batch)
+            q = dataclasses.replace(q, **{f.name: getattr(q, f.name)[:n_checked] for f in dataclasses.fields(q)
+                                          if getattr(q, f.name) is not None})
+            value = checked_result(estimator, estimator.evaluate(q), len(q.tmax)).value
+            exact = 1.0 - occluded_segments(integrator.bvh, q.origin, q.direction, q.tmax, q.point)[0]
+            if not np.array_equal(value, exact):
+                k = int(np.flatnonzero(value != exact)[0])
+                cls = type(estimator)
+                raise ProbvisError(f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): "
+                                   "render_path() returned FUSED_EXACT, which renders exact visibility instead of "
+                                   f"evaluate, but evaluate returned {value[k]:g} where it is {exact[k]:g}: return "
+                                   "STAGED (or make evaluate exact)")
+        return integrator.shade_exact(batch)
+
+    return shade
