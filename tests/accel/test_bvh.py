@@ -3,18 +3,18 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from numba import njit, prange
+from numba import njit
 
 from probvis.accel import all_hits, any_hit, build_bvh, closest_hit
 from probvis.accel.traversal import hit_triangle, ray_setup
 
 
-@njit(parallel=True)
+@njit(cache=True)  # serial: a parallel loop compiles for seconds longer than the rays take
 def brute_closest(tris, org, dirs, tmin, tmax):
     n = org.shape[0]
     best_t = tmax.copy()
     best = np.full(n, -1)
-    for i in prange(n):
+    for i in range(n):
         kx, ky, kz, sx, sy, sz = ray_setup(dirs[i, 0], dirs[i, 1], dirs[i, 2])
         o = (org[i, 0], org[i, 1], org[i, 2])
         for p in range(tris.shape[0]):
@@ -54,7 +54,7 @@ def test_closest_and_any_hit_match_brute_force(seed, n_tris, size):
     assert np.all(n_tri[hit] >= 1)
 
 
-@njit
+@njit(cache=True)
 def brute_all(tris, o, d):
     kx, ky, kz, sx, sy, sz = ray_setup(d[0], d[1], d[2])
     ts = []
