@@ -530,6 +530,8 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
      "</shape>", "<spectrum>: reflectance must be within [0, 1] at every wavelength"),
     ("<shape type='rectangle'><bsdf type='plastic'><spectrum name='diffuse_reflectance' value='0.9, 0.1, 0.1'/>"
      "</bsdf></shape>", "<spectrum>: a spectrum is one value or wavelength:value pairs"),  # was grey 0.5, silent
+    ("<shape type='rectangle'><bsdf type='plastic'><spectrum name='diffuse_reflectance' value='0.9 0.1'/>"
+     "</bsdf></shape>", "<spectrum>: a spectrum is one value or wavelength:value pairs, got '0.9 0.1'"),
     ("<shape type='rectangle'><bsdf type='conductor'><spectrum name='specular_reflectance' value='abc def'/>"
      "</bsdf></shape>", "<spectrum>: "),
     ("<shape type='rectangle'><bsdf type='diffuse'><texture type='checkerboard' name='reflectance'>"

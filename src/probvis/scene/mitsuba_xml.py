@@ -448,9 +448,9 @@ class _Reader:
         if tag == "spectrum" and ":" in raw:
             return self.sampled_spectrum(node, raw)
         if tag in ("rgb", "spectrum"):
-            vals = self.numbers(node, raw, (1, 3))
+            vals = self.numbers(node, raw, None if tag == "spectrum" else (1, 3))
             if tag == "spectrum" and len(vals) != 1:
-                self.fail(node, "a spectrum is one value or wavelength:value pairs")
+                self.fail(node, f"a spectrum is one value or wavelength:value pairs, got '{raw}'")
             if len(vals) not in (1, 3):
                 self.fail(node, f"expected 1 or 3 values, got '{raw}'")
             if tag == "spectrum" and node.attrs.get("name") in _EMISSION_NAMES:
