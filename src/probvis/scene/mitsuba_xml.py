@@ -1215,7 +1215,8 @@ class _Reader:
         element: there is nothing to sample by power, and Mitsuba renders the scene black."""
         if builder.emitter_radiance and not np.any(np.array(builder.emitter_radiance)):
             left_out = {id(shape) for shape, _, _ in self.dark}  # without area: not among the scene's emitters
-            first = next(e for shape, e in self.emitter_elements if shape is None or id(shape) not in left_out)
+            first = next((e for shape, e in self.emitter_elements if shape is None or id(shape) not in left_out),
+                         self.emitter_elements[0][1])
             n = len(builder.emitter_radiance)
             self.fail(first, f"the scene's {n} emitter{'s all have' if n > 1 else ' has'} zero power (a radiance, "
                              "intensity or irradiance of 0, or a scale of 0): the image would be black (as Mitsuba "
