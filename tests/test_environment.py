@@ -227,8 +227,8 @@ def test_an_environment_map_s_memory_is_estimated_before_it_is_read_or_built(sce
 
 
 def test_hidden_emitters_are_black_where_seen_as_in_mitsuba(tmp_path):
-    """`hide_emitters`: the area light and the sky the camera sees directly are black, what they light is not
-    (probvis refused the option); the image against Mitsuba's, the seen emitters' pixels black, and the `path`
+    """`hide_emitters`: the area light and the sky are not seen directly (the sky black), what they light is
+    (probvis refused the option); the image against Mitsuba's, the sky's pixels black, and the `path`
     integrator's option read as the `direct` one's."""
     hide = '<boolean name="hide_emitters" value="true"/>'
     head = sensor(origin="0, -2, 1.2", target="0, 0, 0.3", up="0, 0, 1", spp="$spp", w=24, h=24, sr=4)
@@ -256,6 +256,28 @@ def test_hidden_emitters_are_black_where_seen_as_in_mitsuba(tmp_path):
         path_image = probvis.render(write_scene(tmp_path / "p.xml", as_path + body, '<default name="spp" '
                                                 'value="16"/>'), spp=4, shadow_rays=4).image
     np.testing.assert_array_equal(path_image, image)
+
+
+def test_hidden_emitters_let_the_camera_see_what_lies_behind_them(tmp_path):
+    """Mitsuba 3.9 passes camera rays through emitting shapes under `hide_emitters`: a light between the camera
+    and a lit floor shows the floor, through any number of lights (probvis drew the light black); the lights
+    still cast their shadows and light the floor."""
+    hide = '<boolean name="hide_emitters" value="true"/>'
+    head = sensor(origin="0, 0, 4", target="0, 0, 0", spp="$spp", w=16, h=16, sr=4)
+    head = head.replace('<integer name="bsdf_samples" value="0"/>', '<integer name="bsdf_samples" value="0"/>' + hide)
+    light = """<shape type="rectangle"><transform name="to_world"><scale value="{s}"/><rotate x="1" angle="180"/>
+        <translate z="{z}"/></transform><emitter type="area"><rgb name="radiance" value="{r}"/></emitter></shape>"""
+    body = (light.format(s=0.5, z=2, r=5) + light.format(s=0.3, z=1, r=1) + light.format(s=0.2, z=0.5, r=1)
+            + '<shape type="rectangle"><transform name="to_world"><scale value="2"/></transform><bsdf type="diffuse"/>'
+              '</shape>')
+    path = write_scene(tmp_path / "h.xml", head + body, '<default name="spp" value="16"/>')
+    assert_matches_mitsuba(path, shadow_rays=4)
+    out = probvis.render(path, spp=4)
+    shown = probvis.render(write_scene(tmp_path / "s.xml", head.replace(hide, "") + body,
+                                       '<default name="spp" value="16"/>'), spp=4).image
+    assert shown[5:11, 5:11].max() == 0.0  # the top light's back, which emits and reflects nothing
+    assert out.image[5:11, 5:11].mean() > 0.05  # the floor under the lights, seen through all three
+    assert out.stats["camera_rays"] == 16 * 16 * 4
 
 
 @pytest.mark.parametrize("h, w", [(1, 1), (1, 2), (2, 1), (2, 2)])

@@ -22,14 +22,14 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from . import memory
-from .accel import build_bvh, nearest_hits
+from .accel import build_bvh
 from .camera import camera_params, camera_rays
 from .cases import CASE_MASK, CASE_UNKNOWN, N_CASES
 from .emitters import build_emitter_sampler
 from .errors import ProbvisError, checked_call, is_builtin, is_flag, is_path
 from .film import Film, splat_chunk, splat_filter, warn_if_black
 from .fused_exact import shade_exact
-from .interaction import scene_arrays, surface_interactions
+from .interaction import camera_hits, scene_arrays, surface_interactions
 from .interrupts import deferred_interrupts
 from .plugin_checks import (arrays_digest, check_accounts, check_unchanged, checked_cases, checked_fused,
                             checked_result, checked_settings, checked_shaded, checked_stats, plugin_errors)
@@ -90,7 +90,8 @@ class Integrator:
     def shading_batch(self, pixels, spp, shadow_rays, seed):
         """The `ShadingBatch` of image pixels `pixels` (row-major, int64), every case unknown."""
         org, dirs, tmin, tmax, keys, film_xy = camera_rays(self.camera, spp, seed, pixels)
-        prim, _, b1, b2, cam_node, cam_tri = nearest_hits(self.bvh, org, dirs, tmin, tmax)
+        prim, _, b1, b2, cam_node, cam_tri = camera_hits(self.bvh, self.scene.tri_emitter, self.scene.hide_emitters,
+                                                         org, dirs, tmin, tmax)
         its = surface_interactions(self.scene_arrays, self.surface, self.emitters.arrays, prim, b1, b2, dirs)
         cases = np.full((len(prim), self.scene.n_emitters), CASE_UNKNOWN, np.int8)
         return ShadingBatch(pixels, spp, shadow_rays, prim, its.emitted, its.position, its.normal, its.material,

@@ -1,5 +1,7 @@
 """Stage 2 of a render: the surface interaction at each camera ray's closest hit.
 
+With the integrator's `hide_emitters` a camera ray passes through emitting shapes to what lies behind them
+(`camera_hits`), as in Mitsuba 3.9: neither their emission nor what they reflect is seen, from either side.
 Gives the radiance of an emitter seen directly (or of the environment, for a ray that misses; neither with the
 integrator's `hide_emitters`), the shading point, its shading normal turned to the camera's side, its material
 and its albedo (the material's reflectance, or its texture at the point's uv). As in Mitsuba 3, a plain
@@ -12,6 +14,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .accel import nearest_hits
 from .environment import environment_radiance
 from .geometry import unit_normals
 from .parallel import over_threads
@@ -39,7 +42,8 @@ class SurfaceArrays(NamedTuple):
 
     textures: TextureArrays
     back_material: np.ndarray  # (materials,) the material seen from behind, -1 where it is the same
-    hide_emitters: bool  # emitters and the environment seen directly are black (Mitsuba's integrator option)
+    hide_emitters: bool  # the environment seen directly is black (Mitsuba's integrator option; `camera_hits`
+    # has passed the camera rays through emitting shapes)
 
 
 def scene_arrays(scene):
@@ -89,8 +93,6 @@ def _surface(geom, sf, es, prim, b1, b2, dirs, first, end, out):
         sx, sy, sz = sx * inv, sy * inv, sz * inv
         cos_i = -(sx * dirs[i, 0] + sy * dirs[i, 1] + sz * dirs[i, 2])
         em = tri_emit[tri]
-        if em >= 0 and sf.hide_emitters:  # as Mitsuba 3.9: an emitting shape seen directly is black whole, from
-            continue  # either side, what it reflects included
         if em >= 0 and cos_i > 0.0:
             for k in range(3):
                 emitted[i, k] = radiance[em, k]
@@ -114,6 +116,26 @@ def _surface(geom, sf, es, prim, b1, b2, dirs, first, end, out):
             u = c0 * uv[tri, 0, 0] + c1 * uv[tri, 1, 0] + c2 * uv[tri, 2, 0]
             v = c0 * uv[tri, 0, 1] + c1 * uv[tri, 1, 1] + c2 * uv[tri, 2, 1]
             albedo[i, 0], albedo[i, 1], albedo[i, 2] = texture_value(sf.textures, t, u, v)
+
+
+def camera_hits(bvh, tri_emitter, hide_emitters, org, dirs, tmin, tmax):
+    """The nearest hits of camera rays, as `accel.nearest_hits` returns them (scene triangle or -1, t, b1, b2,
+    node and triangle tests). With `hide_emitters`, a ray that meets an emitting shape is traced on from there,
+    until it meets a shape that does not emit or nothing; its tests add up."""
+    prim, t, b1, b2, n_node, n_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
+    while hide_emitters:
+        hidden = np.flatnonzero(prim >= 0)
+        hidden = hidden[tri_emitter[prim[hidden]] >= 0]
+        if len(hidden) == 0:
+            break
+        # each pass starts a billionth of the distance beyond the last hit (t rounded down would meet the same
+        # triangle again), so every ray passes each emitting shape once and the loop ends
+        past = t[hidden] * (1.0 + 1e-9)
+        p2, t2, c1, c2, k_node, k_tri = nearest_hits(bvh, org[hidden], dirs[hidden], past, tmax[hidden])
+        prim[hidden], t[hidden], b1[hidden], b2[hidden] = p2, t2, c1, c2
+        n_node[hidden] += k_node
+        n_tri[hidden] += k_tri
+    return prim, t, b1, b2, n_node, n_tri
 
 
 def surface_interactions(geom, surface, es, prim, b1, b2, dirs):
