@@ -513,6 +513,19 @@ def test_an_environment_setting_the_libraries_cannot_use_is_one_line(tmp_path, n
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("value", ["-1", "99999", "1.5"])
+def test_the_cli_module_checks_the_environment_as_the_command_does(tmp_path, value):
+    """`python -m probvis.cli` skipped the command's checks: NUMBA_NUM_THREADS=-1 was Numba's traceback, 99999 a
+    segmentation fault, 1.5 a warning with a traceback's text and then a render."""
+    r = subprocess.run([sys.executable, "-m", "probvis.cli", "render", "quad-shadow", "-o", "o.exr"],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=TIME_LIMIT,
+                       env={**os.environ, "NUMBA_NUM_THREADS": value})
+    assert r.returncode == 1 and r.stderr == (f"probvis: error: NUMBA_NUM_THREADS='{value}' is not a thread count from "
+                                              "1 to 1024: unset it or correct it (--threads bounds a render's "
+                                              "threads)\n"), r.stderr
+    assert not list(tmp_path.iterdir())
+
+
 def test_an_output_under_a_file_is_named_as_such(tmp_path):
     (tmp_path / "f.txt").write_text("")
     r, _ = run(["render", "quad-shadow", "-o", "f.txt/out.exr"], tmp_path)

@@ -121,20 +121,20 @@ def _openmp_complaint():
     loads) cannot use. libgomp reads them once, as it loads, and reports a bad one on a line of its own, then
     ignores it: loaded here with the standard error captured, its complaint becomes probvis's line."""
     import ctypes
-    import tempfile
 
-    with tempfile.TemporaryFile() as said:
-        sys.stderr.flush()
-        saved = os.dup(2)
-        os.dup2(said.fileno(), 2)
-        try:
-            ctypes.CDLL("libgomp.so.1")
-        except OSError:  # another OpenMP runtime, or none: Numba uses its own threading layer then
-            pass
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        said.seek(0)
+    read, write = os.pipe()  # a pipe, not a temporary file: under a file size limit of 0 none can be made
+    sys.stderr.flush()
+    saved = os.dup(2)
+    os.dup2(write, 2)
+    os.close(write)
+    try:
+        ctypes.CDLL("libgomp.so.1")
+    except OSError:  # another OpenMP runtime, or none: Numba uses its own threading layer then
+        pass
+    finally:
+        os.dup2(saved, 2)  # the pipe's last writer closed: the read below ends at what libgomp said
+        os.close(saved)
+    with os.fdopen(read, "rb") as said:
         text = said.read().decode(errors="replace")
     bad = re.search(r"Invalid value for envi\w* variable (\w+)", text)
     if bad:

@@ -1,4 +1,10 @@
 """Command line: `probvis render | info | scenes | estimators | tables | experiment`."""
+import sys
+
+if __name__ == "__main__":  # `python -m probvis.cli` starts as the console command does, its checks of the
+    from probvis.__main__ import main as _start  # environment made before the libraries load (they would crash)
+    sys.exit(_start())
+
 import argparse
 import dataclasses
 import json
@@ -6,7 +12,6 @@ import os
 import re
 import shlex
 import signal
-import sys
 import threading
 import warnings
 from pathlib import Path
@@ -852,6 +857,3 @@ def main(argv=None):
         for s, handler in previous.items():
             signal.signal(s, handler)
 
-
-if __name__ == "__main__":
-    sys.exit(main())
