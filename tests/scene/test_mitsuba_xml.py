@@ -802,6 +802,7 @@ def test_a_second_film_is_refused(tmp_path):
      "<rfilter>: only one reconstruction filter per film"),
     (("value=\"16\"/>", "value=\"1_6\"/>"), "<integer>: '1_6' is not a valid integer"),
     (("value=\"16\"/>", "value=\"\u0661\u0666\"/>"), "<integer>: '\u0661\u0666' is not a valid integer"),
+    (("value=\"16\"/>", "value=\"+16\"/>"), "<integer>: '+16' is not a valid integer: Mitsuba reads no '+' sign"),
     (("value=\"40\"/>", "value=\"4_0\"/>"), "<float>: '4_0' is not a valid float"),
     (('name="sample_count" value="4"', 'name="sample_count" value="0"'),
      "<integer>: sample_count must be from 1 to 1048576, got 0"),
@@ -873,11 +874,13 @@ def test_a_reflectance_texture_outside_the_unit_range_warns(tmp_path):
         probvis.load_scene(path)
 
 
-def test_a_scene_version_that_is_not_a_number_is_refused(tmp_path):
+@pytest.mark.parametrize("version", ["banana", "3", "3.0", "3.0.0.0"])
+def test_a_scene_version_that_is_not_a_number_is_refused(tmp_path, version):
+    """Mitsuba refuses a version of other than three parts too ("Invalid version number: 3.0"; probvis read it)."""
     path = tmp_path / "v.xml"
-    path.write_text('<scene version="banana">\n' + sensor() + LIGHT + "</scene>\n")
-    with pytest.raises(ProbvisError, match=re.escape(f"{path}:1: <scene>: version must be a version number such "
-                                                     "as 3.0.0, got 'banana'")):
+    path.write_text(f'<scene version="{version}">\n' + sensor() + LIGHT + "</scene>\n")
+    with pytest.raises(ProbvisError, match=re.escape(f"{path}:1: <scene>: version must be a version number of three "
+                                                     f"parts such as 3.0.0 (as Mitsuba requires), got '{version}'")):
         probvis.load_scene(path)
 
 

@@ -157,9 +157,13 @@ def test_an_ascii_ply_with_another_element_is_read():
     (("element face 1", "element face 2.5"), "malformed PLY header: element 'face' count '2.5' is not a whole number"),
     (("format ascii 1.0\n", ""), "malformed PLY header: no 'format' line"),
     (("format ascii 1.0", "format ascii 1.0 extra"), "the format line 'format ascii 1.0 extra' is not 'format <"),
+    (("format ascii 1.0", "format ascii 2.0"), "malformed PLY header: PLY version '2.0' is not 1.0, the only one"),
+    (("3 0 1 2\n", "3 0 1 2\n\n3 2 1 0\n"), "m.ply:15: data after the 4 rows the header declares (vertex 3, face 1): "
+                                         "correct the header's counts"),
 ])
 def test_a_malformed_header_is_named(tmp_path, edit, message):
-    """A property type PLY does not have; an element count that is no whole number (reported as '0 faces')."""
+    """A property type PLY does not have; an element count that is no whole number (reported as '0 faces'); a
+    version other than 1.0 and rows beyond the header's counts, which Mitsuba refuses (probvis read them)."""
     from probvis.errors import ProbvisError
 
     path = tmp_path / "m.ply"

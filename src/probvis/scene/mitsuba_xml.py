@@ -431,6 +431,8 @@ class _Reader:
         raw = self.attr(node, "value")
         try:
             if tag == "integer":
+                if raw.strip().startswith("+"):  # Mitsuba's integer parser refuses a sign of +, not its floats'
+                    self.fail(node, f"'{raw}' is not a valid integer: Mitsuba reads no '+' sign on an integer")
                 return _int(raw)
             if tag == "float":
                 v = _float(raw)
@@ -1558,8 +1560,9 @@ class _Reader:
         with_includes(root, self.path, self.fail, self._include_name)
         self.inputs += list(dict.fromkeys(n.file for n in _document_order(root) if n.file is not None))
         self.check_attrs(root, ("version",))
-        if "version" in root.attrs and not re.fullmatch(r"\d+(\.\d+){0,2}", root.attrs["version"].strip()):
-            self.fail(root, f"version must be a version number such as 3.0.0, got '{root.attrs['version']}'")
+        if "version" in root.attrs and not re.fullmatch(r"\d+\.\d+\.\d+", root.attrs["version"].strip()):
+            self.fail(root, f"version must be a version number of three parts such as 3.0.0 (as Mitsuba requires), "
+                            f"got '{root.attrs['version']}'")
         if int(root.attrs.get("version", "3").strip().split(".")[0]) < 2:  # its errors say which format it is in
             self.old_version = root.attrs["version"].strip()
         self.id_nodes = _unique_ids(root, self.fail, self.line_of)

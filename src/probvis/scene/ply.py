@@ -41,6 +41,8 @@ def _header(fh):
                 raise ValueError(f"the format line '{b' '.join(words).decode('ascii', 'replace')}' is not "
                                  "'format <ascii|binary_little_endian|binary_big_endian> 1.0'")
             fmt = words[1].decode("ascii", "replace")
+            if words[2] != b"1.0":  # Mitsuba refuses another ("PLY file has unknown version number")
+                raise ValueError(f"PLY version '{words[2].decode('ascii', 'replace')}' is not 1.0, the only one")
         elif words[0] == b"element" and len(words) == 3:
             if not words[2].isdigit():
                 raise ValueError(f"element '{words[1].decode('ascii', 'replace')}' count "
@@ -52,6 +54,19 @@ def _header(fh):
             size = TYPE_BYTES.get(words[2] if is_list and len(words) > 2 else words[1], 1)
             current.append((words[-1].decode("ascii", "replace"), is_list, size))
     return None
+
+
+def _refuse_trailing_rows(path, data, counts):
+    """An ASCII PLY with rows beyond those its header declares (one a row) is refused, as Mitsuba does ("trailing
+    tokens"): most often the header's counts are wrong, and the rest of the mesh would be dropped unsaid."""
+    lines = data.split(b"\n")
+    start = next(i for i, line in enumerate(lines) if line.split()[:1] == [b"end_header"]) + 1
+    rows = [i for i in range(start, len(lines)) if lines[i].strip()]
+    declared = sum(counts.values())
+    if len(rows) > declared:
+        raise ProbvisError(f"mesh {path}:{rows[declared] + 1}: data after the {declared:,} rows the header declares "
+                           f"({', '.join(f'{e} {n:,}' for e, n in counts.items())}): correct the header's counts or "
+                           "remove the rest (Mitsuba refuses such a file)")
 
 
 def read_ply(path):
@@ -96,7 +111,10 @@ def read_ply(path):
     try:
         # plyfile reads ASCII through a text wrapper it leaves open: over bytes in memory nothing is left open
         # an ASCII float beyond float32 becomes inf with NumPy's warning; the non-finite vertex is named later
-        with (io.BytesIO(Path(path).read_bytes()) if header[0] == "ascii" else open(path, "rb")) as fh, \
+        data = Path(path).read_bytes() if header[0] == "ascii" else None
+        if data is not None:
+            _refuse_trailing_rows(path, data, counts)
+        with (io.BytesIO(data) if header[0] == "ascii" else open(path, "rb")) as fh, \
                 np.errstate(over="ignore", invalid="ignore"), warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="loadtxt: input contained no data")  # an empty face, named below
             try:  # the faces' other lists (per-face texture coordinates, say) have no known length
