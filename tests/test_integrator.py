@@ -187,6 +187,9 @@ def test_shared_scenes_within_noise_floor(shared):
 @pytest.mark.parametrize("args, kwargs, message", [
     ((None,), {}, "path must be a scene file path or a built-in name, got NoneType"),
     ((42,), {}, "path must be a scene file path or a built-in name, got int"),
+    (("\n  <?xml version='1.0'?>\n<scene version='3.0.0'>\n" + " " * 5000 + "</scene>",), {},
+     "the scene is given as XML text (5,057 characters, '<?xml version='1.0'?> <scene v...'): probvis reads scene "
+     "files: save the text to a file and give its path"),  # the whole document was quoted back
     (("quad-shadow", "yes"), {}, "strict must be True or False, got 'yes'"),
     (("quad-shadow",), {"res": True}, "parameter res must be an integer, got 'True'"),
     (("quad-shadow",), {"res": 8.5}, "parameter res must be an integer"),
