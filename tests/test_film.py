@@ -206,6 +206,18 @@ def test_filters_beyond_the_film_s_reach_are_refused(tmp_path, rfilter, message)
         probvis.load_scene(film_scene(tmp_path, rfilter))
 
 
+@pytest.mark.parametrize("b, c, warned", [(-100, 100, True), (1.5, 0, True), (0, 1, False), (1 / 3, 1 / 3, False)])
+def test_a_mitchell_filter_outside_its_family_is_warned_of(tmp_path, b, c, warned):
+    """B = -100, C = 100 rendered a ringing image (pixels -0.57 to 3.6 where the box filter gives 0.05) unsaid."""
+    path = film_scene(tmp_path, f'<rfilter type="mitchell"><float name="B" value="{b}"/><float name="C" value="{c}"/>'
+                                '</rfilter>')
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        probvis.load_scene(path)
+    ringing = [str(w.message) for w in said if "outside 0 to 1: its lobes ring" in str(w.message)]
+    assert len(ringing) == int(warned), ringing
+
+
 def test_one_sample_per_pixel_has_no_noise_estimate():
     """With one camera sample per pixel the per-pixel variance is unknown: noise_relmse is None, not 0."""
     one = probvis.render("quad-shadow", resolution=(8, 8), spp=1, shadow_rays=1)

@@ -1417,6 +1417,9 @@ class _Reader:
             if not (abs(b) <= MAX_CUBIC_PARAMETER and abs(c) <= MAX_CUBIC_PARAMETER):
                 self.fail(node, f"a mitchell filter's B and C must be within ±{MAX_CUBIC_PARAMETER:g}, got {b:g} and "
                                 f"{c:g} (1/3 each by default)")
+            if not (0.0 <= b <= 1.0 and 0.0 <= c <= 1.0):  # Mitchell and Netravali's family lies in [0, 1]²
+                warnings.warn(f"{self.where(node)}: a mitchell filter with B {b:g} and C {c:g}, outside 0 to 1: its "
+                              "lobes ring around every edge (as in Mitsuba); 1/3 each is the default", stacklevel=2)
             return {"rfilter": kind, "filter_b": b, "filter_c": c} if kind == "mitchell" else {"rfilter": kind}
         if kind == "lanczos":
             props, _ = self.params(node, {"lobes": ("integer",)})
