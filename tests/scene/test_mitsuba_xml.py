@@ -874,6 +874,24 @@ def test_a_reflectance_texture_outside_the_unit_range_warns(tmp_path):
         probvis.load_scene(path)
 
 
+def test_comments_with_double_hyphens_are_read_as_mitsuba_reads_them(tmp_path):
+    """XML forbids '--' inside a comment and a comment ending in '--->'; Mitsuba's parser reads both (probvis said
+    'malformed XML: not well-formed'). Lines keep their numbers: an error after such a comment names its line."""
+    path = tmp_path / "c.xml"
+    text = ('<scene version="3.0.0">\n<!-- a -- b -->\n' + sensor() + "<!-- c\n -- d --->\n" + LIGHT
+            + "<!---->\n</scene>\n")
+    path.write_text(text)
+    scene = probvis.load_scene(path)
+    assert scene.n_emitters == 1
+    path.write_text(text.replace("</scene>", '<bogus/>\n</scene>'))
+    line = text.count("\n", 0, text.index("</scene>")) + 1
+    with pytest.raises(ProbvisError, match=re.escape(f"{path}:{line}: ")):
+        probvis.load_scene(path)
+    path.write_text(text.replace("<!---->", "<!-- open"))
+    with pytest.raises(ProbvisError, match="malformed XML"):  # what no parser reads stays an error
+        probvis.load_scene(path)
+
+
 @pytest.mark.parametrize("version", ["banana", "3", "3.0", "3.0.0.0"])
 def test_a_scene_version_that_is_not_a_number_is_refused(tmp_path, version):
     """Mitsuba refuses a version of other than three parts too ("Invalid version number: 3.0"; probvis read it)."""

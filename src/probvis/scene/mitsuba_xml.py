@@ -81,6 +81,16 @@ _DEFUSED = {"EntitiesForbidden": "an entity declaration (<!ENTITY>)",
             "ExternalReferenceForbidden": "a reference to an external file or address"}
 
 
+def _comments_as_mitsuba_reads_them(data):
+    """`data` with '--' inside comments (and a comment's last '-') made spaces: XML forbids them, Mitsuba's parser
+    (pugixml) reads them. Lines keep their numbers."""
+    def fix(m):
+        inner = m.group(1).replace(b"--", b"- ")
+        return b"<!--" + (inner[:-1] + b" " if inner.endswith(b"-") else inner) + b"-->"
+
+    return re.sub(rb"<!--(.*?)-->", fix, data, flags=re.S)
+
+
 def parse_tree(path):
     path = Path(path)
     if not path.exists():
@@ -96,7 +106,14 @@ def parse_tree(path):
         raise ProbvisError(f"cannot read scene file {path}: {exc.strerror}") from None
     handler = _TreeBuilder()
     try:
-        defusedxml.sax.parseString(data, handler)
+        try:
+            defusedxml.sax.parseString(data, handler)
+        except xml.sax.SAXParseException:
+            lenient = _comments_as_mitsuba_reads_them(data)
+            if lenient == data:
+                raise
+            handler = _TreeBuilder()
+            defusedxml.sax.parseString(lenient, handler)
     except xml.sax.SAXParseException as exc:
         raise ProbvisError(f"{path}:{exc.getLineNumber()}: malformed XML: {exc.getMessage()}") from None
     except defusedxml.DefusedXmlException as exc:
