@@ -874,6 +874,16 @@ def test_a_reflectance_texture_outside_the_unit_range_warns(tmp_path):
         probvis.load_scene(path)
 
 
+def test_a_scene_without_a_sensor_says_where_and_what_to_add(tmp_path):
+    """It was 'the scene has no <sensor>' without line or advice (Mitsuba loads such a file but has nothing to
+    render it with)."""
+    path = tmp_path / "n.xml"
+    path.write_text('<?xml version="1.0"?>\n<scene version="3.0.0">\n' + LIGHT + "</scene>\n")
+    with pytest.raises(ProbvisError, match=re.escape(f"{path}:2: <scene>: the scene has no <sensor>: add one (a "
+                                                     '<sensor type="perspective"> with its to_world and film)')):
+        probvis.load_scene(path)
+
+
 def test_comments_with_double_hyphens_are_read_as_mitsuba_reads_them(tmp_path):
     """XML forbids '--' inside a comment and a comment ending in '--->'; Mitsuba's parser reads both (probvis said
     'malformed XML: not well-formed'). Lines keep their numbers: an error after such a comment names its line."""

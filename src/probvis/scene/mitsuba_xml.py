@@ -1653,7 +1653,8 @@ class _Reader:
                 for child in shapes:
                     self.shape(child, SceneBuilder(key, str(self.path)), np.eye(4))
         if camera is None:
-            raise ProbvisError(f"{self.path}: the scene has no <sensor>")
+            self.fail(self.root, "the scene has no <sensor>: add one (a <sensor type=\"perspective\"> with its "
+                                 "to_world and film) to render it or list it; Mitsuba renders none without one either")
         unused = sorted(set(self.overrides) - self.used - set(self.defaults))
         if unused:
             flags = [f"--{n.replace('_', '-')} {self.overrides[n]}" for n in unused
