@@ -121,21 +121,31 @@ def _openmp_complaint():
     loads) cannot use. libgomp reads them once, as it loads, and reports a bad one on a line of its own, then
     ignores it: loaded here with the standard error captured, its complaint becomes probvis's line."""
     import ctypes
+    import threading
 
-    read, write = os.pipe()  # a pipe, not a temporary file: under a file size limit of 0 none can be made
+    # through a pipe, not a temporary file (under a file size limit of 0 none can be made), drained as it fills
+    # (the loader may say more than a pipe holds: LD_DEBUG, OMP_DISPLAY_ENV)
+    read, write = os.pipe()
+    chunks = []
+    drain = threading.Thread(target=lambda: chunks.extend(iter(lambda: os.read(read, 65536), b"")), daemon=True)
+    drain.start()
     sys.stderr.flush()
     saved = os.dup(2)
-    os.dup2(write, 2)
-    os.close(write)
     try:
+        os.dup2(write, 2)
+        os.close(write)
+        write = None
         ctypes.CDLL("libgomp.so.1")
     except OSError:  # another OpenMP runtime, or none: Numba uses its own threading layer then
         pass
     finally:
-        os.dup2(saved, 2)  # the pipe's last writer closed: the read below ends at what libgomp said
+        if write is not None:
+            os.close(write)
+        os.dup2(saved, 2)  # the pipe's last writer closed: the drain ends at what libgomp said
         os.close(saved)
-    with os.fdopen(read, "rb") as said:
-        text = said.read().decode(errors="replace")
+        drain.join()
+        os.close(read)
+    text = b"".join(chunks).decode(errors="replace")
     bad = re.search(r"Invalid value for envi\w* variable (\w+)", text)
     if bad:
         return _bad_setting(bad.group(1), os.environ.get(bad.group(1), ""), "a value OpenMP (libgomp) accepts")

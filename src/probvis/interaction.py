@@ -123,9 +123,9 @@ def camera_hits(bvh, tri_emitter, hide_emitters, org, dirs, tmin, tmax):
     node and triangle tests). With `hide_emitters`, a ray that meets an emitting shape is traced on from there,
     until it meets a shape that does not emit or nothing; its tests add up."""
     prim, t, b1, b2, n_node, n_tri = nearest_hits(bvh, org, dirs, tmin, tmax)
-    while hide_emitters:
-        hidden = np.flatnonzero(prim >= 0)
-        hidden = hidden[tri_emitter[prim[hidden]] >= 0]
+    hidden = np.flatnonzero(prim >= 0) if hide_emitters else np.empty(0, np.int64)
+    while True:
+        hidden = hidden[(prim[hidden] >= 0) & (tri_emitter[np.maximum(prim[hidden], 0)] >= 0)]
         if len(hidden) == 0:
             break
         # each pass starts a billionth of the distance beyond the last hit (t rounded down would meet the same

@@ -900,6 +900,10 @@ def test_comments_with_double_hyphens_are_read_as_mitsuba_reads_them(tmp_path):
     path.write_text(text.replace("<!---->", "<!-- open"))
     with pytest.raises(ProbvisError, match="malformed XML"):  # what no parser reads stays an error
         probvis.load_scene(path)
+    from probvis.scene.mitsuba_xml import _comments_as_mitsuba_reads_them as lenient
+
+    cdata = b"<![CDATA[ <!-- a--b ]]> <!-- c -- d --->"  # text in a CDATA section keeps its hyphens
+    assert lenient(cdata) == b"<![CDATA[ <!-- a--b ]]> <!-- c -  d  -->"
 
 
 @pytest.mark.parametrize("version", ["banana", "3", "3.0", "3.0.0.0"])

@@ -174,6 +174,17 @@ def test_a_malformed_header_is_named(tmp_path, edit, message):
         shapes.load_mesh(path)
 
 
+@pytest.mark.parametrize("edit", [("\n", "\r\n"), ("3 0 1 2\n", "3 0 1 2\n\n  \n"), ("3 0 1 2\n", "3 0 1 2")])
+def test_line_endings_and_blank_lines_after_the_rows_still_load(tmp_path, edit):
+    """The trailing-rows check counts rows, not lines: Windows line endings, blank lines at the end and a last
+    row without a newline load as before."""
+    path = tmp_path / "m.ply"
+    path.write_bytes(("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                      "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+                      "3 0 1 2\n").replace(*edit).encode())
+    assert shapes.load_mesh(path)[1].tolist() == [[0, 1, 2]]
+
+
 @pytest.mark.parametrize("faces, header_vertices, message", [
     ("0\n3 0 1 2\n", 3, "face 0 has 0 vertices; a face needs at least 3"),
     ("3 0 1 2\n2 0 1\n", 3, "face 1 has 2 vertices; a face needs at least 3"),

@@ -42,8 +42,8 @@ def open_scene(path, defines, strict=False):
                                "render(path, defines={'name': value, ...})")
     if not str(path).strip():
         raise ProbvisError(f"the scene name is empty: give a scene file or a built-in scene ({', '.join(BUILTINS)})")
-    if isinstance(path, str) and path.lstrip().startswith("<"):  # the document quoted back was the whole message
-        start = " ".join(path.split())[:30]
+    if isinstance(path, str) and path.lstrip().startswith("<") and not os.path.exists(path):  # it was quoted back
+        start = " ".join(path[:200].split())[:30]
         raise ProbvisError(f"the scene is given as XML text ({len(path):,} characters, '{start}...'): probvis reads "
                            "scene files: save the text to a file and give its path")
     try:

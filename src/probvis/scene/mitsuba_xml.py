@@ -85,10 +85,12 @@ def _comments_as_mitsuba_reads_them(data):
     """`data` with '--' inside comments (and a comment's last '-') made spaces: XML forbids them, Mitsuba's parser
     (pugixml) reads them. Lines keep their numbers."""
     def fix(m):
-        inner = m.group(1).replace(b"--", b"- ")
+        if m.group(1) is not None:  # a CDATA section, which may hold '<!--' as text: left as it is
+            return m.group(1)
+        inner = m.group(2).replace(b"--", b"- ")
         return b"<!--" + (inner[:-1] + b" " if inner.endswith(b"-") else inner) + b"-->"
 
-    return re.sub(rb"<!--(.*?)-->", fix, data, flags=re.S)
+    return re.sub(rb"(<!\[CDATA\[.*?\]\]>)|<!--(.*?)-->", fix, data, flags=re.S)
 
 
 def parse_tree(path):
@@ -449,7 +451,8 @@ class _Reader:
         try:
             if tag == "integer":
                 if raw.strip().startswith("+"):  # Mitsuba's integer parser refuses a sign of +, not its floats'
-                    self.fail(node, f"'{raw}' is not a valid integer: Mitsuba reads no '+' sign on an integer")
+                    self.fail(node, f"'{raw}' is not a valid integer: Mitsuba reads no '+' sign on an integer (write "
+                                    f"'{raw.strip()[1:]}')")
                 return _int(raw)
             if tag == "float":
                 v = _float(raw)
@@ -1491,7 +1494,7 @@ class _Reader:
                             "illumination)")
         props, _ = self.params(node, {"emitter_samples": ("integer",), "bsdf_samples": ("integer",),
                                       "shading_samples": ("integer",), "hide_emitters": ("boolean",)})
-        self.hide_emitters = props.get("hide_emitters", False)  # emitters seen directly are black
+        self.hide_emitters = props.get("hide_emitters", False)  # emitters are not seen directly
         lines = _by_name(node)
         both = [k for k in ("emitter_samples", "bsdf_samples") if k in props]
         if "shading_samples" in props and both:  # Mitsuba refuses the pair: which one counts would be a guess

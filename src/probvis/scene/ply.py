@@ -7,6 +7,7 @@ does. Anything else (other list properties, a file shorter than its header says)
 falls back to the general reader, which also names what is wrong.
 """
 import io
+import re
 import warnings
 from pathlib import Path
 
@@ -42,7 +43,8 @@ def _header(fh):
                                  "'format <ascii|binary_little_endian|binary_big_endian> 1.0'")
             fmt = words[1].decode("ascii", "replace")
             if words[2] != b"1.0":  # Mitsuba refuses another ("PLY file has unknown version number")
-                raise ValueError(f"PLY version '{words[2].decode('ascii', 'replace')}' is not 1.0, the only one")
+                raise ValueError(f"PLY version '{words[2].decode('ascii', 'replace')}' is not 1.0, the only one: "
+                                 f"write 'format {words[1].decode('ascii', 'replace')} 1.0'")
         elif words[0] == b"element" and len(words) == 3:
             if not words[2].isdigit():
                 raise ValueError(f"element '{words[1].decode('ascii', 'replace')}' count "
@@ -58,15 +60,24 @@ def _header(fh):
 
 def _refuse_trailing_rows(path, data, counts):
     """An ASCII PLY with rows beyond those its header declares (one a row) is refused, as Mitsuba does ("trailing
-    tokens"): most often the header's counts are wrong, and the rest of the mesh would be dropped unsaid."""
-    lines = data.split(b"\n")
-    start = next(i for i, line in enumerate(lines) if line.split()[:1] == [b"end_header"]) + 1
-    rows = [i for i in range(start, len(lines)) if lines[i].strip()]
+    tokens"): most often the header's counts are wrong, and the rest of the mesh would be dropped unsaid. Lines
+    are counted first; only a file with more lines than rows is walked, to skip blank ones and name the line."""
+    end = re.search(rb"^[ \t]*end_header[ \t\r]*$", data, re.M)
+    if end is None:
+        return
+    start = end.end() + 1
     declared = sum(counts.values())
-    if len(rows) > declared:
-        raise ProbvisError(f"mesh {path}:{rows[declared] + 1}: data after the {declared:,} rows the header declares "
-                           f"({', '.join(f'{e} {n:,}' for e, n in counts.items())}): correct the header's counts or "
-                           "remove the rest (Mitsuba refuses such a file)")
+    if data.count(b"\n", start) + 1 <= declared:
+        return
+    rows = 0
+    for line in re.finditer(rb"[^\n]*", data[start:]):
+        if line.group().strip():
+            rows += 1
+            if rows > declared:
+                number = data.count(b"\n", 0, start + line.start()) + 1
+                raise ProbvisError(f"mesh {path}:{number}: data after the {declared:,} rows the header declares "
+                                   f"({', '.join(f'{e} {n:,}' for e, n in counts.items())}): correct the header's "
+                                   "counts or remove the rest (Mitsuba refuses such a file)")
 
 
 def read_ply(path):
@@ -97,6 +108,9 @@ def read_ply(path):
         raise ProbvisError(f"mesh {path}: truncated or malformed PLY (its header declares "
                            f"{counts.get('vertex', 0):,} vertices and {counts.get('face', 0):,} faces, at least "
                            f"{least:,} bytes, more than its {size:,} bytes)")
+    data = Path(path).read_bytes() if header[0] == "ascii" else None
+    if data is not None:
+        _refuse_trailing_rows(path, data, counts)
     vertex, face = elements.get("vertex", []), elements.get("face", [])
     missing = [c for c in "xyz" if c not in {name for name, _, _ in vertex}]
     if "vertex" in elements and missing:
@@ -111,9 +125,6 @@ def read_ply(path):
     try:
         # plyfile reads ASCII through a text wrapper it leaves open: over bytes in memory nothing is left open
         # an ASCII float beyond float32 becomes inf with NumPy's warning; the non-finite vertex is named later
-        data = Path(path).read_bytes() if header[0] == "ascii" else None
-        if data is not None:
-            _refuse_trailing_rows(path, data, counts)
         with (io.BytesIO(data) if header[0] == "ascii" else open(path, "rb")) as fh, \
                 np.errstate(over="ignore", invalid="ignore"), warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="loadtxt: input contained no data")  # an empty face, named below

@@ -74,7 +74,7 @@ class Scene:
     textures: list = field(default_factory=list)
     material_texture: np.ndarray = None
     tri_uv: np.ndarray = None
-    hide_emitters: bool = False  # the integrator's option: emitters seen directly by the camera are black
+    hide_emitters: bool = False  # the integrator's option: the camera sees through emitting shapes, the sky black
     # (n_materials,) the material seen from behind, where a two-sided one has another there (Mitsuba's twosided
     # with two BSDFs); -1 elsewhere
     back_material: np.ndarray = None

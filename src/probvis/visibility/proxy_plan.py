@@ -124,7 +124,7 @@ def decision_key(integrator, settings, options):
              sa.material_texture]
     view = [np.asarray(x, float).ravel() for x in cam]
     label = (f"proxy plan v{PLAN_VERSION} budget {PILOT_BUDGET} spp {settings.spp} rays {settings.shadow_rays} "
-             f"threads {numba.get_num_threads()} {sorted(options.items())}")
+             f"threads {numba.get_num_threads()} hide {integrator.scene.hide_emitters} {sorted(options.items())}")
     return disk_cache.content_key(label, *scene, *integrator.emitters.arrays, *view)
 
 
