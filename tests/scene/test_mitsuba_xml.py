@@ -198,11 +198,24 @@ def test_what_mitsuba_accepts_and_does_not_change_the_image_is_accepted(tmp_path
     ("<emitter type='point'><float name='sampling_weight' value='-1'/></emitter>",
      "<float>: sampling_weight must be above 0 and at most 1e+30, got -1"),
     ("<emitter type='point'><float name='sampling_weight' value='0'/></emitter>",
-     "got 0 (at 0 Mitsuba never samples the emitter: remove it, or give a positive weight)"),
+     "got 0 (at 0 Mitsuba never samples this light, which only emitter sampling reaches: remove it, or give a "
+     "positive weight)"),
+    ("<emitter type='directional'><float name='sampling_weight' value='0'/></emitter>", "got 0 (at 0 Mitsuba never"),
 ])
 def test_emitter_parameters_probvis_does_not_take_are_named(tmp_path, body, message):
     with pytest.raises(ProbvisError, match=re.escape(message)):
         probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + LIGHT + body))
+
+
+def test_an_area_light_of_sampling_weight_0_is_rendered_as_mitsuba_s_bsdf_samples_find_it(tmp_path):
+    """Mitsuba never picks it by emitter sampling but finds it by BSDF sampling, so its light is in the image
+    (probvis refused it with "remove it", which would have changed the image)."""
+    light = LIGHT.replace("</emitter>", "<float name='sampling_weight' value='0'/></emitter>", 1)
+    assert light != LIGHT
+    path = write_scene(tmp_path / "s.xml", sensor() + light)
+    with pytest.warns(UserWarning, match="sampling_weight 0 ignored: Mitsuba finds this emitter by BSDF sampling"):
+        scene = probvis.load_scene(path)
+    assert scene.n_emitters == 1
 
 
 def test_a_negative_cylinder_radius_is_the_same_cylinder_as_in_mitsuba(tmp_path):

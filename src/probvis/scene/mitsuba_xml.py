@@ -631,15 +631,25 @@ class _Reader:
                           "probvis: give an <rgb> or <spectrum> (a textured area light could be split into shapes of "
                           "one colour each)")
 
-    def sampling_weight(self, node, props):
+    def sampling_weight(self, node, props, delta=False):
         """Mitsuba's emitter `sampling_weight`: how often the emitter is sampled, which changes the noise and not
-        the expected image. probvis samples emitters by power, so it is checked and left aside, with a warning."""
+        the expected image. probvis samples emitters by power, so it is checked and left aside, with a warning. At
+        0 Mitsuba's emitter sampling never picks the emitter: a `delta` one (point, spot, directional) then adds
+        nothing, which is refused; an area or environment light is still found by BSDF sampling."""
         if "sampling_weight" in props:
             w = props["sampling_weight"]
-            if not 0 < w <= MAX_EMISSION:  # 0: Mitsuba never samples it, and its light is missing from shading
+            if not (0 <= w <= MAX_EMISSION and (w > 0 or not delta)):
                 self.fail(_by_name(node)["sampling_weight"], f"sampling_weight must be above 0 and at most "
-                                                             f"{MAX_EMISSION:g}, got {w:g} (at 0 Mitsuba never samples "
-                                                             "the emitter: remove it, or give a positive weight)")
+                                                             f"{MAX_EMISSION:g}, got {w:g}" + (
+                                                                 " (at 0 Mitsuba never samples this light, which "
+                                                                 "only emitter sampling reaches: remove it, or give a "
+                                                                 "positive weight)" if w == 0 else ""))
+            if w == 0:
+                warnings.warn(f"{self.where(node)}: sampling_weight 0 ignored: Mitsuba finds this emitter by BSDF "
+                              "sampling alone (with bsdf_samples 0 its light is missing from shading there); probvis "
+                              "samples emitters by their power, Mitsuba's expected image with bsdf_samples above 0",
+                              stacklevel=2)
+                return
             warnings.warn(f"{self.where(node)}: sampling_weight ignored: probvis samples emitters by their power "
                           "(the same expected image)", stacklevel=2)
 
@@ -979,7 +989,7 @@ class _Reader:
         if kind == "directional":
             props, _ = self.params(node, {"irradiance": ("rgb", "spectrum", "float"), "direction": ("vector",),
                                           "to_world": ("transform",), **_SAMPLING_WEIGHT})
-            self.sampling_weight(node, props)
+            self.sampling_weight(node, props, delta=True)
             if "direction" in props and "to_world" in props:
                 self.fail(node, "give either 'direction' or 'to_world', not both")
             d = tf.tamed(props.get("direction", props.get("to_world", np.eye(4))[:3, :3] @ np.array([0.0, 0.0, 1.0])))
@@ -994,7 +1004,7 @@ class _Reader:
         else:
             allowed |= {"cutoff_angle": ("float",), "beam_width": ("float",)}
         props, _ = self.params(node, allowed, unknown=self.textured_emission)
-        self.sampling_weight(node, props)
+        self.sampling_weight(node, props, delta=True)
         intensity = self.emission(node, "intensity", props.get("intensity", np.ones(3)))
         m = props.get("to_world", np.eye(4))
         if not np.all(m[3] == (0, 0, 0, 1)):
