@@ -206,6 +206,8 @@ class _Broken(probvis.visibility.VisibilityEstimator):
             counts = zeros - 3 if self.mode == "negative tests" else np.full(n, 0.5)
         if self.mode == "undeclared aov":
             aovs = {"foo": ones}
+        if self.mode == "huge aov":
+            aovs = {"bar": np.full(n, 1e308)}
         if self.mode == "raises":
             raise ZeroDivisionError("oops")
         if self.mode == "out of memory":
@@ -229,11 +231,14 @@ class _Broken(probvis.visibility.VisibilityEstimator):
     ("negative tests", "returned triangle_tests that are not whole numbers >= 0"),
     ("fractional tests", "returned triangle_tests that are not whole numbers >= 0"),
     ("undeclared aov", "returned AOV 'foo', which the class does not declare"),
+    # each 1e308 was finite, the pixels' sums inf with exit 0
+    ("huge aov", r"returned AOV 'bar' values beyond ±1e\+100 \(up to 1e\+308\): the pixels' sums would overflow"),
     # a declared AOV never returned was a silent zero image
     ("missing aov", "returned no AOV 'bar', which the class declares in `aovs`: return one number per segment"),
 ])
 def test_misbehaving_estimators_are_named_not_rendered(mode, message):
-    declared = {"aovs": (probvis.visibility.Aov("bar", "declared, never returned"),)} if mode == "missing aov" else {}
+    declared = {"aovs": (probvis.visibility.Aov("bar", "declared, never returned"),)} \
+        if mode in ("missing aov", "huge aov") else {}
     cls = type(f"Broken_{mode.replace(' ', '_')}", (_Broken,), {"mode": mode, **declared})
     with pytest.raises(ProbvisError, match=rf"visibility 'broken' \(.*{cls.__name__}\): evaluate {message}"):
         probvis.render("quad-shadow", spp=1, visibility=cls)

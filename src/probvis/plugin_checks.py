@@ -18,6 +18,7 @@ from .shading import N_COUNTS, ShadedBatch
 from .visibility import VisibilityResult
 
 MAX_VISIBILITY = 1e12  # a segment's |estimate| beyond this is a plug-in's mistake (1/q weights stay far below)
+MAX_AOV = 1e100  # a segment AOV's magnitude: sums over a pixel's segments stay finite
 MAX_TESTS = 1 << 31  # node or triangle tests one segment can report (the per-pixel sums are int64)
 
 
@@ -73,6 +74,9 @@ def checked_result(estimator, res, n):
         if arr.shape != (n,) or arr.dtype.kind not in "biuf" or not np.all(np.isfinite(arr)):
             raise ProbvisError(f"{where} returned AOV '{name}' of shape {arr.shape} ({arr.dtype}): it needs one "
                                f"finite number per segment ({n})")
+        if np.abs(arr).max(initial=0) > MAX_AOV:  # 1e308 a segment passed, and the pixels' sums were inf
+            raise ProbvisError(f"{where} returned AOV '{name}' values beyond ±{MAX_AOV:g} (up to "
+                               f"{float(np.abs(arr).max()):.3g}): the pixels' sums would overflow; scale them down")
     aovs = res.aovs or {}
     _refuse_missing(where, declared - set(aovs), "segment")
     if np.asarray(res.value).dtype != np.float64 or any(np.asarray(a).dtype != np.float64 for a in aovs.values()):
