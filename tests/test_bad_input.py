@@ -689,7 +689,7 @@ def test_messages_say_what_is_wrong(tmp_path, monkeypatch):
 def test_the_command_s_warnings_stay_warnings_and_jit_may_be_off(tmp_path):
     """PYTHONWARNINGS=error made probvis's own warnings tracebacks; NUMBA_DISABLE_JIT=1 (a valid value: the
     kernels run as Python) was an AttributeError before the render."""
-    path = write_scene(tmp_path / "s.xml", sensor(w=8, h=8) + """<emitter type="point"><point name="position" x="0"
+    path = write_scene(tmp_path / "s.xml", sensor(w=8, h=8, sr=1) + """<emitter type="point"><point name="position" x="0"
         y="0" z="3"/><rgb name="intensity" value="5"/></emitter><shape type="rectangle"/>""")
     for env, args in (({"PYTHONWARNINGS": "error"}, ["-D", "foo=1"]), ({"NUMBA_DISABLE_JIT": "1"}, [])):
         r = subprocess.run([sys.executable, "-m", "probvis", "render", str(path), "--spp", "1", "--shadow-rays", "1",

@@ -217,7 +217,7 @@ def test_an_output_that_is_one_of_the_scene_s_inputs_is_refused(tmp_path, capsys
     texture = tmp_path / "wood.exr"
     write_exr(texture, np.full((4, 4, 3), 0.5, np.float32))
     before = texture.read_bytes()
-    body = sensor(w=8, h=8) + """<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap"
+    body = sensor(w=8, h=8, sr=1) + """<shape type="rectangle"><bsdf type="diffuse"><texture type="bitmap"
         name="reflectance"><string name="filename" value="wood.exr"/></texture></bsdf></shape>
         <emitter type="point"><point name="position" x="0" y="0" z="3"/><rgb name="intensity" value="5"/></emitter>"""
     path = write_scene(tmp_path / "s.xml", body)

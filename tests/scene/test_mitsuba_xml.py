@@ -207,6 +207,25 @@ def test_emitter_parameters_probvis_does_not_take_are_named(tmp_path, body, mess
         probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + LIGHT + body))
 
 
+@pytest.mark.parametrize("emitter, samples, warned", [
+    ("<emitter type='point'><point name='position' x='0' y='0' z='3'/></emitter>", 2, True),
+    ("<emitter type='directional'><vector name='direction' x='0' y='0' z='-1'/></emitter>", 4, True),
+    ("<emitter type='point'><point name='position' x='0' y='0' z='3'/></emitter>", 1, False),
+    ("", 4, False),  # the area light alone: Mitsuba weighs its samples right
+])
+def test_delta_lights_with_several_emitter_samples_say_mitsuba_differs(tmp_path, emitter, samples, warned):
+    """Mitsuba 3.9 renders point, spot and directional lights N times too bright at emitter_samples N (a
+    documented difference); a user comparing the two saw a factor of N unexplained."""
+    path = write_scene(tmp_path / "s.xml", sensor(sr=samples) + LIGHT + emitter)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        probvis.load_scene(path)
+    found = [str(w.message) for w in said if "times too bright" in str(w.message)]
+    assert found == ([f"{path}:12: emitter_samples {samples} with point, spot or directional lights: Mitsuba 3.9 "
+                      f"renders those lights {samples} times too bright (its delta lights' samples lack the 1/N); "
+                      "probvis renders their true light, Mitsuba's image at emitter_samples 1"] if warned else [])
+
+
 def test_an_area_light_of_sampling_weight_0_is_rendered_as_mitsuba_s_bsdf_samples_find_it(tmp_path):
     """Mitsuba never picks it by emitter sampling but finds it by BSDF sampling, so its light is in the image
     (probvis refused it with "remove it", which would have changed the image)."""
@@ -1094,7 +1113,7 @@ def test_huge_normals_and_light_directions_are_directions(tmp_path):
     """A file's normal of 1e200 and a directional light's direction of 1e300 overflowed (NumPy warnings, then a
     zero or NaN direction and exit 0); an ASCII PLY float beyond float32 warned before its error."""
     (tmp_path / "m.obj").write_text("v -1 -1 0\nv 1 -1 0\nv 0 1 0\nvn 0 0 1e200\nf 1//1 2//1 3//1\n")
-    body = sensor() + LIGHT + ("<shape type='obj'><string name='filename' value='m.obj'/>"
+    body = sensor(sr=1) + LIGHT + ("<shape type='obj'><string name='filename' value='m.obj'/>"
                                "<boolean name='face_normals' value='false'/></shape>"
                                "<emitter type='directional'><vector name='direction' x='0' y='0' z='-1e300'/>"
                                "</emitter>")
@@ -1438,7 +1457,7 @@ def test_a_spot_light_stretched_warns_that_its_cone_stays_round(tmp_path):
     probvis's cone is round about its axis: the same image with and without the scale, so it warns (it was
     silent, sweep 42). A uniform scale changes nothing in either and does not warn."""
     def spot(transform):
-        return write_scene(tmp_path / "spot.xml", sensor() + "<shape type='rectangle'/><emitter type='spot'>"
+        return write_scene(tmp_path / "spot.xml", sensor(sr=1) + "<shape type='rectangle'/><emitter type='spot'>"
                            f"<transform name='to_world'>{transform}<lookat origin='0, 0, 2' target='0, 0, 0'/>"
                            "</transform></emitter>")
     with pytest.warns(UserWarning, match=r"spot.xml:\d+: the spot light's to_world has a non-uniform "

@@ -1686,6 +1686,11 @@ class _Reader:
         builder.parameters = tuple(sorted(self.defaults))
         self.dark_emitters(builder)
         self.zero_power(builder)
+        if shadow_rays > 1 and builder.deltas:  # see docs/decisions.md, "Where Mitsuba 3.9 is not followed"
+            warnings.warn(f"{self.path}:{integrator_line}: emitter_samples {shadow_rays} with point, spot or "
+                          f"directional lights: Mitsuba 3.9 renders those lights {shadow_rays} times too bright (its "
+                          "delta lights' samples lack the 1/N); probvis renders their true light, Mitsuba's image at "
+                          "emitter_samples 1", stacklevel=2)
         try:
             return builder.build(camera, RenderSettings(spp, shadow_rays, seed))
         except ProbvisError as exc:
