@@ -2,6 +2,7 @@
 import errno
 import os
 import json
+import re
 import socket
 import threading
 
@@ -313,6 +314,39 @@ def test_a_folder_holding_files_of_the_user_s_own_is_not_overwritten(tiny_run, t
     assert (site / name).read_text() == content
     _, index, run = experiment(parse_experiment(TINY), out, progress=False, log=lambda m: None)
     assert index.is_file() and run.computed == 0
+
+
+def test_another_study_s_report_is_replaced_with_a_warning_and_a_lost_index_names_the_cache(tiny_run, tmp_path):
+    """A second study run into a first one's folder replaced its report without a word; a report whose index.html
+    was deleted was refused with advice ("give -o a new folder") that would have lost its cached renders."""
+    out, _, _, _ = tiny_run
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "index.html").write_text("<!doctype html>\n<html lang=en><head><meta charset=utf-8><title>probvis "
+                                      "experiment: first &amp; best</title>")
+    with pytest.warns(UserWarning, match=re.escape(f"'{other}' holds the report of study 'first & best': this one, "
+                                                   "'tiny', replaces it (give -o another folder to keep both)")):
+        experiment(parse_experiment(TINY), other, cache=out / "cache", progress=False, log=lambda m: None)
+    lost = tmp_path / "lost"
+    (lost / "cache").mkdir(parents=True)
+    (lost / "results.csv").write_text("old\n")
+    with pytest.raises(ProbvisError, match=re.escape(f"(to reuse the renders cached in '{lost / 'cache'}', add --cache "
+                                                     f"{lost / 'cache'})")):
+        experiment(parse_experiment(TINY), lost, progress=False, log=lambda m: None)
+
+
+def test_a_rendered_reference_noisier_than_the_cells_is_warned_of(tmp_path):
+    """A reference of 1 x 1 samples judging cells of 1 x 2 ran without a word, its own noise most of the relMSE."""
+    from probvis.experiments.config import reference_noise_problem
+
+    noisy = parse_experiment({**TINY, "spp": 1, "reference": {"spp": 1, "shadow_rays": 2}})
+    assert reference_noise_problem(noisy) == (
+        "experiment 'tiny': the rendered reference takes 1 x 2 samples a pixel, fewer than the largest cell's 1 x 4: "
+        "the cells' relMSE then measures mostly the reference's own noise; give [reference] spp and shadow_rays many "
+        "times the cells'")
+    assert reference_noise_problem(parse_experiment(TINY)) is None  # 4 x 16 against 2 x 4
+    with pytest.warns(UserWarning, match="fewer than the largest cell's 1 x 4"):
+        experiment(noisy, tmp_path / "r", progress=False, log=lambda m: None)
 
 
 def test_methods_that_match_the_reference_plot_without_warnings(tiny_run, tmp_path):

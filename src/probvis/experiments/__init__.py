@@ -1,13 +1,13 @@
 """`probvis experiment`: a study of scenes x methods x shadow-ray counts x seeds, run on Dask, cached on disk,
 reported as a browsable folder (see `config`, `runner`, `results`, `report`)."""
 import os
+import warnings
 from pathlib import Path
-
 
 from ..errors import ProbvisError, checked_call, is_path
 from ..interrupts import deferred_interrupts
 from .config import (Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment,
-                     recheck)
+                     recheck, reference_noise_problem)
 from .report import report_problem, write_report
 from .results import measure
 from .runner import check_run_options, load_scenes, run_experiment
@@ -41,6 +41,8 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     if above is not None and not above.is_dir():
         raise ProbvisError(f"report folder '{out}' cannot be made: '{above}' is a file: give -o a folder (new or "
                            "existing)")
+    if (noisy := reference_noise_problem(exp)) is not None:
+        warnings.warn(noisy, stacklevel=2)
     scenes = load_scenes(exp)
     if (problem := report_problem(exp, out, {name: scene.inputs for name, scene in scenes.items()})) is not None:
         raise ProbvisError(problem)

@@ -341,6 +341,17 @@ def parse_experiment(data, base=Path("."), source=""):
         seconds=_choice("seconds", data.get("seconds", "total"), ("total", "render")))
 
 
+def reference_noise_problem(exp):
+    """The warning for a rendered reference that takes fewer samples a pixel than the study's largest cell (its
+    own noise then makes most of the cells' relMSE), or None."""
+    ref, cell = exp.reference, exp.spp * max(exp.shadow_rays)
+    if all(spec.reference is not None for spec in exp.scenes) or ref.spp * ref.shadow_rays >= cell:
+        return None
+    return (f"experiment '{exp.name}': the rendered reference takes {ref.spp} x {ref.shadow_rays} samples a pixel, "
+            f"fewer than the largest cell's {exp.spp} x {max(exp.shadow_rays)}: the cells' relMSE then measures "
+            "mostly the reference's own noise; give [reference] spp and shadow_rays many times the cells'")
+
+
 def recheck(exp):
     """An `Experiment` built or changed in Python (`dataclasses.replace`) checked as `parse_experiment` checks a
     file's: its fields as the table they came from, parsed again."""

@@ -571,17 +571,23 @@ def report_problem(exp, folder, inputs=None):
     if index.is_file():
         try:
             with open(index, "rb") as fh:
-                ours = REPORT_TITLE.encode() in fh.read(4096)
+                head = fh.read(4096).decode("utf-8", "replace")
         except OSError as exc:
             return f"cannot write the report: '{index}' cannot be read ({exc.strerror or exc})"
-        if not ours:
+        if REPORT_TITLE not in head:
             return (f"'{folder}' holds an index.html that is not a probvis report, which the report would replace: "
                     "give -o a new folder, or a report's own")
+        other = head.split(f"<title>{REPORT_TITLE}", 1)[-1].split("</title>", 1)[0]
+        if other != html.escape(exp.name):  # the renders stay in the cache; the other study's pages do not
+            warnings.warn(f"'{folder}' holds the report of study '{html.unescape(other)}': this one, "
+                          f"'{exp.name}', replaces it (give -o another folder to keep both)", stacklevel=2)
     else:  # no report here: a file of the user's own under one of the report's names would be replaced
         theirs = next((name for name in files if (folder / name).exists()), None)
         if theirs is not None:
+            cache = folder / "cache"
+            kept = (f" (to reuse the renders cached in '{cache}', add --cache {cache})" if cache.is_dir() else "")
             return (f"'{folder}' holds '{theirs}' but no probvis report (its index.html), and the report would "
-                    "replace it: give -o a new folder, or a report's own")
+                    f"replace it: give -o a new folder, or a report's own{kept}")
     return None
 
 
