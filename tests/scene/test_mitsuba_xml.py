@@ -197,6 +197,8 @@ def test_what_mitsuba_accepts_and_does_not_change_the_image_is_accepted(tmp_path
                                                     "supported by probvis: give an <rgb> or <spectrum>"),
     ("<emitter type='point'><float name='sampling_weight' value='-1'/></emitter>",
      "<float>: sampling_weight must be above 0 and at most 1e+30, got -1"),
+    ("<emitter type='constant'><float name='sampling_weight' value='-1'/></emitter>",  # 0 is allowed there
+     "<float>: sampling_weight must be from 0 to 1e+30, got -1"),
     ("<emitter type='point'><float name='sampling_weight' value='0'/></emitter>",
      "got 0 (at 0 Mitsuba never samples this light, which only emitter sampling reaches: remove it, or give a "
      "positive weight)"),

@@ -639,11 +639,10 @@ class _Reader:
         if "sampling_weight" in props:
             w = props["sampling_weight"]
             if not (0 <= w <= MAX_EMISSION and (w > 0 or not delta)):
-                self.fail(_by_name(node)["sampling_weight"], f"sampling_weight must be above 0 and at most "
-                                                             f"{MAX_EMISSION:g}, got {w:g}" + (
-                                                                 " (at 0 Mitsuba never samples this light, which "
-                                                                 "only emitter sampling reaches: remove it, or give a "
-                                                                 "positive weight)" if w == 0 else ""))
+                span = f"above 0 and at most {MAX_EMISSION:g}" if delta else f"from 0 to {MAX_EMISSION:g}"
+                why = (" (at 0 Mitsuba never samples this light, which only emitter sampling reaches: remove it, or "
+                       "give a positive weight)") if w == 0 else ""
+                self.fail(_by_name(node)["sampling_weight"], f"sampling_weight must be {span}, got {w:g}{why}")
             if w == 0:
                 warnings.warn(f"{self.where(node)}: sampling_weight 0 ignored: Mitsuba finds this emitter by BSDF "
                               "sampling alone (with bsdf_samples 0 its light is missing from shading there); probvis "
