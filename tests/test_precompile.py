@@ -43,6 +43,38 @@ def test_discovery_follows_the_options_that_choose_kernels():
     assert "_group_pairs" not in names("exact", {})
 
 
+ONE_SIGNATURE_EACH = """
+import gc, sys, warnings
+import numba
+import probvis
+warnings.simplefilter("ignore")
+for visibility in ("exact", "occlusion-map", "cache-cv"):
+    for scene in sys.argv[1:]:
+        probvis.render(scene, spp=1, shadow_rays=2, visibility=visibility, resolution=(4, 4))
+kernels = [o for o in gc.get_objects() if isinstance(o, numba.core.registry.CPUDispatcher)]
+print(len(kernels), [o.py_func.__qualname__ for o in kernels if len(o.signatures) > 1])
+"""
+
+
+def test_scenes_unlike_the_warm_up_s_give_its_kernels_the_same_types(tmp_path):
+    """A kernel called with other argument types compiles again, for up to a minute: an environment map's
+    rotation (a transposed view once), a tent filter, a cache whose pilot met no emitter samples (an empty
+    count, typed int64 once) and the built-in scenes give each kernel one signature."""
+    from probvis.io.image import write_exr
+    from tests.conftest import sensor, write_scene
+    from tests.test_environment import CAMERA, CONSTANT, ENVMAP, GROUND, sky
+
+    write_exr(tmp_path / "sky.exr", sky())
+    spp = '<default name="spp" value="1"/>'
+    env = write_scene(tmp_path / "env.xml", sensor(**CAMERA) + GROUND + ENVMAP, spp)
+    tent = write_scene(tmp_path / "tent.xml", sensor(**CAMERA).replace('"box"', '"tent"') + GROUND + CONSTANT, spp)
+    out = subprocess.run([sys.executable, "-c", ONE_SIGNATURE_EACH, "quad-shadow", str(env), str(tent),
+                          "cornell-box"], capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr
+    count, several = out.stdout.split(" ", 1)
+    assert int(count) >= 20 and several.strip() == "[]", out.stdout
+
+
 def test_the_children_do_not_import_from_the_working_folder(tmp_path, monkeypatch):
     """A `numba.py` in the folder the render runs in is not what the children import (they run with -P)."""
     (tmp_path / "numba.py").write_text(f"open({str(tmp_path / 'imported')!r}, 'w').close()\n")

@@ -43,7 +43,7 @@ def environment_arrays(env, scale):
         cell_pdf = weight / (weight.sum() * solid.ravel()) if weight.sum() > 0 else np.zeros_like(weight)
         density = np.zeros((1, 1))
     prob, alias = alias_table(weight)
-    to_world = np.eye(3) if env is None else env.to_world
+    to_world = np.eye(3) if env is None else np.ascontiguousarray(env.to_world, np.float64)  # the kernels' one type
     integral = float((cells(lum).mean(axis=0) * solid).sum())
     fields = (ext, prob, alias, density, cell_pdf, to_world, np.linalg.inv(to_world), 0.5 / w,
               np.zeros(3) if env is None else np.asarray(scale, np.float64))
