@@ -214,6 +214,7 @@ def test_emitter_parameters_probvis_does_not_take_are_named(tmp_path, body, mess
     ("<emitter type='directional'><vector name='direction' x='0' y='0' z='-1'/></emitter>", 4, True),
     ("<emitter type='point'><point name='position' x='0' y='0' z='3'/></emitter>", 1, False),
     ("", 4, False),  # the area light alone: Mitsuba weighs its samples right
+    ("<emitter type='constant'/>", 4, False),  # an environment is no delta light
 ])
 def test_delta_lights_with_several_emitter_samples_say_mitsuba_differs(tmp_path, emitter, samples, warned):
     """Mitsuba 3.9 renders point, spot and directional lights N times too bright at emitter_samples N (a
@@ -228,15 +229,31 @@ def test_delta_lights_with_several_emitter_samples_say_mitsuba_differs(tmp_path,
                       "probvis renders their true light, Mitsuba's image at emitter_samples 1"] if warned else [])
 
 
-def test_an_area_light_of_sampling_weight_0_is_rendered_as_mitsuba_s_bsdf_samples_find_it(tmp_path):
+@pytest.mark.parametrize("bsdf_samples, said", [
+    (1, "sampling_weight 0 ignored: Mitsuba finds this emitter by BSDF sampling alone; probvis samples emitters by "
+        "their power (the same expected image)"),
+    (0, "sampling_weight 0 with bsdf_samples 0: Mitsuba never samples this emitter and its image lacks the "
+        "emitter's light on the scene"),
+])
+def test_an_area_light_of_sampling_weight_0_is_rendered_as_mitsuba_s_bsdf_samples_find_it(tmp_path, bsdf_samples,
+                                                                                           said):
     """Mitsuba never picks it by emitter sampling but finds it by BSDF sampling, so its light is in the image
-    (probvis refused it with "remove it", which would have changed the image)."""
+    (probvis refused it with "remove it", which would have changed the image); with bsdf_samples 0 nothing finds
+    it, and the warning says so without a hedge. With no emitter of a positive weight Mitsuba cannot load the
+    scene ("DiscreteDistribution: no probability mass found"), and probvis refuses it at the weight's line."""
     light = LIGHT.replace("</emitter>", "<float name='sampling_weight' value='0'/></emitter>", 1)
     assert light != LIGHT
-    path = write_scene(tmp_path / "s.xml", sensor() + light)
-    with pytest.warns(UserWarning, match="sampling_weight 0 ignored: Mitsuba finds this emitter by BSDF sampling"):
+    other = "<emitter type='point'><point name='position' x='0' y='0' z='3'/></emitter>"
+    camera = sensor(sr=1).replace("'bsdf_samples' value='0'", f"'bsdf_samples' value='{bsdf_samples}'")
+    camera = camera.replace('"bsdf_samples" value="0"', f'"bsdf_samples" value="{bsdf_samples}"')
+    path = write_scene(tmp_path / "s.xml", camera + light + other)
+    with pytest.warns(UserWarning, match=re.escape(f"{path}:14: {said}")):
         scene = probvis.load_scene(path)
-    assert scene.n_emitters == 1
+    assert scene.n_emitters == 2
+    alone = write_scene(tmp_path / "alone.xml", camera + light + light.replace("translate z", "translate x='1' z"))
+    with pytest.raises(ProbvisError, match=re.escape(f"alone.xml:14: <float>: every emitter has sampling_weight 0: "
+                                                     "Mitsuba 3 cannot load such a scene")):
+        probvis.load_scene(alone)
 
 
 def test_a_negative_cylinder_radius_is_the_same_cylinder_as_in_mitsuba(tmp_path):

@@ -20,7 +20,7 @@ from ..settings import (MAX_SHADOW_RAYS, MAX_SPP, RenderSettings, parse_float as
 from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
-from .scene import MAX_COORDINATE, MAX_EMISSION, SceneBuilder
+from .scene import EMITTER_ENVIRONMENT, MAX_COORDINATE, MAX_EMISSION, SceneBuilder
 from .sensor import (FILTERS, FOV_AXES, MAX_CUBIC_PARAMETER, MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV,
                      MIN_FILTER_REACH, Camera, camera_problem, tan_x_per_axis)
 from .serialized import load_serialized
@@ -328,6 +328,9 @@ class _Reader:
         self.hide_emitters = False  # the integrator's option
         self.dark = []  # (element, kind, why) of area emitters on shapes without area (`dark_emitters`)
         self.emitter_elements = []  # (its shape or None, element) of every <emitter>, in order (`zero_power`)
+        self.unweighted = []  # elements of the emitters of sampling_weight 0 (`unsampled_emitters`)
+        self.sampled = 0  # emitters of a positive (or no) sampling_weight
+        self.bsdf_samples = 1  # the integrator's: Mitsuba's path and direct integrators sample the BSDF by default
         self.root = None  # the document's tree, once parsed
 
     # --- errors and values -------------------------------------------------------------------
@@ -636,6 +639,8 @@ class _Reader:
         the expected image. probvis samples emitters by power, so it is checked and left aside, with a warning. At
         0 Mitsuba's emitter sampling never picks the emitter: a `delta` one (point, spot, directional) then adds
         nothing, which is refused; an area or environment light is still found by BSDF sampling."""
+        if props.get("sampling_weight", 1) > 0:
+            self.sampled += 1
         if "sampling_weight" in props:
             w = props["sampling_weight"]
             if not (0 <= w <= MAX_EMISSION and (w > 0 or not delta)):
@@ -643,11 +648,8 @@ class _Reader:
                 why = (" (at 0 Mitsuba never samples this light, which only emitter sampling reaches: remove it, or "
                        "give a positive weight)") if w == 0 else ""
                 self.fail(_by_name(node)["sampling_weight"], f"sampling_weight must be {span}, got {w:g}{why}")
-            if w == 0:
-                warnings.warn(f"{self.where(node)}: sampling_weight 0 ignored: Mitsuba finds this emitter by BSDF "
-                              "sampling alone (with bsdf_samples 0 its light is missing from shading there); probvis "
-                              "samples emitters by their power, Mitsuba's expected image with bsdf_samples above 0",
-                              stacklevel=2)
+            if w == 0:  # said once the integrator is read (`unsampled_emitters`)
+                self.unweighted.append(_by_name(node)["sampling_weight"])
                 return
             warnings.warn(f"{self.where(node)}: sampling_weight ignored: probvis samples emitters by their power "
                           "(the same expected image)", stacklevel=2)
@@ -1253,6 +1255,26 @@ class _Reader:
                              "intensity or irradiance of 0, or a scale of 0): the image would be black (as Mitsuba "
                              "renders it); give an emitter a positive one")
 
+    def unsampled_emitters(self):
+        """Emitters of sampling_weight 0, which Mitsuba's emitter sampling never picks: refused at the first when
+        no emitter has a positive weight (Mitsuba cannot load such a scene), else each left aside with a warning
+        that says whether Mitsuba's image has their light (found by BSDF sampling) or lacks it (bsdf_samples 0)."""
+        if not self.unweighted:
+            return
+        if not self.sampled:
+            self.fail(self.unweighted[0], "every emitter has sampling_weight 0: Mitsuba 3 cannot load such a scene "
+                                          "(no emitter to sample); give one a positive weight")
+        for node in self.unweighted:
+            if self.bsdf_samples > 0:
+                warnings.warn(f"{self.where(node)}: sampling_weight 0 ignored: Mitsuba finds this emitter by BSDF "
+                              "sampling alone; probvis samples emitters by their power (the same expected image)",
+                              stacklevel=3)
+            else:
+                warnings.warn(f"{self.where(node)}: sampling_weight 0 with bsdf_samples 0: Mitsuba never samples "
+                              "this emitter and its image lacks the emitter's light on the scene; probvis samples "
+                              "emitters by their power and renders that light (give bsdf_samples 1 for Mitsuba's "
+                              "image to have it too)", stacklevel=3)
+
     def cylinder_frame(self, node, props):
         """Object-to-shape transform of Mitsuba's cylinder from p0 to p1 with a radius (the unit cylinder's z
         axis along p1 - p0, x and y as Mitsuba's frame of that axis). A negative radius turns the frame half a
@@ -1515,6 +1537,7 @@ class _Reader:
                                                           f"got {base}")
         if props.get("bsdf_samples", 0) < 0:
             self.fail(lines["bsdf_samples"], f"bsdf_samples must not be negative, got {props['bsdf_samples']}")
+        self.bsdf_samples = props.get("bsdf_samples", base)
         sr = props.get("emitter_samples", base)
         if not 1 <= sr <= MAX_SHADOW_RAYS:
             self.fail(lines.get("emitter_samples", node), f"emitter_samples must be from 1 to {MAX_SHADOW_RAYS}, "
@@ -1685,7 +1708,9 @@ class _Reader:
         builder.parameters = tuple(sorted(self.defaults))
         self.dark_emitters(builder)
         self.zero_power(builder)
-        if shadow_rays > 1 and builder.deltas:  # see docs/decisions.md, "Where Mitsuba 3.9 is not followed"
+        self.unsampled_emitters()
+        deltas = [kind for kind, *_ in builder.deltas.values() if kind != EMITTER_ENVIRONMENT]
+        if shadow_rays > 1 and deltas:  # see docs/decisions.md, "Where Mitsuba 3.9 is not followed"
             warnings.warn(f"{self.path}:{integrator_line}: emitter_samples {shadow_rays} with point, spot or "
                           f"directional lights: Mitsuba 3.9 renders those lights {shadow_rays} times too bright (its "
                           "delta lights' samples lack the 1/N); probvis renders their true light, Mitsuba's image at "
