@@ -390,6 +390,30 @@ def test_a_stack_too_small_to_start_is_one_line(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+def test_an_open_file_limit_too_small_to_start_is_one_line(tmp_path):
+    """Under `ulimit -n 5` the start's checks could not make their pipe, and their handler could not load the
+    `resource` module to say why: a chained traceback. The smallest limits at which the interpreter itself starts
+    (its own failure is not probvis's to word) give one line naming the limit, or render."""
+    said = []
+    for n in range(4, 12):
+        def limits():
+            resource.setrlimit(resource.RLIMIT_NOFILE, (n, n))
+
+        r = subprocess.run([sys.executable, "-m", "probvis", "render", "quad-shadow", "-D", "res=8", "--spp", "1",
+                            "-q", "-o", "o.exr"], capture_output=True, text=True, cwd=tmp_path, timeout=TIME_LIMIT,
+                           preexec_fn=limits, close_fds=True)
+        if r.returncode == 0:
+            assert (tmp_path / "o.exr").is_file()
+            break
+        if "Fatal Python error" in r.stderr or r.returncode == 127:  # the interpreter did not start
+            continue
+        assert r.returncode == 1 and r.stderr == (f"probvis: error: cannot start under the open-file limit of {n} "
+                                                  "(ulimit -n): too many open files; raise the limit\n"), r.stderr
+        assert not list(tmp_path.iterdir())
+        said.append(n)
+    assert said and r.returncode == 0, said
+
+
 @pytest.mark.parametrize("stdout", ["full", "closed"])
 def test_a_standard_output_that_fails_is_one_line(tmp_path, stdout):
     """`probvis scenes > /dev/full` was an OSError traceback; `>&-` printed nothing with exit 0."""

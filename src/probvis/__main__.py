@@ -5,6 +5,7 @@ import errno
 import importlib.util
 import os
 import re
+import resource
 import signal
 import sys
 import warnings
@@ -35,8 +36,6 @@ def _done(status):
 
 def _address_limit():
     """The process's address-space limit in MiB (ulimit -v), or None."""
-    import resource
-
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
     return None if soft == resource.RLIM_INFINITY else soft >> 20
 
@@ -57,8 +56,6 @@ def _address_space_too_small():
 
 def _stack_too_small():
     """The one line for a stack limit (ulimit -s) too small to start: below it the process would crash."""
-    import resource
-
     soft, _ = resource.getrlimit(resource.RLIMIT_STACK)
     if soft == resource.RLIM_INFINITY or soft >= MIN_STACK_KIB << 10:
         return None
@@ -67,7 +64,12 @@ def _stack_too_small():
 
 
 def _start_failure(exc):
-    """The one line for a library that failed to load: the process's address-space limit is the usual cause."""
+    """The one line for a library that failed to load: the process's address-space limit is the usual cause, or
+    its open-file limit (ulimit -n; resource is imported up front: loading it takes a file too)."""
+    if isinstance(exc, OSError) and exc.errno in (errno.EMFILE, errno.ENFILE):
+        soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+        return (f"probvis: error: cannot start under the open-file limit of {soft} (ulimit -n): too many open files; "
+                "raise the limit")
     limit = _address_limit()
     if limit is not None:
         return (f"probvis: error: cannot load its libraries under the address-space limit of {limit} MiB "
