@@ -491,6 +491,22 @@ def test_a_plugin_file_that_raises_is_one_line_and_writes_nothing(tmp_path):
         assert not (tmp_path / "o.exr").exists()
 
 
+def test_a_plugin_file_imports_the_modules_beside_it(tmp_path):
+    """As `python sub/est.py` would: a plug-in file's own folder is where its imports are found too."""
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "helper_beside.py").write_text("FACTOR = 1.0\n")
+    (tmp_path / "sub" / "est.py").write_text(
+        "import numpy as np\nimport probvis\nfrom helper_beside import FACTOR\n\n\n"
+        "class Exactish(probvis.visibility.VisibilityEstimator):\n    name = 'exactish'\n    summary = 'exact'\n\n"
+        "    def evaluate(self, query):\n"
+        "        occ, nodes, tris = probvis.accel.occluded_segments(self.bvh, query.origin, query.direction, "
+        "query.tmax, query.point)\n"
+        "        return probvis.visibility.VisibilityResult(FACTOR - occ, nodes, tris)\n")
+    r = run_cli("render", "quad-shadow", "-D", "res=8", "--spp", "1", "--visibility", "sub/est.py:Exactish", "-o",
+                "o.exr", "-q", cwd=tmp_path)
+    assert r.returncode == 0 and (tmp_path / "o.exr").is_file(), r.stderr
+
+
 def test_an_estimator_without_evaluate_is_refused():
     class Hollow(probvis.visibility.VisibilityEstimator):
         name = "hollow"

@@ -106,6 +106,19 @@ def test_files(tmp_path):
         load_experiment(rel)
 
 
+def test_a_tilde_in_a_study_s_paths_is_the_home(tmp_path, monkeypatch):
+    """`source`, `reference` and a plug-in file read ~ as the shell does (PROBVIS_CACHE_DIR did already)."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    (tmp_path / "s.xml").write_text("<scene version='3.0.0'/>")
+    (tmp_path / "r.exr").write_bytes(b"")
+    (tmp_path / "e.py").write_text("from probvis.visibility import estimator_class\n\n\n"
+                                   "class E(estimator_class('exact')):\n    name = 'tilde'\n")
+    exp = parse_experiment({"scenes": [{"name": "a", "source": "~/s.xml", "reference": "~/r.exr"}],
+                            "methods": [{"name": "e", "visibility": "~/e.py:E"}]}, base=tmp_path / "elsewhere")
+    assert exp.scenes[0].source == str(tmp_path / "s.xml") and exp.scenes[0].reference == str(tmp_path / "r.exr")
+    assert exp.methods[0].visibility == f"{tmp_path / 'e.py'}:E"
+
+
 def test_command_line_mistakes_exit_2_with_one_line(tmp_path, capsys):
     from probvis.cli import main
 

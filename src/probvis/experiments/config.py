@@ -154,6 +154,7 @@ def _scene(where, table, base):
             _fail(where, f"missing key '{key}'")
     name, source = _str(f"{where}.name", table["name"]), _str(f"{where}.source", table["source"])
     if source not in BUILTINS:
+        source = os.path.expanduser(source)  # ~ as a shell (and PROBVIS_CACHE_DIR) reads it
         path = Path(os.path.realpath(base / source))
         if not path.is_file():
             if not path.exists() and os.path.lexists(base / source):
@@ -173,7 +174,7 @@ def _scene(where, table, base):
                                             "it would change nothing")
     reference = table.get("reference")
     if reference is not None:
-        given = base / _str(f"{where}.reference", reference)
+        given = base / os.path.expanduser(_str(f"{where}.reference", reference))
         ref = Path(os.path.realpath(given))
         if not ref.is_file():
             _fail(f"{where}.reference", f"{ref} is not a regular file" if ref.exists() else missing_file(given, "image"))
@@ -193,7 +194,7 @@ def _visibility(vis, base):
     """An estimator name as the workers will load it: a `file.py:Class` made absolute against `base`."""
     module, _, cls = vis.rpartition(":")
     if module.endswith(".py"):
-        return f"{os.path.realpath(base / module)}:{cls}"
+        return f"{os.path.realpath(base / os.path.expanduser(module))}:{cls}"
     return vis
 
 

@@ -52,6 +52,8 @@ def _load_unlocked(spec, what):
                 raise ProbvisError(f"{what}: {path} is a folder, not a Python file" if path.is_dir() else
                                    f"{what}: no file {path}")
             name = "probvis_plugin_" + path.stem
+            if str(path.parent) not in sys.path:  # as `python file.py` would: the modules beside it import
+                sys.path.append(str(path.parent))
             module = sys.modules.get(name)
             if module is None or getattr(module, "__file__", None) != str(path):
                 mspec = importlib.util.spec_from_file_location(name, path)
