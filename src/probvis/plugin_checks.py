@@ -47,6 +47,12 @@ def checked_result(estimator, res, n):
     where = f"visibility '{estimator.name}' ({cls.__module__}.{cls.__qualname__}): evaluate"
     if not isinstance(res, VisibilityResult):
         raise ProbvisError(f"{where} returned a {type(res).__name__}, not a VisibilityResult")
+    masked = [f for f in ("value", "node_tests", "triangle_tests") if isinstance(getattr(res, f), np.ma.MaskedArray)]
+    masked += [f"AOV '{k}'" for k, a in (res.aovs.items() if isinstance(res.aovs, dict) else ()) if
+               isinstance(a, np.ma.MaskedArray)]
+    if masked:  # its masked entries have no value to render
+        raise ProbvisError(f"{where} returned {masked[0]} as a masked array (numpy.ma): give a plain array, the "
+                           "masked entries filled (np.ma.filled)")
     for field in ("value", "node_tests", "triangle_tests"):
         arr = np.asarray(getattr(res, field))
         if arr.shape != (n,) or arr.dtype.kind not in "biuf":
