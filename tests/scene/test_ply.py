@@ -158,12 +158,14 @@ def test_an_ascii_ply_with_another_element_is_read():
     (("format ascii 1.0\n", ""), "malformed PLY header: no 'format' line"),
     (("format ascii 1.0", "format ascii 1.0 extra"), "the format line 'format ascii 1.0 extra' is not 'format <"),
     (("format ascii 1.0", "format ascii 2.0"), "malformed PLY header: PLY version '2.0' is not 1.0, the only one"),
+    (("format ascii 1.0", "format ascii 1.0\nformat ascii 1.0"), "malformed PLY header: line 3: a second 'format' line"),
     (("3 0 1 2\n", "3 0 1 2\n\n3 2 1 0\n"), "m.ply:15: data after the 4 rows the header declares (vertex 3, face 1): "
                                          "correct the header's counts"),
 ])
 def test_a_malformed_header_is_named(tmp_path, edit, message):
     """A property type PLY does not have; an element count that is no whole number (reported as '0 faces'); a
-    version other than 1.0 and rows beyond the header's counts, which Mitsuba refuses (probvis read them)."""
+    version other than 1.0, a second format line and rows beyond the header's counts, which Mitsuba refuses
+    (probvis read them)."""
     from probvis.errors import ProbvisError
 
     path = tmp_path / "m.ply"

@@ -31,13 +31,15 @@ def _header(fh):
     if fh.readline(16).strip() != b"ply":
         return None
     fmt, elements, counts, current = None, {}, {}, None
-    for _ in range(HEADER_LINES):
+    for line in range(2, HEADER_LINES + 2):
         words = fh.readline(1024).split()
         if not words or words[0] in (b"comment", b"obj_info"):
             continue
         if words[0] == b"end_header":
             return fmt, elements, counts
         if words[0] == b"format":
+            if fmt is not None:  # Mitsuba refuses it too ("duplicate format tag"): which one holds is a guess
+                raise ValueError(f"line {line}: a second 'format' line: a header has one")
             if len(words) != 3:
                 raise ValueError(f"the format line '{b' '.join(words).decode('ascii', 'replace')}' is not "
                                  "'format <ascii|binary_little_endian|binary_big_endian> 1.0'")
