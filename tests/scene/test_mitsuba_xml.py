@@ -256,6 +256,19 @@ def test_an_area_light_of_sampling_weight_0_is_rendered_as_mitsuba_s_bsdf_sample
         probvis.load_scene(alone)
 
 
+def test_a_vertex_no_face_uses_may_lie_anywhere(tmp_path):
+    """Mitsuba renders a mesh whose unused vertex lies at 1e31 (probvis refused it as beyond ±1e30): it counts
+    neither in the limit nor in the shape's bounds; a used one beyond is still refused."""
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1e31 0 0\nf 1 2 3\n")
+    shape = "<shape type='obj'><string name='filename' value='m.obj'/></shape>"
+    scene = probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + LIGHT + shape))
+    mesh = scene.shapes[-1]
+    assert mesh.n_triangles == 1 and mesh.hi.tolist() == [1.0, 1.0, 0.0] and mesh.lo.tolist() == [0.0, 0.0, 0.0]
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1e31 0 0\nf 1 2 3\nf 1 2 4\n")
+    with pytest.raises(ProbvisError, match="has vertices beyond ±1e\\+30 once transformed"):
+        probvis.load_scene(tmp_path / "s.xml")
+
+
 def test_a_negative_cylinder_radius_is_the_same_cylinder_as_in_mitsuba(tmp_path):
     """Mitsuba scales its cylinder's frame by the radius: a negative one turns it half a turn about its axis, the
     same surface facing out (its render lit by a point light: 0.04628 for 0.3 and -0.3); probvis refused it."""

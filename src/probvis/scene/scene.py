@@ -233,6 +233,10 @@ class SceneBuilder:
         if not np.all(np.isfinite(m)):
             raise ProbvisError(f"shape '{name}' has a non-finite to_world transform")
         wv = tf.apply_points(m, v)
+        if not np.all(np.abs(wv) <= MAX_COORDINATE) and f.size:  # the vertices no face uses do not count (Mitsuba
+            used = np.zeros(len(wv), bool)  # renders them away): given a used one's place, out of the bounds
+            used[f.ravel()] = True
+            wv = np.where(used[:, None], wv, wv[used][0])
         if not np.all(np.abs(wv) <= MAX_COORDINATE):
             raise ProbvisError(f"shape '{name}' has vertices beyond ±{MAX_COORDINATE:g} once transformed (or not a "
                                "number): rescale the scene")
