@@ -596,6 +596,26 @@ class _Reader:
             self.fail(ch, f"parameter '{name}' is given twice (first on line {lines[name]})")
         lines[name] = ch.line
 
+    def declare_default(self, ch):
+        """A `<default>`: its parameter's value from here on in document order, at the top level or inside an
+        element (as Mitsuba's parser takes it); Mitsuba keeps a parameter's first."""
+        self.check_attrs(ch, ("name", "value"))
+        name = self.attr(ch, "name")
+        if not name.strip():
+            self.fail(ch, "a <default> needs a parameter name (it is empty)")
+        if "value" not in ch.attrs:
+            self.fail(ch, f"missing attribute 'value' of parameter '{name}'")
+        first = self.default_nodes.get(name)
+        if first is ch:  # an element read again (a <ref>'s object)
+            return
+        if first is not None:
+            warnings.warn(f"{self.where(ch)}: <default> of '{name}' declared again (first on "
+                          f"{self.line_of(first, ch)}, whose value is kept)", stacklevel=3)
+            return
+        self.default_nodes[name] = ch
+        # `$b` in a default: the parameters known so far (none needed where -D gives the parameter)
+        self.defaults[name] = self.default_value(ch, name)
+
     def params(self, node, allowed_props, allowed_objects=(), unnamed=None, unknown=None):
         """Split children into a {name: value} dict and a list of nested objects, rejecting anything else and any
         name given twice (a nested object without a name counts as `unnamed`, the one it stands for); `unknown(ch)`,
@@ -615,6 +635,8 @@ class _Reader:
                 if name is not None:
                     self.once(ch, name, lines)
                 objects.append(ch)
+            elif ch.tag == "default":
+                self.declare_default(ch)
             else:
                 if unknown is not None:
                     unknown(ch)
@@ -1629,19 +1651,7 @@ class _Reader:
         integrator_line = None
         for ch in root.children:
             if ch.tag == "default":
-                self.check_attrs(ch, ("name", "value"))
-                name = self.attr(ch, "name")
-                if not name.strip():
-                    self.fail(ch, "a <default> needs a parameter name (it is empty)")
-                if "value" not in ch.attrs:
-                    self.fail(ch, f"missing attribute 'value' of parameter '{name}'")
-                if name in self.default_nodes:  # Mitsuba keeps the first
-                    warnings.warn(f"{self.where(ch)}: <default> of '{name}' declared again (first on "
-                                  f"{self.line_of(self.default_nodes[name], ch)}, whose value is kept)", stacklevel=2)
-                    continue
-                self.default_nodes[name] = ch
-                # `$b` in a default: the parameters known so far (none needed where -D gives the parameter)
-                self.defaults[name] = self.default_value(ch, name)
+                self.declare_default(ch)
             elif ch.tag == "integrator":
                 if integrator_line is not None:
                     self.fail(ch, f"only one integrator per scene (the first on line {integrator_line})")
