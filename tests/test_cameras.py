@@ -1,11 +1,13 @@
 """Cameras, films and filters against Mitsuba 3 (scalar_rgb): ray for ray where the sample maps agree, image
 for image (within Mitsuba's own noise, image means within 1%) where only the distributions do."""
+import re
 import warnings
 
 import numpy as np
 import pytest
 
 import probvis
+from probvis import ProbvisError
 from probvis.camera import STREAM_CAMERA, camera_params, camera_rays
 from probvis.rng import make_key, uniform
 from tests.conftest import assert_matches_mitsuba, mitsuba_image, relmse, write_scene
@@ -54,7 +56,22 @@ def scene_file(tmp_path, sensor):
 def test_camera_rays_are_mitsuba_s(tmp_path, params, film):
     """Our kernel's rays against Mitsuba's `sample_ray` at the same film positions (the pixel jitter drawn
     from our random numbers), for every field-of-view convention, the principal point and a crop window."""
-    path = scene_file(tmp_path, sensor_xml(params=params, film=film))
+    assert_rays_match(scene_file(tmp_path, sensor_xml(params=params, film=film)))
+
+
+def test_a_film_larger_than_probvis_renders_gives_its_crop_window_s_rays(tmp_path):
+    """A 100000 x 80000 film with a 16 x 12 crop window is rendered as Mitsuba renders it (probvis refused any film
+    side above 32768, though only the crop is rendered); uncropped, it is refused in one line."""
+    crop = ('<integer name="crop_offset_x" value="49990"/><integer name="crop_offset_y" value="39994"/>'
+            '<integer name="crop_width" value="16"/><integer name="crop_height" value="12"/>')
+    big = sensor_xml(params='<float name="fov" value="45"/>', film=crop, w=100000, h=80000)
+    assert_rays_match(scene_file(tmp_path, big))
+    with pytest.raises(ProbvisError, match=re.escape("<film>: film size 100000x80000 is out of range (1 to 32768): "
+                                                     "render it in crop windows")):
+        probvis.load_scene(scene_file(tmp_path, big.replace(crop, "")))
+
+
+def assert_rays_match(path):
     ours = probvis.load_scene(path)
     cam = ours.camera
     theirs = mi.load_file(str(path), spp=1).sensors()[0]

@@ -354,7 +354,7 @@ def test_more_shadow_rays_per_pixel_than_a_batch_can_interrupt_are_refused():
     (lambda s: setattr(s, "inputs", None), "scene.inputs must be a tuple of the paths"),
     (lambda s: setattr(s, "source", object()), "scene.source must be a string, got object"),
     (lambda s: setattr(s.camera, "principal_y", np.nan), "camera.principal_y must be finite, got nan"),
-    (lambda s: setattr(s.camera, "film_width", 10 ** 12), "film_width must be a whole number from 1 to 32768"),
+    (lambda s: setattr(s.camera, "film_width", 10 ** 12), "film_width must be a whole number from 1 to 16777216"),
     (lambda s: setattr(s.camera, "width", 2 ** 70), "width must be a whole number from 1 to 32768, got 1180591620717"),
     (lambda s: setattr(s.camera, "fov_x", 2 ** 64), "field of view must be above 0 and at most"),
     (lambda s: setattr(s.camera, "principal_x", 10 ** 400), "camera.principal_x must be finite, got 1000"),

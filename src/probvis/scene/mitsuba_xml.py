@@ -21,7 +21,7 @@ from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import EMITTER_ENVIRONMENT, MAX_COORDINATE, MAX_EMISSION, SceneBuilder
-from .sensor import (FILTERS, FOV_AXES, MAX_CUBIC_PARAMETER, MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV,
+from .sensor import (FILTERS, FOV_AXES, MAX_CUBIC_PARAMETER, MAX_FILM_EXTENT, MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV,
                      MIN_FILTER_REACH, Camera, camera_problem, tan_x_per_axis)
 from .serialized import load_serialized
 from .spectrum import spectrum_to_rgb
@@ -1469,12 +1469,17 @@ class _Reader:
                     self.fail(ch, "only one reconstruction filter per film")
                 rfilter = self.rfilter(ch)
             width, height = props.get("width", width), props.get("height", height)
-            if width < 1 or height < 1 or width > MAX_FILM_SIDE or height > MAX_FILM_SIDE:
-                self.fail(node, f"film size {width}x{height} is out of range (1 to {MAX_FILM_SIDE})")
+            if width < 1 or height < 1 or width > MAX_FILM_EXTENT or height > MAX_FILM_EXTENT:
+                self.fail(node, f"film size {width}x{height} is out of range (1 to {MAX_FILM_SIDE}, or to "
+                                f"{MAX_FILM_EXTENT} with a smaller crop window)")
         cx, cy = props.get("crop_offset_x", 0), props.get("crop_offset_y", 0)
         cw, ch_ = props.get("crop_width", width), props.get("crop_height", height)  # Mitsuba's defaults
         if not (0 <= cx and cw >= 1 and cx + cw <= width and 0 <= cy and ch_ >= 1 and cy + ch_ <= height):
             self.fail(node, f"the crop window {cw}x{ch_} at ({cx}, {cy}) does not fit the {width}x{height} film")
+        if cw > MAX_FILM_SIDE or ch_ > MAX_FILM_SIDE:  # what is rendered; a larger film sets only the projection
+            cropped = cw != width or ch_ != height
+            self.fail(node, f"{'the crop window' if cropped else 'film size'} {cw}x{ch_} is out of range (1 to "
+                            f"{MAX_FILM_SIDE}){'' if cropped else ': render it in crop windows'}")
         return {"width": cw, "height": ch_, "film_width": width, "film_height": height, "crop_x": cx, "crop_y": cy,
                 **rfilter}
 

@@ -8,7 +8,8 @@ import numpy as np
 
 from ..errors import is_number
 
-MAX_FILM_SIDE = 1 << 15  # pixels along a film's side
+MAX_FILM_SIDE = 1 << 15  # pixels along the side of the image rendered (the film, or its crop window)
+MAX_FILM_EXTENT = 1 << 24  # pixels along a cropped film's side: it sets only the projection
 MAX_FILTER_RADIUS = 32.0  # pixels a film's reconstruction filter may reach (splatting cost grows with its square)
 MIN_FILTER_REACH = 0.01  # pixels: a tent or 4σ below this counts fewer than 1 in 2,500 of the samples
 FILTERS = ("box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos")  # Mitsuba 3's reconstruction filters
@@ -129,8 +130,8 @@ def camera_problem(c):
     if c.fov_axis not in FOV_AXES:
         return f"camera.fov_axis must be one of {', '.join(FOV_AXES)}, got {c.fov_axis!r}"
     for what, val in (("film_width", c.film_width), ("film_height", c.film_height)):
-        if val is not None and not 1 <= val <= MAX_FILM_SIDE:
-            return f"{what} must be a whole number from 1 to {MAX_FILM_SIDE}, got {val}"
+        if val is not None and not 1 <= val <= MAX_FILM_EXTENT:
+            return f"{what} must be a whole number from 1 to {MAX_FILM_EXTENT}, got {val}"
     for what, val in (("width", c.width), ("height", c.height)):
         if int(val) != val or not 1 <= val <= MAX_FILM_SIDE:
             return f"{what} must be a whole number from 1 to {MAX_FILM_SIDE}, got {val}"
