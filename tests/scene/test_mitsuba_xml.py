@@ -229,6 +229,7 @@ def test_delta_lights_with_several_emitter_samples_say_mitsuba_differs(tmp_path,
                       "probvis renders their true light, Mitsuba's image at emitter_samples 1"] if warned else [])
 
 
+@pytest.mark.filterwarnings("ignore:.*bsdf_samples ignored")
 @pytest.mark.parametrize("bsdf_samples, said", [
     (1, "sampling_weight 0 ignored: Mitsuba finds this emitter by BSDF sampling alone; probvis samples emitters by "
         "their power (the same expected image)"),
