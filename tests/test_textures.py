@@ -49,6 +49,10 @@ def textured(shape, texture, transform='<scale value="1.2"/>'):
         <bsdf type="diffuse">{texture}</bsdf></shape>"""
 
 
+SRGB_TO_XYZ = np.array([[0.412453, 0.357580, 0.180423], [0.212671, 0.715160, 0.072169],
+                        [0.019334, 0.119193, 0.950227]])  # linear sRGB to CIE XYZ (Mitsuba's)
+
+
 CASES = {
     "bitmap-png-rectangle": textured("rectangle", '<texture type="bitmap" name="reflectance">'
                                                   '<string name="filename" value="pic.png"/></texture>'),
@@ -76,6 +80,10 @@ CASES = {
                                      '<string name="filename" value="pic-grey.exr"/></texture>'),
     "bitmap-exr-layer": textured("rectangle", '<texture type="bitmap" name="reflectance">'
                                      '<string name="filename" value="pic-layer.exr"/></texture>'),
+    "bitmap-exr-xyz": textured("rectangle", '<texture type="bitmap" name="reflectance">'  # Mitsuba: to sRGB
+                                   '<string name="filename" value="pic-xyz.exr"/></texture>'),
+    "bitmap-exr-lower": textured("rectangle", '<texture type="bitmap" name="reflectance">'  # r, g, b channels
+                                     '<string name="filename" value="pic-lower.exr"/></texture>'),
     "bitmap-disk": textured("disk", '<texture type="bitmap" name="reflectance"><string name="filename" '
                                     'value="pic.exr"/></texture>', '<rotate z="1" angle="-30"/>'),
     "bitmap-cylinder": textured("cylinder", '<texture type="bitmap" name="reflectance"><string name="filename" '
@@ -100,7 +108,9 @@ def folder(tmp_path_factory):
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for kind, channels in (("grey", {"Y": np.ascontiguousarray(picture()[..., 0])}),  # Mitsuba: luminance, grey
-                           ("layer", {"diffuse": picture()})):  # diffuse.R, .G, .B: Mitsuba reads the layer
+                           ("layer", {"diffuse": picture()}),  # diffuse.R, .G, .B: Mitsuba reads the layer
+                           ("xyz", dict(zip("XYZ", np.moveaxis(picture() @ SRGB_TO_XYZ.T, -1, 0).astype(np.float32)))),
+                           ("lower", dict(zip("rgb", np.moveaxis(picture(), -1, 0))))):
         with OpenEXR.File(header, channels) as f:
             f.write(str(d / f"pic-{kind}.exr"))
     from PIL import Image

@@ -19,6 +19,10 @@ FORMATS = (".exr", ".pfm", ".png")
 MAX_EXPOSURE = 64.0  # stops: 2^64 scales any radiance out of range
 MAX_IMAGE_BYTES = 4 << 30  # an image file larger than this is refused before reading
 
+XYZ_TO_SRGB = np.array([[3.240479, -1.537150, -0.498535],  # CIE XYZ to linear sRGB (Rec. 709, D65), as Mitsuba's
+                        [-0.969256, 1.875991, 0.041556],
+                        [0.055648, -0.204043, 1.057311]])
+
 
 def utf8_path(path):
     """Whether the full path (its folders too, links resolved) is UTF-8 as the file system stores it: OpenEXR
@@ -201,8 +205,12 @@ def _exr_pixels(path, channel, said):
             return np.array(ch["RGB"].pixels, dtype=np.float32)
         if "RGBA" in ch:  # alpha dropped, as for PNG (Mitsuba reads RGBA EXRs)
             return np.array(ch["RGBA"].pixels, dtype=np.float32)[..., :3]
-        if all(c in ch for c in "RGB"):
-            return np.stack([np.array(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
+        single = {k.upper(): k for k in ch if len(k) == 1}  # R, G, B or r, g, b: Mitsuba reads either
+        if all(c in single for c in "RGB"):
+            return np.stack([np.array(ch[single[c]].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
+        if all(c in single for c in "XYZ"):  # CIE XYZ, turned into linear sRGB as Mitsuba does
+            xyz = np.stack([np.array(ch[single[c]].pixels, dtype=np.float64) for c in "XYZ"], axis=-1)
+            return (xyz @ XYZ_TO_SRGB.T).astype(np.float32)
         if "Y" in ch or "YA" in ch:  # luminance alone: grey, as Mitsuba reads it
             y = np.array(ch["Y" if "Y" in ch else "YA"].pixels, dtype=np.float32)
             return np.repeat((y if y.ndim == 2 else y[..., 0])[..., None], 3, axis=-1)
