@@ -1,6 +1,7 @@
 """Estimators from outside probvis: the worked example of docs/writing-an-estimator.md, loaded by file, by
 module and through the entry-point group, through the CLI, the Python API and `probvis experiment`."""
 import json
+import os
 import re
 import signal
 import subprocess
@@ -30,9 +31,9 @@ def roulette(tmp_path):
     return path
 
 
-def run_cli(*args, cwd=None):
+def run_cli(*args, cwd=None, env=None):
     return subprocess.run([sys.executable, "-m", "probvis.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd, timeout=600)
+                          cwd=cwd, timeout=600, env=env)
 
 
 def test_the_guide_s_estimator_renders_through_the_cli(roulette, tmp_path):
@@ -508,6 +509,10 @@ def test_a_plugin_file_imports_the_modules_beside_it(tmp_path):
     r = run_cli("render", "quad-shadow", "-D", "res=8", "--spp", "1", "--visibility", "sub/est.py:Exactish", "-o",
                 "o.exr", "-q", cwd=tmp_path)
     assert r.returncode == 0 and (tmp_path / "o.exr").is_file(), r.stderr
+    # `--visibility=~/...`: the shell leaves that ~ alone, probvis reads it as the home
+    r = run_cli("render", "quad-shadow", "-D", "res=8", "--spp", "1", "--visibility=~/sub/est.py:Exactish", "-o",
+                "p.exr", "-q", cwd=tmp_path, env={**os.environ, "HOME": str(tmp_path)})
+    assert r.returncode == 0 and (tmp_path / "p.exr").is_file(), r.stderr
 
 
 def test_an_estimator_without_evaluate_is_refused():

@@ -661,16 +661,18 @@ class _Reader:
         the expected image. probvis samples emitters by power, so it is checked and left aside, with a warning. At
         0 Mitsuba's emitter sampling never picks the emitter: a `delta` one (point, spot, directional) then adds
         nothing, which is refused; an area or environment light is still found by BSDF sampling."""
-        if props.get("sampling_weight", 1) > 0:
+        w = props.get("sampling_weight", 1.0)
+        zero = w == 0 or (abs(w) < 1 and np.float32(w) == 0)  # Mitsuba's weights are single precision
+        if w > 0 and not zero:
             self.sampled += 1
         if "sampling_weight" in props:
-            w = props["sampling_weight"]
-            if not (0 <= w <= MAX_EMISSION and (w > 0 or not delta)):
+            if not (0 <= w <= MAX_EMISSION and (not zero or not delta)):
                 span = f"above 0 and at most {MAX_EMISSION:g}" if delta else f"from 0 to {MAX_EMISSION:g}"
                 why = (" (at 0 Mitsuba never samples this light, which only emitter sampling reaches: remove it, or "
-                       "give a positive weight)") if w == 0 else ""
-                self.fail(_by_name(node)["sampling_weight"], f"sampling_weight must be {span}, got {w:g}{why}")
-            if w == 0:  # said once the integrator is read (`unsampled_emitters`)
+                       "give a positive weight)") if zero else ""
+                single = " (0 in Mitsuba's single precision)" if zero and w > 0 else ""
+                self.fail(_by_name(node)["sampling_weight"], f"sampling_weight must be {span}, got {w:g}{single}{why}")
+            if zero:  # said once the integrator is read (`unsampled_emitters`)
                 self.unweighted.append(_by_name(node)["sampling_weight"])
                 return
             warnings.warn(f"{self.where(node)}: sampling_weight ignored: probvis samples emitters by their power "

@@ -47,7 +47,7 @@ def _load_unlocked(spec, what):
                            "visibility_options); module:Class names a plug-in")
     try:
         if module_name.endswith(".py"):
-            path = Path(module_name).resolve()
+            path = Path(module_name).expanduser().resolve()  # `--visibility=~/x.py:C`: the shell leaves ~ there
             if not path.is_file():
                 raise ProbvisError(f"{what}: {path} is a folder, not a Python file" if path.is_dir() else
                                    f"{what}: no file {path}")
