@@ -513,6 +513,9 @@ def test_a_plugin_file_imports_the_modules_beside_it(tmp_path):
     r = run_cli("render", "quad-shadow", "-D", "res=8", "--spp", "1", "--visibility=~/sub/est.py:Exactish", "-o",
                 "p.exr", "-q", cwd=tmp_path, env={**os.environ, "HOME": str(tmp_path)})
     assert r.returncode == 0 and (tmp_path / "p.exr").is_file(), r.stderr
+    r = run_cli("render", "quad-shadow", "--visibility=~nosuchuser0/est.py:Exactish", "-o", "q.exr", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr == ("probvis: error: --visibility: '~nosuchuser0/est.py' names the home of a "
+                                              "user this machine does not know\n"), r.stderr
 
 
 def test_an_estimator_without_evaluate_is_refused():

@@ -109,8 +109,9 @@ def folder(tmp_path_factory):
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for kind, channels in (("grey", {"Y": np.ascontiguousarray(picture()[..., 0])}),  # Mitsuba: luminance, grey
                            ("layer", {"diffuse": picture()}),  # diffuse.R, .G, .B: Mitsuba reads the layer
-                           ("xyz", dict(zip("XYZ", np.moveaxis(picture() @ SRGB_TO_XYZ.T, -1, 0).astype(np.float32)))),
-                           ("lower", dict(zip("rgb", np.moveaxis(picture(), -1, 0))))):
+                           ("xyz", dict(zip("XYZ", np.ascontiguousarray(np.moveaxis(picture() @ SRGB_TO_XYZ.T, -1, 0),
+                                                                       np.float32)))),
+                           ("lower", dict(zip("rgb", np.ascontiguousarray(np.moveaxis(picture(), -1, 0)))))):
         with OpenEXR.File(header, channels) as f:
             f.write(str(d / f"pic-{kind}.exr"))
     from PIL import Image

@@ -66,7 +66,7 @@ def _stack_too_small():
 def _start_failure(exc):
     """The one line for a library that failed to load: the process's address-space limit is the usual cause, or
     its open-file limit (ulimit -n; resource is imported up front: loading it takes a file too)."""
-    if isinstance(exc, OSError) and exc.errno in (errno.EMFILE, errno.ENFILE):
+    if isinstance(exc, OSError) and exc.errno == errno.EMFILE:
         soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
         return (f"probvis: error: cannot start under the open-file limit of {soft} (ulimit -n): too many open files; "
                 "raise the limit")

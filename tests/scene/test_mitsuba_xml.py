@@ -258,6 +258,10 @@ def test_an_area_light_of_sampling_weight_0_is_rendered_as_mitsuba_s_bsdf_sample
     with pytest.raises(ProbvisError, match=re.escape(f"alone.xml:14: <float>: every emitter has sampling_weight 0: "
                                                      "Mitsuba 3 cannot load such a scene")):
         probvis.load_scene(alone)
+    negative = write_scene(tmp_path / "neg.xml", camera + light.replace("value='0'/>", "value='-1e-50'/>") + other)
+    with pytest.raises(ProbvisError) as err:  # negative, not 0: no word of what 0 would mean
+        probvis.load_scene(negative)
+    assert str(err.value).endswith("<float>: sampling_weight must be from 0 to 1e+30, got -1e-50")
 
 
 def test_a_default_inside_an_element_declares_its_parameter_from_there_on(tmp_path):
@@ -271,6 +275,11 @@ def test_a_default_inside_an_element_declares_its_parameter_from_there_on(tmp_pa
     assert np.allclose(ball.hi, 0.5, atol=0.01) and np.allclose(ball.lo, -0.5, atol=0.01)
     with pytest.raises(ProbvisError, match=re.escape("undefined parameter '$r'")):
         probvis.load_scene(write_scene(tmp_path / "t.xml", sensor() + LIGHT + sphere + nested))
+    # inside an element a <ref> above it uses, which probvis reads at the <ref>: refused, not read out of order
+    early = "<shape type='rectangle'><ref id='m'/></shape><default name='r' value='0.9'/><bsdf type='diffuse' id='m'>" \
+            "<default name='r' value='0.5'/><rgb name='reflectance' value='$r'/></bsdf>"
+    with pytest.raises(ProbvisError, match="a <default> inside an element that a <ref> above it uses"):
+        probvis.load_scene(write_scene(tmp_path / "u.xml", sensor() + LIGHT + early))
 
 
 def test_a_vertex_no_face_uses_may_lie_anywhere(tmp_path):

@@ -211,8 +211,9 @@ def _exr_pixels(path, channel, said):
         if all(c in single for c in "XYZ"):  # CIE XYZ, turned into linear sRGB as Mitsuba does
             xyz = np.stack([np.array(ch[single[c]].pixels, dtype=np.float64) for c in "XYZ"], axis=-1)
             return (xyz @ XYZ_TO_SRGB.T).astype(np.float32)
-        if "Y" in ch or "YA" in ch:  # luminance alone: grey, as Mitsuba reads it
-            y = np.array(ch["Y" if "Y" in ch else "YA"].pixels, dtype=np.float32)
+        grey = next((k for k in ("Y", "YA", single.get("Y")) if k in ch), None)
+        if grey is not None:  # luminance alone: grey, as Mitsuba reads it
+            y = np.array(ch[grey].pixels, dtype=np.float32)
             return np.repeat((y if y.ndim == 2 else y[..., 0])[..., None], 3, axis=-1)
         layers = [k for k in ch if np.ndim(ch[k].pixels) == 3 and np.shape(ch[k].pixels)[2] in (3, 4)]
         if len(layers) == 1:  # one layer's R, G, B ("diffuse.R", ...): that layer, as Mitsuba reads it

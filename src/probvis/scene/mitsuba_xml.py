@@ -608,6 +608,7 @@ class _Reader:
         first = self.default_nodes.get(name)
         if first is ch:  # an element read again (a <ref>'s object)
             return
+
         if first is not None:
             warnings.warn(f"{self.where(ch)}: <default> of '{name}' declared again (first on "
                           f"{self.line_of(first, ch)}, whose value is kept)", stacklevel=3)
@@ -636,6 +637,10 @@ class _Reader:
                     self.once(ch, name, lines)
                 objects.append(ch)
             elif ch.tag == "default":
+                if self.reading_ahead:  # read at a <ref> above: its place in the document is not reached yet
+                    self.fail(ch, "a <default> inside an element that a <ref> above it uses: probvis reads that "
+                                  "element at the <ref>, before the parameters declared between them; move the "
+                                  "<default> to the top level")
                 self.declare_default(ch)
             else:
                 if unknown is not None:
@@ -662,7 +667,7 @@ class _Reader:
         0 Mitsuba's emitter sampling never picks the emitter: a `delta` one (point, spot, directional) then adds
         nothing, which is refused; an area or environment light is still found by BSDF sampling."""
         w = props.get("sampling_weight", 1.0)
-        zero = w == 0 or (abs(w) < 1 and np.float32(w) == 0)  # Mitsuba's weights are single precision
+        zero = w == 0 or (0 < w < 1 and np.float32(w) == 0)  # Mitsuba's weights are single precision
         if w > 0 and not zero:
             self.sampled += 1
         if "sampling_weight" in props:

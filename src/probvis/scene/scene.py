@@ -232,7 +232,8 @@ class SceneBuilder:
         m = np.eye(4) if to_world is None else np.asarray(to_world, dtype=np.float64)
         if not np.all(np.isfinite(m)):
             raise ProbvisError(f"shape '{name}' has a non-finite to_world transform")
-        wv = tf.apply_points(m, v)
+        with np.errstate(over="ignore", invalid="ignore"):  # beyond the limit: refused below, or unused
+            wv = tf.apply_points(m, v)
         if not np.all(np.abs(wv) <= MAX_COORDINATE) and f.size:  # the vertices no face uses do not count (Mitsuba
             used = np.zeros(len(wv), bool)  # renders them away): given a used one's place, out of the bounds
             used[f.ravel()] = True

@@ -47,7 +47,10 @@ def _load_unlocked(spec, what):
                            "visibility_options); module:Class names a plug-in")
     try:
         if module_name.endswith(".py"):
-            path = Path(module_name).expanduser().resolve()  # `--visibility=~/x.py:C`: the shell leaves ~ there
+            try:  # `--visibility=~/x.py:C`: the shell leaves ~ there
+                path = Path(module_name).expanduser().resolve()
+            except RuntimeError:
+                raise ProbvisError(f"{what}: '{module_name}' names the home of a user this machine does not know")
             if not path.is_file():
                 raise ProbvisError(f"{what}: {path} is a folder, not a Python file" if path.is_dir() else
                                    f"{what}: no file {path}")
