@@ -255,7 +255,7 @@ def test_an_area_light_of_sampling_weight_0_is_rendered_as_mitsuba_s_bsdf_sample
     assert scene.n_emitters == 2
     tiny = light.replace("value='0'/>", "value='1e-46'/>")  # 0 in Mitsuba's single precision
     alone = write_scene(tmp_path / "alone.xml", camera + light + tiny.replace("translate z", "translate x='1' z"))
-    with pytest.raises(ProbvisError, match=re.escape(f"alone.xml:14: <float>: every emitter has sampling_weight 0: "
+    with pytest.raises(ProbvisError, match=re.escape("alone.xml:14: <float>: every emitter has sampling_weight 0: "
                                                      "Mitsuba 3 cannot load such a scene")):
         probvis.load_scene(alone)
     negative = write_scene(tmp_path / "neg.xml", camera + light.replace("value='0'/>", "value='-1e-50'/>") + other)
