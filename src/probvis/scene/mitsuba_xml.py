@@ -608,7 +608,6 @@ class _Reader:
         first = self.default_nodes.get(name)
         if first is ch:  # an element read again (a <ref>'s object)
             return
-
         if first is not None:
             warnings.warn(f"{self.where(ch)}: <default> of '{name}' declared again (first on "
                           f"{self.line_of(first, ch)}, whose value is kept)", stacklevel=3)

@@ -175,7 +175,7 @@ def read_obj(data):
             return None
     tri = fans(counts) if counts.max() > 3 else np.arange(len(idx)).reshape(-1, 3)
     has_uv, has_normals = bool((idx[:, 1] >= 0).any()), bool((idx[:, 2] >= 0).all())
-    if not has_uv and not (idx[:, 2] >= 0).any() or not np.isfinite(v).all():
+    if (not has_uv and not (idx[:, 2] >= 0).any()) or not np.isfinite(v).all():
         # positions in file order; a non-finite one, used or not, is refused at its line (as Mitsuba refuses it)
         return v, idx[:, 0][tri], None, None
     # a vertex per distinct index triple, in order of first use (as Mitsuba's reader numbers them)

@@ -83,8 +83,8 @@ def build_cache(scene, bvh, integrator, settings, resolution, share):
     if keys:
         k, inv = np.unique(np.concatenate(keys), return_inverse=True)
         row = np.searchsorted(k // n_voxels, np.arange(n_voxels + 1)).astype(np.int64)
-        visible = np.bincount(inv, np.concatenate(visible), len(k)).astype(np.float64)  # int64 when empty
-        cache.arrays = grid._replace(row=row, emitter_voxel=k % n_voxels, visible=visible,
+        unoccluded = np.bincount(inv, np.concatenate(visible), len(k)).astype(np.float64)  # int64 when empty
+        cache.arrays = grid._replace(row=row, emitter_voxel=k % n_voxels, visible=unoccluded,
                                      total=np.bincount(inv, minlength=len(k)).astype(np.int64))
     return cache
 
