@@ -122,13 +122,18 @@ class ProxyVisibility(VisibilityEstimator):
         self.costs = None  # (ρ, e) from the pilot: costs relative to exact visibility's fused kernel (no shells)
         self.camera_cost = None  # κ: the camera rays' cost, relative to the same
         self.pilot, self.decision = None, None
+        with self.timed("survey"):  # the cheapest evidence first: which heavy meshes the segments cross
+            survey = survey_heavy_meshes(scene, integrator, settings, p.min_triangles, p.cache)
+        # with q auto and no heavy mesh crossed nor shelled, the decision is exact visibility: no key to hash (all
+        # of the scene's triangles, longer than the survey) and no cache to read
+        undecided = p.q == "auto" and (any(m.crossed for m in survey) or meshes_for_shells(p.shells, survey))
         options = {k: getattr(p, k) for k in ("ratio", "triangles", "min_triangles", "kind", "shells")}
-        key = decision_key(integrator, settings, options) if p.q == "auto" and p.cache else None
+        key = decision_key(integrator, settings, options) if undecided and p.cache else None
         cached = Decision.load(key, e) if key is not None else None
         shapes = {s.first_triangle: s for s in scene.shapes}
         if cached is not None and not set(cached.proxy_meshes + cached.shell_meshes) <= shapes.keys():
             cached = None  # a foreign record
-        self.decision = cached or self._decide(scene, bvh, settings, integrator)
+        self.decision = cached or self._decide(scene, bvh, settings, survey)
         self.decision.cached = cached is not None
         if cached is not None:  # the same scene, view and settings decided before: build only what it chose
             self._build(scene, bvh, set(cached.proxy_meshes), [shapes[f] for f in cached.shell_meshes])
@@ -138,17 +143,16 @@ class ProxyVisibility(VisibilityEstimator):
         elif key is not None:
             self.decision.store(key)
 
-    def _decide(self, scene, bvh, settings, integrator):
-        """Survey the heavy meshes, probe the pilot's cost, build what may be used and plan (a `Decision`)."""
+    def _decide(self, scene, bvh, settings, survey):
+        """From the heavy meshes' `survey`, probe the pilot's cost, build what may be used and plan (a
+        `Decision`)."""
         p = self.params
-        with self.timed("survey"):  # the cheapest evidence first: which heavy meshes the segments cross
-            survey = survey_heavy_meshes(scene, integrator, settings, p.min_triangles, p.cache)
         shell_meshes = meshes_for_shells(p.shells, survey)
         # with q auto, no proxy for a mesh that few segments come near, nor for any where the pilot would cost
         # more than PILOT_BUDGET of the render: exact visibility then renders, as `exact` would
         only = {m.shape.first_triangle for m in survey if m.crossed or p.q != "auto"}
         tags = (["plain"] if p.shells != "on" or not shell_meshes else []) + (["shells"] if shell_meshes else [])
-        self.pilot = Pilot(integrator, settings) if p.q == "auto" and only else None
+        self.pilot = Pilot(self.integrator, settings) if p.q == "auto" and only else None
         fits = False
         if self.pilot is not None:
             with self.timed("pilot"):
