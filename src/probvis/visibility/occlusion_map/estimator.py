@@ -80,7 +80,8 @@ class OcclusionMapVisibility(VisibilityEstimator):
     summary = "photons classify points as lit, shadowed or penumbra; shadow rays only in the penumbra"
     options = (Option("penumbra", str, "bvh", "test penumbra segments against the whole BVH (unbiased there) or "
                                               "only the candidate blockers of neighbouring shadow photons (fewer "
-                                              "tests; biased where the photons missed a blocker)",
+                                              "tests; without --verify, biased where the photons missed a "
+                                              "blocker)",
                       choices=("bvh", "list")),) + MAP_OPTIONS
     phases = MAP_PHASES + KERNEL_PHASES
     aovs = (CASES_AOV,)
