@@ -17,12 +17,13 @@ import numpy as np
 
 from ..accel import occluded_segments
 from ..rng import uniforms
+from ..settings import MAX_SEED
 from ..shading import ShadedBatch
 from ..voxels import grid_placement
 from .base import Aov, Option, Phase, RenderPath, VisibilityEstimator, VisibilityResult
 from .cache_kernel import CacheArrays, pair_keys, segment_plans, shade_cached
 
-PILOT_SEED = 1 << 40  # added to the render's seed: the pilot's camera samples are none of the render's
+PILOT_SEED = 1 << 40  # added to the render's seed (modulo 2^63): the pilot's camera samples are none of the render's
 PILOT_PIXELS_PER_BATCH = 1 << 16
 
 
@@ -72,7 +73,7 @@ def build_cache(scene, bvh, integrator, settings, resolution, share):
     per_batch = max(1, PILOT_PIXELS_PER_BATCH // settings.shadow_rays)
     for b0 in range(0, len(pixels), per_batch):
         batch = integrator.shading_batch(pixels[b0:b0 + per_batch], 1, settings.shadow_rays,
-                                         settings.seed + PILOT_SEED)
+                                         (settings.seed + PILOT_SEED) & MAX_SEED)  # a valid seed still
         q = integrator.shadow_query(batch)
         occluded, n_node, n_tri = occluded_segments(bvh, q.origin, q.direction, q.tmax, q.point)
         keys.append(cache.pair_keys(q.origin, q.direction))
