@@ -82,7 +82,7 @@ CASES = [
      "--visibility given 2 times"),
     (["render", "/dev/zero"], "not a regular file"),
     (["render", "quad-shadow", "--visibility", "proxy", "--ratio", "0.2", "--triangles", "100"],
-     "give ratio or triangles, not both"),
+     "give ratio or triangles, not both (the command line's --ratio and --triangles)"),
     (["render", "quad-shadow", "-D", "res=8192"], "this render needs about"),  # under the 6 GiB RLIMIT_AS
     (["render", "quad-shadow", "--exposure", "-inf"], "argument --exposure: must be a number of stops"),
     (["render", "quad-shadow", "--visibility", "occlusion-map", "-o", "c-e1.exr", "--case-image", "c.exr"],
@@ -95,7 +95,7 @@ CASES = [
     (["render", "quad-shadow", "-o", ".exr"], "cannot write '.exr': the name is an extension alone; give a name "
                                              "before it, such as 'out.exr'"),
     (["render", "quad-shadow", "--visibility", "cache-cv", "--q", "0.1", "--min-q", "0.9"],
-     "give q or min_q, not both"),
+     "give q or min_q, not both (the command line's --q and --min-q)"),
     (["render", "quad-shadow", "-D", "res=8", "-D", "res=64"], "-D res given twice (8, 64): give it once"),
     (["render", "quad-shadow", "--spp", "2", "--spp", "3"], "--spp given twice (2, 3): give it once"),
     (["render", "quad-shadow", "-D", "seed=-5"], "parameter seed (-D seed=, seed=) must be a whole number from 0"),

@@ -283,7 +283,9 @@ class VisibilityEstimator(abc.ABC):
     def refuse_both(cls, options, first, second):
         """An error if `options` set both `first` and `second`, which exclude each other."""
         if cls.given(options, first) and cls.given(options, second):
-            raise ProbvisError(f"visibility '{cls.name}': give {first} or {second}, not both")
+            flags = [o.flag for name in (first, second) for o in cls.options if o.name == name]
+            raise ProbvisError(f"visibility '{cls.name}': give {first} or {second}, not both (the command line's "
+                               f"{' and '.join(flags)})")
 
     @classmethod
     def parse_options(cls, options):
