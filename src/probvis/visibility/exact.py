@@ -107,12 +107,12 @@ class HeavyMesh(NamedTuple):
     solid: bool  # crossed, closed and with no emitter in its bounds: it can get an inner shell
 
 
-def survey_heavy_meshes(scene, integrator, settings, min_triangles, use_cache):
+def survey_heavy_meshes(scene, integrator, settings, min_triangles, use_cache, closedness=True):
     """A `HeavyMesh` for each of the scene's heavy meshes (`heavy_meshes`), from a pilot of the render's own
     shadow segments (PILOT_SIDE² shading points, PILOT_RAYS segments each), in stages from the cheapest
     evidence: the share of the segments that cross the mesh's bounds (the shape's box, known from the load),
-    then only for a crossed mesh whether it is closed (`mesh_closed`: a content hash and a cache read, a few
-    milliseconds for a million triangles). A mesh few segments meet costs the pilot alone."""
+    then only for a crossed mesh whether it is closed (`judge_solid`; left for later without `closedness`). A
+    mesh few segments meet costs the pilot alone."""
     heavy = heavy_meshes(scene, min_triangles)
     if not heavy:
         return []
@@ -122,12 +122,17 @@ def survey_heavy_meshes(scene, integrator, settings, min_triangles, use_cache):
     pixels = np.unique(ys[:, None] * cam.width + xs[None, :])
     batch = integrator.shading_batch(pixels, 1, PILOT_RAYS, (settings.seed ^ PILOT_SALT) & MAX_SEED)
     q = integrator.shadow_query(batch)
-    boxes, out = emitter_boxes(scene), []
-    for shape in heavy:
-        crossed = crossing_share(q.origin, q.direction, q.tmax, shape.lo, shape.hi) >= CROSSING_SHARE
-        solid = crossed and not overlaps(boxes, shape.lo, shape.hi) and mesh_closed(span(scene, shape), use_cache)
-        out.append(HeavyMesh(shape, crossed, solid))
-    return out
+    out = [HeavyMesh(shape, crossing_share(q.origin, q.direction, q.tmax, shape.lo, shape.hi) >= CROSSING_SHARE,
+                     False) for shape in heavy]
+    return judge_solid(scene, out, use_cache) if closedness else out
+
+
+def judge_solid(scene, survey, use_cache):
+    """The survey with `solid` decided for its crossed meshes: no emitter in their bounds and closed
+    (`mesh_closed`: a content hash and a cache read, a few milliseconds for a million triangles)."""
+    boxes = emitter_boxes(scene)
+    return [m._replace(solid=m.crossed and not overlaps(boxes, m.shape.lo, m.shape.hi)
+                       and mesh_closed(span(scene, m.shape), use_cache)) for m in survey]
 
 
 def meshes_for_shells(setting, survey):

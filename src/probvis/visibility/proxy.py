@@ -26,7 +26,7 @@ from ..shading import ShadedBatch
 from ..shells import ShellTests, shell_memory, shell_tests
 from ..transmittance import RESOLUTION as VOLUME_RESOLUTION, transmittances
 from .base import Option, Phase, RenderPath, Switch, VisibilityEstimator, VisibilityResult
-from .exact import WARM_UP_MIN_TRIANGLES, meshes_for_shells, survey_heavy_meshes
+from .exact import WARM_UP_MIN_TRIANGLES, judge_solid, meshes_for_shells, survey_heavy_meshes
 from .occlusion_map.verification import probability_problem
 from .proxy_kernel import (CORRECTION_DIM, N_SUMS, N_TESTS, PROXY_NODE, PROXY_TRI, SCENE_NODE, SCENE_TRI, SUM_BOTH,
                            SUM_INV_P, SUM_MISMATCH, SUM_MISMATCH_W, SUM_W, SUM_WV, SUM_WV2, VOLUME_VOXEL,
@@ -123,17 +123,22 @@ class ProxyVisibility(VisibilityEstimator):
         self.camera_cost = None  # κ: the camera rays' cost, relative to the same
         self.pilot, self.decision = None, None
         with self.timed("survey"):  # the cheapest evidence first: which heavy meshes the segments cross
-            survey = survey_heavy_meshes(scene, integrator, settings, p.min_triangles, p.cache)
+            survey = survey_heavy_meshes(scene, integrator, settings, p.min_triangles, p.cache, closedness=False)
         # with q auto and no heavy mesh crossed nor shelled, the decision is exact visibility: no key to hash (all
         # of the scene's triangles, longer than the survey) and no cache to read
-        undecided = p.q == "auto" and (any(m.crossed for m in survey) or meshes_for_shells(p.shells, survey))
+        undecided = p.q == "auto" and (any(m.crossed for m in survey) or (p.shells == "on" and survey))
         options = {k: getattr(p, k) for k in ("ratio", "triangles", "min_triangles", "kind", "shells")}
         key = decision_key(integrator, settings, options) if undecided and p.cache else None
         cached = Decision.load(key, e) if key is not None else None
         shapes = {s.first_triangle: s for s in scene.shapes}
         if cached is not None and not set(cached.proxy_meshes + cached.shell_meshes) <= shapes.keys():
             cached = None  # a foreign record
-        self.decision = cached or self._decide(scene, bvh, settings, survey)
+        if cached is None:
+            with self.timed("survey"):
+                survey = judge_solid(scene, survey, p.cache)
+            self.decision = self._decide(scene, bvh, settings, survey)
+        else:
+            self.decision = cached
         self.decision.cached = cached is not None
         if cached is not None:  # the same scene, view and settings decided before: build only what it chose
             self._build(scene, bvh, set(cached.proxy_meshes), [shapes[f] for f in cached.shell_meshes])
