@@ -1,7 +1,10 @@
 """Voxel grids over a scene's heavy meshes, shared by the shells and the volumetric proxies: where a grid lies,
 and the steps of walking the voxels a segment crosses (a 3D-DDA after Amanatides and Woo)."""
+import numba
 import numpy as np
-from numba import njit
+from numba import njit, prange
+
+BOUNDS_CHUNK = 1 << 16  # points per task of `bounds`
 
 
 def grid_placement(lo, hi, resolution):
@@ -13,10 +16,35 @@ def grid_placement(lo, hi, resolution):
 
 
 def bounds(points):
-    """(lo, hi), the corners of the box around `points` (..., 3), reduced coordinate by coordinate: numpy
-    reduces an (n, 3) array over its first axis eight times slower (0.1 s for a million triangles)."""
-    flat = points.reshape(-1, 3)
-    return np.array([flat[:, a].min() for a in range(3)]), np.array([flat[:, a].max() for a in range(3)])
+    """(lo, hi), the corners of the box around `points` (..., 3): one parallel pass (a scene's box is asked for
+    at its load and by every render; numpy's six strided reductions took 80 ms for 1.3M triangles)."""
+    flat = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(flat) == 0:
+        raise ValueError("the bounds of no points")
+    parts = _chunk_bounds(flat, BOUNDS_CHUNK)
+    return parts[:, :3].min(axis=0), parts[:, 3:].max(axis=0)
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _chunk_bounds(flat, chunk):
+    """Per chunk of `chunk` rows of `flat` (n, 3), its box: (chunks, 6) of lo and hi, all NaN where a coordinate
+    of the chunk is (as numpy's min and max give NaN)."""
+    n = flat.shape[0]
+    n_chunks = (n + chunk - 1) // chunk
+    out = np.empty((n_chunks, 6))
+    for c in prange(n_chunks):
+        lo0, lo1, lo2 = flat[c * chunk, 0], flat[c * chunk, 1], flat[c * chunk, 2]
+        hi0, hi1, hi2 = lo0, lo1, lo2
+        nan = False
+        for i in range(c * chunk, min(n, (c + 1) * chunk)):
+            x, y, z = flat[i, 0], flat[i, 1], flat[i, 2]
+            nan |= (x != x) | (y != y) | (z != z)
+            lo0, lo1, lo2 = min(lo0, x), min(lo1, y), min(lo2, z)
+            hi0, hi1, hi2 = max(hi0, x), max(hi1, y), max(hi2, z)
+        out[c, 0], out[c, 1], out[c, 2], out[c, 3], out[c, 4], out[c, 5] = lo0, lo1, lo2, hi0, hi1, hi2
+        if nan:
+            out[c, :] = np.nan
+    return out
 
 
 @njit(cache=True, error_model="numpy", inline="always")
