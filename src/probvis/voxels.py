@@ -1,6 +1,5 @@
 """Voxel grids over a scene's heavy meshes, shared by the shells and the volumetric proxies: where a grid lies,
 and the steps of walking the voxels a segment crosses (a 3D-DDA after Amanatides and Woo)."""
-import numba
 import numpy as np
 from numba import njit, prange
 
