@@ -172,13 +172,15 @@ def heavy_canopy(res=256, spp=16, shadow_rays=16, seed=0, leaves=1_000_000, layo
 def warm_up_scene(res=4):
     """The warm-up renders' scene (`VisibilityEstimator.warm_ups`): quad-shadow's floor and light over a closed
     scan of 80 triangles and a cluster of 48 leaf triangles, each heavy at a warm-up's min_triangles, so that
-    the kernels of heavy meshes (shells, decimated and volumetric proxies) run too; not a listed built-in."""
+    the kernels of heavy meshes (shells, decimated and volumetric proxies) run too; not a listed built-in. The
+    scan is a coarse UV sphere, not `_scan`'s icosphere: importing trimesh for that cost every process's first
+    render 0.4 s."""
     rng = np.random.default_rng(2013)
     b = SceneBuilder("warm-up", "builtin:warm-up")
     grey = b.material((0.8, 0.8, 0.8))
     v, f = shp.rectangle()
     b.add_mesh("floor", "rectangle", v, f, tf.scale([4, 4, 1]), grey)
-    sv, sf = _scan(1, 0.002)
+    sv, sf, _ = shp.uv_sphere(rings=6, segments=8)
     b.add_mesh("scan", "mesh", sv, sf, tf.translate([0, 0, 1.1]) @ tf.scale([0.6, 0.6, 0.6]), grey)
     leaves = rng.uniform(-0.3, 0.3, (48, 1, 3)) + rng.normal(scale=0.08, size=(48, 3, 3)) + [1.2, 0.4, 0.8]
     b.add_mesh("leaves", "mesh", leaves.reshape(-1, 3), np.arange(3 * 48).reshape(-1, 3), None,
