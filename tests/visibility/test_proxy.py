@@ -354,8 +354,9 @@ def test_a_pilot_dearer_than_its_budget_is_skipped(monkeypatch):
 @pytest.mark.parametrize("shells", ["off", "on"])
 def test_a_decision_is_cached_by_scene_view_and_settings(cache, shells, monkeypatch):
     """q auto's decision (pilot and plan) is stored by scene, view and settings, not the seed: the next render
-    reads it (after the survey, which says whether there is anything to decide) and builds only what it chose, and renders the first render's image bit for bit where the seed is the
-    same (a plan measured again would differ with the timings). Other samples, another view or another light
+    reads it (after the survey, which says whether there is anything to decide), builds only what it chose and
+    renders the first render's image bit for bit where the seed is the same (a plan measured again would differ
+    with the timings). Other samples, another view or another light
     decide again; without the cache nothing is stored. (The plan is made to use the proxy everywhere, which a
     render this small would not choose, so that the proxies are rebuilt from the record.)"""
     allocate_ = proxy_plan.allocate
