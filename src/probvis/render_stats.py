@@ -13,7 +13,7 @@ def _case_stats(counts):
 
 def render_stats(scene, settings, estimator, result, image, clamp, seconds, memory):
     """Stats of a finished render: `result` is the integrator's pass, `clamp` the negative-pixel report,
-    `seconds` the phases (wall: total, load, compile, bvh, prepare, render; CPU: cpu_total, cpu_render) and
+    `seconds` the phases (wall: total, load, compile, bvh, prepare, render; CPU: cpu_total, cpu_compile, cpu_render) and
     `memory` the estimate and the measured peak."""
     tot = result.film.totals()
     cam = scene.camera

@@ -26,8 +26,8 @@ def bounds(points):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def _chunk_bounds(flat, chunk):
-    """Per chunk of `chunk` rows of `flat` (n, 3), its box: (chunks, 6) of lo and hi, all NaN where a coordinate
-    of the chunk is (as numpy's min and max give NaN)."""
+    """Per chunk of `chunk` rows of `flat` (n, 3), its box: (chunks, 6) of lo and hi, all six NaN where any
+    coordinate of the chunk is NaN (numpy's min and max made only that axis NaN; no caller passes NaN)."""
     n = flat.shape[0]
     n_chunks = (n + chunk - 1) // chunk
     out = np.empty((n_chunks, 6))
