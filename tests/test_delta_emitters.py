@@ -83,6 +83,24 @@ SUN = GROUND + """
         <rgb name="irradiance" value="2, 1.8, 1.5"/></emitter>"""
 
 
+def test_a_directional_light_s_to_world_scale_scales_it_as_in_mitsuba(tmp_path):
+    """Mitsuba lights along to_world's z axis without normalising it: a scale of 2 along the light's own z doubles
+    its light (the other axes change nothing); probvis took only the direction, half Mitsuba's image."""
+    def scene(scale):
+        sun = GROUND + f"""
+    <emitter type="directional"><transform name="to_world">{scale}<lookat origin="0, 0, 0" target="0.4, 0.6, -1"/>
+        </transform><rgb name="irradiance" value="2, 1.8, 1.5"/></emitter>"""
+        return write_scene(tmp_path / f"sun{len(scale)}.xml", sensor(origin="0.3, -2.8, 1.7", target="0, 0, 0.3",
+                                                                    up="0, 0, 1", fov=45, spp="$spp", w=40, h=32,
+                                                                    sr=1) + sun, '<default name="spp" value="16"/>')
+    scaled = scene('<scale x="3" y="0.5" z="2"/>')
+    plain = probvis.render(scene(""), spp=2, shadow_rays=1, seed=3).image
+    np.testing.assert_allclose(probvis.render(scaled, spp=2, shadow_rays=1, seed=3).image, 2 * plain, rtol=1e-12)
+    with pytest.raises(ProbvisError, match="irradiance times the length of to_world's z axis"):
+        probvis.load_scene(scene('<scale value="1e60"/>'))
+    assert_matches_mitsuba(scaled, shadow_rays=1)
+
+
 def test_directional_light_matches_mitsuba_and_keeps_the_map_unbiased(tmp_path):
     path = write_scene(tmp_path / "sun.xml", sensor(origin="0.3, -2.8, 1.7", target="0, 0, 0.3", up="0, 0, 1",
                                                      fov=45, spp="$spp", w=40, h=32, sr=1) + SUN,

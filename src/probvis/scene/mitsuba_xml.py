@@ -1021,8 +1021,15 @@ class _Reader:
             self.sampling_weight(node, props, delta=True)
             if "direction" in props and "to_world" in props:
                 self.fail(node, "give either 'direction' or 'to_world', not both")
-            d = tf.tamed(props.get("direction", props.get("to_world", np.eye(4))[:3, :3] @ np.array([0.0, 0.0, 1.0])))
-            e = self.emission(node, "irradiance", props.get("irradiance", np.ones(3)))
+            z = props.get("to_world", np.eye(4))[:3, :3] @ np.array([0.0, 0.0, 1.0])
+            d = tf.tamed(props.get("direction", z))
+            irradiance, name = props.get("irradiance", np.ones(3)), "irradiance"
+            if "to_world" in props and np.abs(z).max() > 0:  # Mitsuba lights along to_world's z axis unnormalised:
+                big = np.abs(z).max()  # its length scales the light
+                with np.errstate(over="ignore"):
+                    irradiance = np.asarray(irradiance, dtype=np.float64) * (big * np.linalg.norm(z / big))
+                name = "irradiance times the length of to_world's z axis (which scales Mitsuba's light)"
+            e = self.emission(node, name, irradiance)
             if not np.linalg.norm(d) > 0:
                 self.fail(node, "a directional emitter needs a non-zero direction")
             builder.add_directional_emitter(e, d)
