@@ -158,7 +158,7 @@ def test_table_column_defaults_to_16_rays_or_the_most():
 def test_a_reference_that_is_not_an_exr_is_refused_before_any_render(tmp_path):
     (tmp_path / "r.png").write_bytes(b"\x89PNG")
     change = {"scenes": [{"name": "q", "source": "quad-shadow", "reference": "r.png"}]}
-    with pytest.raises(ProbvisError, match=re.escape("scenes[0].reference: r.png is not an EXR image")):
+    with pytest.raises(ProbvisError, match=re.escape("scenes[0].reference: r.png is not an EXR or PFM image")):
         parse_experiment(doc(**change), tmp_path)
 
 

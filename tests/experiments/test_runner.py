@@ -9,6 +9,7 @@ import threading
 import numpy as np
 import pytest
 
+import probvis
 from probvis.errors import ProbvisError
 from probvis.experiments import experiment, parse_experiment
 from probvis.experiments import report as report_module
@@ -362,6 +363,24 @@ def test_methods_that_match_the_reference_plot_without_warnings(tiny_run, tmp_pa
         warnings.simplefilter("error")
         report_module.write_report(parse_experiment(TINY), run, zero, tmp_path / "report")
     assert (tmp_path / "report" / "plots" / "quad-convergence.png").is_file()
+
+
+def test_a_pfm_reference_is_read_as_an_exr_one(tmp_path):
+    """A reference in PFM (linear radiance, as `probvis render -o ref.pfm` writes it) was refused as 'not an EXR
+    image'; its relMSE is the EXR reference's."""
+    from probvis.io import write_exr
+    from probvis.io.image import write_pfm
+
+    ref = probvis.render("quad-shadow", spp=8, shadow_rays=4, resolution=(12, 12), seed=9).image
+    write_exr(tmp_path / "ref.exr", ref)
+    write_pfm(tmp_path / "ref.pfm", ref)
+    errors = []
+    for name in ("ref.exr", "ref.pfm"):
+        doc = dict(TINY, scenes=[{"name": "quad", "source": "quad-shadow", "reference": str(tmp_path / name)}])
+        results, _, _ = experiment(parse_experiment(doc), tmp_path / name.replace(".", "-"), progress=False,
+                                   log=lambda m: None)
+        errors.append(sorted(c["relmse"] for c in results.cells))
+    assert errors[0] == errors[1] and len(errors[0]) > 0
 
 
 def test_reference_file_of_the_wrong_size_is_named(tmp_path):
