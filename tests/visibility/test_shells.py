@@ -13,6 +13,7 @@ from probvis.scene import Camera
 from probvis.settings import RenderSettings
 from probvis.shells import (FREE, PAD, SOLID, SURFACE, build_shells, classify_segments, heavy_meshes, is_closed,
                             mesh_closed, shell_tests, span)
+from probvis.voxels import BOUNDS_CHUNK, bounds
 
 
 @pytest.fixture(autouse=True)
@@ -195,3 +196,16 @@ def test_the_survey_asks_closedness_only_of_crossed_meshes(cache):
         before = len(list(cache.glob("closed/*.npz")))
         probvis.render(scene, spp=1, shadow_rays=2, visibility_options={"min_triangles": 1000})
         assert len(list(cache.glob("closed/*.npz"))) - before == int(crossed)
+
+
+@pytest.mark.parametrize("n", [1, 2, BOUNDS_CHUNK - 1, BOUNDS_CHUNK, BOUNDS_CHUNK + 1, 3 * BOUNDS_CHUNK + 7])
+def test_the_parallel_box_is_numpy_s(n):
+    """`voxels.bounds` (chunks over the threads) against numpy's min and max, at the chunks' edges and on views."""
+    pts = np.random.default_rng(n).normal(scale=5.0, size=(n, 3))
+    for view in (pts, pts[::-1], np.asfortranarray(pts), pts.astype(np.float32)):
+        lo, hi = bounds(view)
+        np.testing.assert_array_equal(lo, view.min(axis=0))
+        np.testing.assert_array_equal(hi, view.max(axis=0))
+    tris = pts[: n - n % 3].reshape(-1, 3, 3)
+    if len(tris):
+        np.testing.assert_array_equal(bounds(tris)[0], tris.reshape(-1, 3).min(axis=0))

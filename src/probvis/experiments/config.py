@@ -179,8 +179,8 @@ def _scene(where, table, base):
         if not ref.is_file():
             _fail(f"{where}.reference", f"{ref} is not a regular file" if ref.exists() else missing_file(given, "image"))
         if ref.suffix.lower() not in (".exr", ".pfm"):
-            _fail(f"{where}.reference", f"{ref.name} is not an EXR or PFM image (a reference holds linear radiance, "
-                                        "as probvis and Mitsuba write it: .exr or .pfm)")
+            _fail(f"{where}.reference", f"{ref.name} is not an EXR or PFM image (a reference holds linear "
+                                        "radiance, as probvis and Mitsuba write it: .exr or .pfm)")
         reference = str(ref)
     noise = table.get("reference_noise", 0.0)
     if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not 0 <= noise < float("inf"):

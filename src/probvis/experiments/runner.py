@@ -29,7 +29,8 @@ from .. import __version__
 from ..errors import ProbvisError, checked_call, expect_record, is_flag, is_number, is_path, shown
 from ..interrupts import deferred_interrupts
 from ..io.atomic import atomic_path
-from ..io.image import read_exr, read_pfm, write_exr
+from ..io.image import read_exr, write_exr
+from ..io.linear_rgb import read_linear_rgb
 from ..scene import open_scene
 from ..scene.scene import MAX_EMISSION
 from .config import MADE_BY, Experiment, MethodSpec, Timing
@@ -413,15 +414,13 @@ def _check_memory(exp, scenes):
 
 def _reference_file(spec, scene):
     """A scene's reference image from its file: readable, of the scene's size, finite."""
-    pfm = spec.reference.lower().endswith(".pfm")
-    try:
-        img = read_pfm(spec.reference) if pfm else read_exr(spec.reference)[..., :3]
-        img = np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img.astype(np.float64)
+    try:  # EXR or PFM (the config's check), read as a texture is: grey repeated, alpha dropped
+        img = read_linear_rgb(spec.reference)
     except ProbvisError as exc:
         raise ProbvisError(f"scene '{spec.name}': reference: {exc}") from None
-    except Exception as exc:  # a file the EXR reader cannot make sense of
-        raise ProbvisError(f"scene '{spec.name}': reference {spec.reference} is not a readable "
-                           f"{'PFM' if pfm else 'EXR'} image ({type(exc).__name__}: {exc})") from None
+    except Exception as exc:  # a file the image readers cannot make sense of
+        raise ProbvisError(f"scene '{spec.name}': reference {spec.reference} is not a readable image "
+                           f"({type(exc).__name__}: {exc})") from None
     if not np.all(np.isfinite(img)):
         raise ProbvisError(f"scene '{spec.name}': reference {spec.reference} has NaN or infinite pixels")
     want = (scene.camera.height, scene.camera.width)

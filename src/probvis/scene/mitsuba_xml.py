@@ -1024,10 +1024,8 @@ class _Reader:
             z = props.get("to_world", np.eye(4))[:3, :3] @ np.array([0.0, 0.0, 1.0])
             d = tf.tamed(props.get("direction", z))
             irradiance, name = props.get("irradiance", np.ones(3)), "irradiance"
-            if "to_world" in props and np.abs(z).max() > 0:  # Mitsuba lights along to_world's z axis unnormalised:
-                big = np.abs(z).max()  # its length scales the light
-                with np.errstate(over="ignore"):
-                    irradiance = np.asarray(irradiance, dtype=np.float64) * (big * np.linalg.norm(z / big))
+            if "to_world" in props:  # Mitsuba lights along to_world's z axis unnormalised: its length scales it
+                irradiance = np.asarray(irradiance, dtype=np.float64) * np.hypot.reduce(z)  # (no overflow)
                 name = "irradiance times the length of to_world's z axis (which scales Mitsuba's light)"
             e = self.emission(node, name, irradiance)
             if not np.linalg.norm(d) > 0:
