@@ -65,18 +65,18 @@ class EmitterSampler:
 def build_emitter_sampler(scene):
     """The `EmitterSampler` of a scene's emitters."""
     e = scene.n_emitters
-    tri_area = 0.5 * np.linalg.norm(np.cross(scene.triangles[:, 1] - scene.triangles[:, 0],
-                                             scene.triangles[:, 2] - scene.triangles[:, 0]), axis=1)
-    order = np.argsort(scene.tri_emitter, kind="stable")
-    order = order[scene.tri_emitter[order] >= 0]
+    lit = np.flatnonzero(scene.tri_emitter >= 0)  # the emitting triangles, by emitter, in scene order within one
+    order = lit[np.argsort(scene.tri_emitter[lit], kind="stable")]
+    tris = scene.triangles[order]
+    tri_area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
     counts = np.bincount(scene.tri_emitter[order], minlength=e)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    area = np.array([tri_area[order[offsets[i]:offsets[i + 1]]].sum() for i in range(e)])
+    area = np.array([tri_area[offsets[i]:offsets[i + 1]].sum() for i in range(e)])
     tri_prob = np.empty(len(order))
     tri_alias = np.empty(len(order), np.int64)
     for i in range(e):
         tri_prob[offsets[i]:offsets[i + 1]], tri_alias[offsets[i]:offsets[i + 1]] = alias_table(
-            tri_area[order[offsets[i]:offsets[i + 1]]])
+            tri_area[offsets[i]:offsets[i + 1]])
     kind = scene.emitter_kind
     lum = scene.emitter_radiance @ LUMINANCE
     lo, hi = scene.bounds()

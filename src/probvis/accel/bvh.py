@@ -48,6 +48,22 @@ def _depth_stats(node_index, node_count):
     return max_depth
 
 
+@njit(cache=True, error_model="numpy")
+def _tree_sums(bounds, node_count):
+    """For `BVH.stats`, in one pass over the nodes: the number of leaves, the surface area of the interior nodes
+    and the leaves' area times their primitive count."""
+    n_leaves, inner, leaf = 0, 0.0, 0.0
+    for i in range(bounds.shape[0]):
+        dx, dy, dz = bounds[i, 3] - bounds[i, 0], bounds[i, 4] - bounds[i, 1], bounds[i, 5] - bounds[i, 2]
+        area = 2.0 * (dx * dy + dy * dz + dz * dx)
+        if node_count[i] == 0:
+            inner += area
+        else:
+            n_leaves += 1
+            leaf += area * node_count[i]
+    return n_leaves, inner, leaf
+
+
 class BVHArrays(NamedTuple):
     """What the traversal kernels take: float and int64 views of the same node records (see `_pack`), the root
     box as a (1, 6) array, triangle vertices and scene triangle ids in BVH order, and the stack depth needed."""
@@ -88,20 +104,14 @@ class BVH:
                          self.max_depth + 2)
 
     def stats(self):
-        leaves = self.node_count > 0
-        root_area = float(surface_area(self.bounds[0]))
-        areas = 2.0 * np.sum(np.stack([
-            (self.bounds[:, 3] - self.bounds[:, 0]) * (self.bounds[:, 4] - self.bounds[:, 1]),
-            (self.bounds[:, 4] - self.bounds[:, 1]) * (self.bounds[:, 5] - self.bounds[:, 2]),
-            (self.bounds[:, 5] - self.bounds[:, 2]) * (self.bounds[:, 3] - self.bounds[:, 0])]), axis=0)
-        sah = (TRAVERSAL_COST * areas[~leaves].sum() + (areas[leaves] * self.node_count[leaves]).sum()) / root_area
+        n_leaves, inner_area, leaf_cost = _tree_sums(self.bounds, self.node_count)
         return {
             "nodes": int(len(self.node_count)),
-            "leaves": int(leaves.sum()),
+            "leaves": n_leaves,
             "max_depth": self.max_depth,
-            "mean_leaf_size": float(self.node_count[leaves].mean()),
+            "mean_leaf_size": len(self.prim_ids) / n_leaves,
             "max_leaf_size": int(self.node_count.max()),
-            "sah_cost": float(sah),
+            "sah_cost": (TRAVERSAL_COST * inner_area + leaf_cost) / float(surface_area(self.bounds[0])),
             "build_seconds": self.build_seconds,
             "bytes": self.nbytes,
         }

@@ -82,10 +82,12 @@ def check_scene(scene):
                                   if kinds == "iu" and getattr(a, "dtype", None) == np.uint64 else ""))
     for name in ("triangles", "vertex_normals", "emitter_radiance", "emitter_position", "emitter_axis",
                  "emitter_cone"):
-        if not np.all(np.isfinite(getattr(scene, name))):
+        a = getattr(scene, name)
+        lo, hi = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)  # NaN or ±inf reach one of them
+        if not (np.isfinite(lo) and np.isfinite(hi)):
             raise ProbvisError(f"scene.{name} must be finite (it holds NaN or infinite values)")
-    for name in ("triangles", "emitter_position"):  # as the scene reader bounds them: beyond, products overflow
-        if not np.all(np.abs(getattr(scene, name)) <= MAX_COORDINATE):
+        if name in ("triangles", "emitter_position") and max(-lo, hi) > MAX_COORDINATE:
+            # as the scene reader bounds them: beyond, products overflow
             raise ProbvisError(f"scene.{name} must lie within ±{MAX_COORDINATE:g}: rescale the scene")
     aimed = np.isin(scene.emitter_kind, (EMITTER_SPOT, EMITTER_DIRECTIONAL))
     if not np.all(np.abs(scene.emitter_axis[aimed]).max(axis=-1, initial=0.0) > 0.0):
@@ -102,7 +104,8 @@ def check_scene(scene):
         raise ProbvisError("scene.tri_uv must hold the corners' uv of a scene with textures")
     if scene.tri_uv is not None and not np.all(np.abs(scene.tri_uv) <= MAX_UV):
         raise ProbvisError(f"scene.tri_uv must be finite and within ±{MAX_UV:g}")
-    if not np.all(np.abs(scene.vertex_normals).max(axis=-1, initial=0.0) > 0.0):
+    vn = scene.vertex_normals  # per component: a reduction over the last axis of 3 is six times slower
+    if not np.all((vn[..., 0] != 0.0) | (vn[..., 1] != 0.0) | (vn[..., 2] != 0.0)):
         raise ProbvisError("scene.vertex_normals must not be zero")
     if not np.all(scene.emitter_radiance <= MAX_EMISSION):
         raise ProbvisError(f"scene.emitter_radiance must be at most {MAX_EMISSION:g}")
