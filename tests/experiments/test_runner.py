@@ -190,6 +190,25 @@ def test_a_local_cluster_that_cannot_start_is_one_clear_error(monkeypatch):
         runner._open_client(1, None)
 
 
+@pytest.mark.parametrize("files, workers", [(16, 1), (20, 2), (200, 1), (300, 16)])
+def test_too_few_open_files_for_a_local_cluster_is_refused_before_it_starts(monkeypatch, files, workers):
+    """Sweep 49: under `ulimit -n 20` with two workers Dask's scheduler spun on EMFILE forever, printing tracebacks
+    (under 16, one asyncio traceback before the line). The limit is checked before the cluster starts."""
+    import dask.distributed
+
+    from probvis.experiments import runner
+
+    def never(**_):
+        raise AssertionError("the cluster was started")
+
+    monkeypatch.setattr(dask.distributed, "LocalCluster", never)
+    monkeypatch.setattr(runner.resource, "getrlimit", lambda which: (files, files))
+    need = max(256, 64 + 16 * workers)
+    with pytest.raises(ProbvisError, match=rf"^cannot start a local Dask cluster of {workers} workers?: this process "
+                                           rf"may open only {files} files \(ulimit -n\), fewer than the {need} its"):
+        runner._open_client(workers, None)
+
+
 def test_unreachable_scheduler_is_one_clear_error(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -486,10 +505,28 @@ def test_a_report_that_would_replace_a_file_a_scene_reads_is_refused_before_rend
 
 
 def test_report_file_names_are_unique_per_scene():
-    names = ["x/y", "x_y", "x y", "é", "e"]
-    slugs = [report_module._slug(n) for n in names]
-    assert len(set(slugs)) == len(names) and report_module._slug("city-1_a") == "city-1_a"
-    assert all(s.isascii() and "/" not in s for s in slugs)
+    from probvis.experiments.config import file_stem
+
+    # a name that looks like a changed one (sweep 49: 'a_b-3ec69c' was the file name of 'a/b', and its own)
+    names = ["x/y", "x_y", "x y", "é", "e", "a/b", file_stem("a/b"), "a_b-abcdef", "a_b-ABCDEF"]
+    stems = [file_stem(n) for n in names]
+    assert len(set(stems)) == len(names) and file_stem("city-1_a") == "city-1_a"
+    assert file_stem("a_b-ABCDEF") == "a_b-ABCDEF" and file_stem(file_stem("a/b")) != file_stem("a/b")
+    assert all(s.isascii() and "/" not in s for s in stems)
+
+
+@pytest.mark.parametrize("kind", ["scenes", "methods"])
+def test_names_whose_report_files_collide_are_refused(kind):
+    """Two names whose hashes agree in the six digits the file name keeps (U+0C0C and U+1C34 between a and b):
+    refused before any render, not one's images and viewer data replaced by the other's."""
+    from probvis.experiments.config import file_stem
+
+    one, two = "a\u0c0cb", "a\u1c34b"
+    assert file_stem(one) == file_stem(two)
+    entries = [dict(TINY[kind][0], name=one), dict(TINY[kind][0], name=two)]
+    with pytest.raises(ProbvisError, match=f"{kind[:-1]} names '{one}' and '{two}' give the same file name "
+                                           f"'{file_stem(one)}' in the report: rename one"):
+        parse_experiment(dict(TINY, **{kind: entries}))
 
 
 def test_an_existing_scheduler_gives_the_same_numbers(tiny_run, tmp_path):

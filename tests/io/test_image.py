@@ -235,6 +235,44 @@ def test_an_image_under_another_extension_is_read_by_its_content(tmp_path, kind)
         read_linear_rgb(tmp_path / "b.texture")
 
 
+def test_an_image_of_a_format_probvis_does_not_read_is_refused_whatever_its_name(tmp_path):
+    """Sweep 49: WebP (or GIF) data in a file named .png was decoded by Pillow and rendered, where Mitsuba refuses
+    it; a JPEG named .png is read by its content, as Mitsuba reads it."""
+    from PIL import Image
+
+    from probvis.io.linear_rgb import read_linear_rgb
+
+    img = Image.fromarray(np.random.default_rng(0).integers(0, 255, (4, 5, 3), dtype=np.uint8))
+    for fmt in ("WEBP", "GIF"):
+        img.save(tmp_path / "t.png", format=fmt)
+        with pytest.raises(ProbvisError, match=f"t.png: the file holds a {fmt} image, not a format probvis reads"):
+            read_linear_rgb(tmp_path / "t.png")
+    img.save(tmp_path / "t.png", format="JPEG")
+    img.save(tmp_path / "t.jpg", format="JPEG")
+    np.testing.assert_array_equal(read_linear_rgb(tmp_path / "t.png"), read_linear_rgb(tmp_path / "t.jpg"))
+
+
+def test_a_palette_bmp_warns_that_mitsuba_reads_it_otherwise(tmp_path):
+    """Sweep 49: Mitsuba 3.9 reads a palette BMP's indices as grey (its mean 0.67× probvis's on the sweep's
+    image); probvis reads the colours, the same image as the RGB file's, and says so."""
+    import warnings
+
+    from PIL import Image
+
+    from probvis.io.linear_rgb import read_linear_rgb
+
+    rgb = Image.fromarray(np.random.default_rng(1).integers(0, 255, (4, 5, 3), dtype=np.uint8))
+    pal = rgb.quantize(colors=8)
+    pal.save(tmp_path / "p.bmp")
+    pal.convert("RGB").save(tmp_path / "c.bmp")
+    with pytest.warns(UserWarning, match="p.bmp: a palette BMP: probvis reads its colours, Mitsuba 3.9 its palette "
+                                         "indices as grey"):
+        got = read_linear_rgb(tmp_path / "p.bmp")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(got, read_linear_rgb(tmp_path / "c.bmp"))
+
+
 @pytest.mark.parametrize("name, reader", [("t.png", "linear_rgb.read_linear_rgb"),
                                           ("t.exr", "linear_rgb.read_linear_rgb"), ("t.exr", "image.read_exr")])
 def test_an_unreadable_image_says_so(tmp_path, name, reader):

@@ -176,6 +176,25 @@ def test_a_malformed_header_is_named(tmp_path, edit, message):
         shapes.load_mesh(path)
 
 
+@pytest.mark.parametrize("extra", [b"", b"\x00" * 70])
+def test_bytes_after_a_binary_ply_s_data_are_refused(tmp_path, extra):
+    """Sweep 49: a binary PLY with bytes after its declared rows (a damaged or joined file) loaded as the valid
+    one, where Mitsuba refuses it ("trailing content"); the ASCII form was refused already."""
+    from probvis.errors import ProbvisError
+
+    path = tmp_path / "m.ply"
+    path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                     b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                     + np.array([0, 0, 0, 1, 0, 0, 0, 1, 0], "<f4").tobytes() + b"\x03"
+                     + np.array([0, 1, 2], "<i4").tobytes() + extra)
+    if not extra:
+        assert shapes.load_mesh(path)[1].tolist() == [[0, 1, 2]]
+        return
+    with pytest.raises(ProbvisError, match=re.escape("m.ply: 70 bytes after the data its header declares (vertex 3, "
+                                                     "face 1): a damaged or joined file (Mitsuba refuses")):
+        shapes.load_mesh(path)
+
+
 @pytest.mark.parametrize("edit", [("\n", "\r\n"), ("3 0 1 2\n", "3 0 1 2\n\n  \n"), ("3 0 1 2\n", "3 0 1 2")])
 def test_line_endings_and_blank_lines_after_the_rows_still_load(tmp_path, edit):
     """The trailing-rows check counts rows, not lines: Windows line endings, blank lines at the end and a last

@@ -4,6 +4,7 @@ Every key is checked against the schema below, so a typo is an error naming the 
 Paths inside the file are relative to the file.
 """
 import dataclasses
+import hashlib
 import math
 import os
 import re
@@ -274,6 +275,11 @@ def parse_experiment(data, base=Path("."), source=""):
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             _fail(where, f"repeated {kind} name{'s' if len(dup) > 1 else ''} {', '.join(map(repr, dup))}")
+        stems = {}
+        for n in names:
+            if (other := stems.setdefault(file_stem(n), n)) != n:
+                _fail(where, f"{kind} names {other!r} and {n!r} give the same file name {file_stem(n)!r} in the "
+                             "report: rename one")
     baselines = [m["name"] for m in methods if m.get("baseline", False)]
     if len(baselines) > 1:
         _fail(where, f"only one method can be the baseline, got {', '.join(baselines)}")
@@ -381,6 +387,19 @@ def recheck(exp):
 MAX_DEPTH = 16  # lists and tables: an experiment nests three levels
 MAX_TARGET = 1e6  # a target relMSE: beyond, every render reaches it (and its time extrapolates past float's range)
 MAX_CELLS = 100_000  # renders of one study: its report lists every cell, its cache holds a file per render
+HASHED_STEM = re.compile(r".*-[0-9a-f]{6}")  # what `file_stem` makes of a name it had to change
+
+
+def file_stem(name):
+    """The report's file name for a scene or method name: ASCII letters, digits, - and _. A name that had to be
+    changed, or that already ends as a changed one does (a hyphen and six hex digits), gets a short hash of
+    itself, so 'x/y', 'x_y' and 'x_y-<hash of x/y>' stay apart (`parse_experiment` refuses what still collides)."""
+    out = "".join(c if (c.isascii() and c.isalnum()) or c in "-_" else "_" for c in name)
+    if out != name or HASHED_STEM.fullmatch(name):
+        out += "-" + hashlib.sha1(name.encode()).hexdigest()[:6]
+    return out
+
+
 MAX_NAME = 100  # characters: report files add a suffix, and file systems allow 255 bytes
 
 

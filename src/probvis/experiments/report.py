@@ -7,7 +7,6 @@ the viewer's script and style are copied from the package.
 """
 import base64
 import csv
-import hashlib
 import html
 import io
 import json
@@ -25,7 +24,7 @@ import numpy as np
 from ..errors import ProbvisError, checked_call, expect_record, is_path
 from ..io.atomic import atomic_path, staged_writes
 from ..io.image import tonemap_srgb, utf8_path, write_png
-from .config import MADE_BY, Experiment
+from .config import MADE_BY, Experiment, file_stem
 from .results import UNSTEADY, Results
 from .runner import RunSummary
 
@@ -33,15 +32,6 @@ STATIC = ("viewer.js", "report.css")
 NAME_MAX = 255  # bytes in a file name: what Linux's and macOS's file systems hold
 REPORT_TITLE = "probvis experiment: "  # how its index.html begins: a folder holding another index.html is not replaced
 SECONDS_NOTE = {"total": "", "render": " and without scene loading and BVH building (seconds = render)"}
-
-
-def _slug(text):
-    """A file name for `text`: ASCII letters, digits, - and _; where anything was replaced, a short hash of the
-    original keeps names apart ('x/y' and 'x_y')."""
-    out = "".join(c if (c.isascii() and c.isalnum()) or c in "-_" else "_" for c in text)
-    if out != text:
-        out += "-" + hashlib.sha1(text.encode()).hexdigest()[:6]
-    return out
 
 
 def _write_text(path, text):
@@ -176,11 +166,11 @@ class Report:
     # --- files -------------------------------------------------------------------------------------------
     @staticmethod
     def _image_path(scene, method=None, rays=None):
-        name = "reference" if method is None else f"{_slug(method)}-{rays}"
-        return f"images/{_slug(scene)}/{name}.png"
+        name = "reference" if method is None else f"{file_stem(method)}-{rays}"
+        return f"images/{file_stem(scene)}/{name}.png"
 
     def _scene_images(self, scene):
-        (self.folder / "images" / _slug(scene)).mkdir(exist_ok=True)
+        (self.folder / "images" / file_stem(scene)).mkdir(exist_ok=True)
         write_png(self.folder / self._image_path(scene), self.run.reference_images[scene])
         for (s, m, rays), r in self.images.items():
             if s == scene:
@@ -199,7 +189,7 @@ class Report:
                 images[f"{m}@{rays}"] = enc(r.image)
         payload = {"width": w, "height": h, "methods": [m.name for m in self.exp.methods],
                    "shadowRays": list(self.exp.shadow_rays), "images": images}
-        _write_text(self.folder / "data" / f"{_slug(scene)}.js",
+        _write_text(self.folder / "data" / f"{file_stem(scene)}.js",
                     f"window.PROBVIS_DATA = window.PROBVIS_DATA || {{}};\n"
                     f"window.PROBVIS_DATA[{json.dumps(scene)}] = {json.dumps(payload)};\n")
 
@@ -227,7 +217,7 @@ class Report:
                 ax.axis("off")
             fig.colorbar(im, ax=axes[0].tolist(), shrink=0.8, label="ray–triangle tests / pixel")
             fig.suptitle(f"{scene}: {sr} shadow ray{'s' if sr > 1 else ''} per camera sample", fontsize=9)
-            self._savefig(fig, self.folder / "plots" / f"{_slug(scene)}-tests-{sr}.png")
+            self._savefig(fig, self.folder / "plots" / f"{file_stem(scene)}-tests-{sr}.png")
 
     def _convergence_plot(self, scene):
         fig, axes = _pyplot().subplots(1, 2, figsize=(10, 3.8))
@@ -246,7 +236,7 @@ class Report:
         fig.suptitle(f"{scene}: relMSE against cost, {', '.join(map(str, self.exp.shadow_rays))} shadow rays",
                      fontsize=9)
         fig.tight_layout()
-        self._savefig(fig, self.folder / "plots" / f"{_slug(scene)}-convergence.png")
+        self._savefig(fig, self.folder / "plots" / f"{file_stem(scene)}-convergence.png")
 
     def _cost_plot(self, scene):
         """Seconds per camera sample against shadow rays per sample, one line per method: where a method's
@@ -265,7 +255,7 @@ class Report:
         ax.legend(fontsize=7)
         ax.set_title(f"{scene}: cost per camera sample ({self.exp.spp} spp)", fontsize=9)
         fig.tight_layout()
-        self._savefig(fig, self.folder / "plots" / f"{_slug(scene)}-cost.png")
+        self._savefig(fig, self.folder / "plots" / f"{file_stem(scene)}-cost.png")
 
     def _strip_figure(self, scene):
         """The image strips as one labelled PNG (methods x shadow rays, reference first), for papers and READMEs."""
@@ -287,7 +277,7 @@ class Report:
                     ax.imshow(tonemap_srgb(self.images[(scene, m.name, rays[j - 1])].image))
                 if i == 0:
                     ax.set_title("reference" if j == 0 else f"{rays[j - 1]} rays", fontsize=7)
-        self._savefig(fig, self.folder / "plots" / f"{_slug(scene)}-strip.png")
+        self._savefig(fig, self.folder / "plots" / f"{file_stem(scene)}-strip.png")
 
     def _csv(self):
         buf = io.StringIO()
@@ -467,13 +457,13 @@ class Report:
 
     def _viewer(self, scene):
         return (f"<div class=viewer data-scene='{html.escape(scene)}'></div>"
-                f"<script src='data/{_slug(scene)}.js'></script>")
+                f"<script src='data/{file_stem(scene)}.js'></script>")
 
     def _html(self):
         exp, e = self.exp, html.escape
         sections = []
         for spec in exp.scenes:
-            s, slug = spec.name, _slug(spec.name)
+            s, slug = spec.name, file_stem(spec.name)
             heat = "".join(f"<img class=plot src='plots/{slug}-tests-{sr}.png' alt='tests {sr}'>"
                            for sr in exp.shadow_rays)
             sections.append(
@@ -515,7 +505,7 @@ def report_files(exp):
     """The files a study's report writes, relative to its folder."""
     files = [*STATIC, "results.csv", "results.json", "results.md", "index.html"]
     for spec in exp.scenes:
-        slug = _slug(spec.name)
+        slug = file_stem(spec.name)
         files += [f"data/{slug}.js", Report._image_path(spec.name)]
         files += [f"plots/{slug}-{kind}.png" for kind in ("convergence", "cost", "strip")]
         files += [f"plots/{slug}-tests-{sr}.png" for sr in exp.shadow_rays]
@@ -547,7 +537,7 @@ def report_problem(exp, folder, inputs=None):
     if not utf8_path(folder):
         return (f"cannot write the report in '{folder}': OpenEXR's writer (its images and the render cache) takes "
                 "only folder names in UTF-8; give another folder")
-    folders = ["images", "plots", "data"] + [f"images/{_slug(spec.name)}" for spec in exp.scenes]
+    folders = ["images", "plots", "data"] + [f"images/{file_stem(spec.name)}" for spec in exp.scenes]
     files = report_files(exp)
     for name in folders + files:
         part = max(name.split("/"), key=lambda p: len(p.encode()))
@@ -602,7 +592,7 @@ def write_report(exp, run, results, folder, command=""):
         raise ProbvisError(f"folder must be the report's folder (a path), got {type(folder).__name__}")
     folder = Path(folder)
     planned = [folder, *folder.parents, *(folder / sub for sub in ("images", "plots", "data")),
-               *(folder / "images" / _slug(spec.name) for spec in exp.scenes)]
+               *(folder / "images" / file_stem(spec.name) for spec in exp.scenes)]
     made = [d for d in planned if not d.exists()]
     earlier = _earlier_files(folder)
     try:

@@ -110,6 +110,7 @@ def _repeats(scene, task, timing, times, render_times):
 
 MAX_FINGERPRINT_FILES = 2000  # Python files hashed for a plug-in's fingerprint
 MIN_OPEN_FILES = 256  # below, a LocalCluster's sockets and pipes may not fit (it failed to start under 20)
+FILES_PER_WORKER = 16  # the driver holds about 9 more descriptors for each worker process (measured, 1-8)
 
 
 @functools.cache
@@ -307,6 +308,12 @@ def _open_client(workers, scheduler):
     # resource tracker ignore both (they inherit the ignored dispositions; a tracker killed by SIGHUP came back
     # without its records and printed tracebacks) and the driver, which defers them to a safe point, shuts the
     # workers down and says so once.
+    files, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+    need = max(MIN_OPEN_FILES, 64 + FILES_PER_WORKER * workers)
+    if files != resource.RLIM_INFINITY and files < need:  # checked first: short of them, Dask's accept loop spins
+        raise ProbvisError(f"cannot start a local Dask cluster of {workers} worker{'s' if workers > 1 else ''}: "
+                           f"this process may open only {files} files (ulimit -n), fewer than the {need} its "
+                           "sockets and pipes may need: raise it to a few thousand")
     main = threading.current_thread() is threading.main_thread()  # only there can Python set handlers
     previous = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGHUP)} if main else {}
     try:

@@ -30,6 +30,9 @@ def _hdr_size(path):
 _PILLOW_FORMATS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".ppm")  # 8 or 16 bits, sRGB-encoded, as Mitsuba reads them
 READ_FORMATS = (".exr", ".hdr", ".pfm", *_PILLOW_FORMATS)  # what `read_linear_rgb` reads
 _PILLOW_MODES = {"1": "L", "CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB"}
+# what Pillow finds in a file read as one of `_PILLOW_FORMATS`: the formats Mitsuba reads by content, whatever the
+# extension (MPO: a camera's JPEG with a second picture; DIB: a BMP's bitmap)
+_PILLOW_CONTENT = {"PNG", "JPEG", "MPO", "BMP", "DIB", "TGA", "PPM"}
 
 
 _SIGNATURES = ((b"\x89PNG\r\n\x1a\n", ".png"), (b"\xff\xd8\xff", ".jpg"), (b"v/1\x01", ".exr"),
@@ -94,15 +97,21 @@ def read_linear_rgb(path, raw=False):
         from PIL import Image
 
         limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None  # Pillow's own bomb check names no size
-        mode = None
+        mode = content = None
         try:
             with Image.open(path) as im:  # the header only: refuse a size no texture needs before decoding it
                 w, h = im.size
-                mode, bands = im.mode, len(im.getbands())
+                mode, bands, content = im.mode, len(im.getbands()), im.format
         except Exception:
             w = h = bands = 0
         finally:
             Image.MAX_IMAGE_PIXELS = limit
+        if content is not None and content not in _PILLOW_CONTENT:
+            raise ProbvisError(f"{path}: the file holds a {content} image, not a format probvis reads (supported: "
+                               f"{', '.join(READ_FORMATS)}); Mitsuba refuses it too")
+        if content in ("BMP", "DIB") and mode == "P":
+            warnings.warn(f"{path}: a palette BMP: probvis reads its colours, Mitsuba 3.9 its palette indices as "
+                          "grey (a different image); save it as RGB for the same image in both", stacklevel=2)
         if w * h > MAX_IMAGE_PIXELS:
             raise ProbvisError(f"{path}: image is {w}x{h} ({w * h / 1e6:.0f} Mpixel), above the "
                                f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads (scale it down)")

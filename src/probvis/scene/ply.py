@@ -143,6 +143,10 @@ def read_ply(path):
                     raise ProbvisError(f"mesh {path}: malformed ASCII PLY: {exc}") from None
                 fh.seek(0)
                 ply = PlyData.read(fh)
+            if header[0] != "ascii" and (extra := size - fh.tell()) > 0:  # ASCII: `_refuse_trailing_rows`
+                raise ProbvisError(f"mesh {path}: {extra:,} bytes after the data its header declares "
+                                   f"({', '.join(f'{e} {n:,}' for e, n in counts.items())}): a damaged or joined "
+                                   "file (Mitsuba refuses such a file)")
             rows = ply["face"].data[index]
             if len(rows) == 0:  # an empty object array: its dtype says nothing of the declared index type
                 raise ProbvisError(f"mesh {path} contains no triangles")
