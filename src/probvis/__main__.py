@@ -173,8 +173,10 @@ def main():
     sys.meta_path.insert(0, _NoBlasProbe())
     if sys.stderr is None:  # closed (`2>&-`): the command goes on, its messages go nowhere (a closed standard
         sys.stderr = open(os.devnull, "w")  # output is the command's to report, on stderr)
-    previous = {s: signal.signal(s, _terminate) for s in stop_signals()}
-    try:
+    previous = {}
+    try:  # a signal caught while the later handlers are set is an interrupt too
+        for s in stop_signals():
+            previous[s] = signal.signal(s, _terminate)
         problem = _bad_environment()  # checked under the handlers: a signal this early is an interrupt too
         if problem:
             print(problem, file=sys.stderr)
