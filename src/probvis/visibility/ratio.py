@@ -1,16 +1,20 @@
 """The ratio estimator (Heitz, Hill and McGuire, "Combining Analytic Direct Illumination and Stochastic Shadows",
-I3D 2018): per shading point, the analytic unshadowed radiance times the ratio of the stochastic shadowed and
-unshadowed estimates from the same samples,
+I3D 2018): per pixel, the analytic unshadowed radiance times the ratio of the stochastic shadowed and unshadowed
+estimates from the same samples,
 
     L = L_analytic · Σ_i w_i V_i / Σ_i w_i    (w_i a segment's unoccluded contribution),
 
-so each segment's value is V_i · L_analytic / Σ_i w_i. A fully lit point gets L_analytic exactly, without
-noise; a fully shadowed one 0. Consistent, not unbiased: the ratio of two estimates is biased at finite samples
-(the bias falls as the samples grow). L_analytic is Lambert's polygon formula the renderer's lit pairs use (its
-surfaces are Lambertian), summed over the emitters: the integrator chooses an emitter per sample, and a ratio per
-emitter would lose every emitter a camera sample happened not to choose. An environment has no analytic light
-here: its part of L_analytic is its samples' own estimate Σ_env w_i, so that it cancels where everything is
-visible and the other emitters' light is kept even when only the environment was sampled."""
+the sums over all of the pixel's camera samples and their segments, L_analytic the mean of its samples'; so each
+segment's value is V_i · Σ_s L_analytic(s) / Σ_i w_i. A fully lit pixel gets its analytic light exactly, without
+noise; a fully shadowed one 0. Consistent, not unbiased: the ratio of two estimates is biased at finite samples,
+and the bias falls as the pixel's samples grow, in camera samples as in shadow rays. (A ratio per camera sample
+stays biased however many camera samples a pixel takes: a sample whose every emitter sample fell on a light that
+cannot reach it — a spot light aimed elsewhere — had no ratio to form, and one shadow ray gave L_analytic · V of
+a light chosen by power, not by its contribution.) L_analytic is Lambert's polygon formula the renderer's lit
+pairs use (its surfaces are Lambertian), summed over the emitters: the integrator chooses an emitter per sample,
+and a ratio per emitter would lose every emitter a pixel's samples happened not to choose. An environment has no
+analytic light here: its part of L_analytic is its samples' own estimate Σ_env w_i, so that it cancels where
+everything is visible and the other emitters' light is kept even when only the environment was sampled."""
 import math
 from typing import NamedTuple
 
@@ -18,7 +22,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from ..accel import SHADOW_PACKET, occluded_packet, occluded_segments, packet_starts, packet_work, root_record
+from ..accel import SHADOW_PACKET, occluded_packet, occluded_segments, packet_work, root_record
 from ..color import luminance
 from ..emitters import emitter_irradiance
 from ..scene.scene import EMITTER_ENVIRONMENT
@@ -30,54 +34,61 @@ PIXELS_PER_BLOCK = 4  # pixels per parallel work item of the kernel
 
 
 class _Points(NamedTuple):
-    """What the staged interface's kernel reads of the batch's shading points, and each segment's point."""
+    """What the staged interface's kernel reads of the batch's shading points."""
 
     position: np.ndarray
     normal: np.ndarray
     albedo: np.ndarray
-    point: np.ndarray  # (n,) each segment's shading point
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def point_factor(total, env, es, triangles, radiance, position, normal, albedo, i):
-    """L_analytic / Σ w of shading point i, whose segments' unoccluded luminance sums to `total`, `env` of it
-    from environments (which stands for their analytic light): 1 where the sum is 0."""
-    if total <= 0.0:
-        return 1.0
-    light = env
+def analytic_light(es, triangles, radiance, position, normal, albedo, i):
+    """L_analytic of shading point i (luminance), of the emitters other than environments."""
+    light = 0.0
     for e in range(es.kind.shape[0]):
         if es.kind[e] != EMITTER_ENVIRONMENT:
             f = emitter_irradiance(e, es, triangles, position[i, 0], position[i, 1], position[i, 2], normal[i, 0],
                                    normal[i, 1], normal[i, 2]) / math.pi
             light += f * luminance(albedo[i, 0] * radiance[e, 0], albedo[i, 1] * radiance[e, 1],
                                    albedo[i, 2] * radiance[e, 2])
-    return light / total
+    return light
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def ratio_factors(runs, emitter, weight, points, es, triangles, radiance):
-    """Per segment its shading point's `point_factor`; `runs` are the offsets of each shading point's segments."""
-    n_runs = runs.shape[0] - 1
-    out = np.ones(weight.shape[0])
-    for r in prange(n_runs):
-        a, b = runs[r], runs[r + 1]
-        total = env = 0.0
-        for k in range(a, b):
-            total += weight[k]
-            if es.kind[emitter[k]] == EMITTER_ENVIRONMENT:
-                env += weight[k]
-        f = point_factor(total, env, es, triangles, radiance, points.position, points.normal, points.albedo,
-                         points.point[a])
-        for k in range(a, b):
-            out[k] = f
+@njit(cache=True, error_model="numpy", inline="always")
+def pixel_factor(total, env, light):
+    """Σ_s L_analytic(s) / Σ w of a pixel whose segments' unoccluded luminance sums to `total`, `env` of it from
+    environments (which stands for their analytic light), its shaded samples' `analytic_light` to `light`: 1
+    where the pixel has no segment (nothing to scale)."""
+    return (light + env) / total if total > 0.0 else 1.0
+
+
+@njit(cache=True, error_model="numpy")
+def ratio_factors(point, spp, emitter, weight, points, shaded, es, triangles, radiance):
+    """Per segment its pixel's `pixel_factor`; segments in the order of their shading point (`point`), camera
+    sample i of pixel i // spp, `shaded` the samples that reflect light. Sums in the fused kernel's order."""
+    n_pix = shaded.shape[0] // spp
+    total, env, light = np.zeros(n_pix), np.zeros(n_pix), np.zeros(n_pix)
+    for k in range(point.shape[0]):
+        px = point[k] // spp
+        total[px] += weight[k]
+        if es.kind[emitter[k]] == EMITTER_ENVIRONMENT:
+            env[px] += weight[k]
+    for i in range(shaded.shape[0]):
+        if shaded[i]:
+            light[i // spp] += analytic_light(es, triangles, radiance, points.position, points.normal, points.albedo,
+                                              i)
+    out = np.empty(point.shape[0])
+    for k in range(point.shape[0]):
+        px = point[k] // spp
+        out[k] = pixel_factor(total[px], env[px], light[px])
     return out
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def shade_ratio(geom, es, bvh, batch, threads):
     """`ShadedBatch` arrays of a `ShadingBatch` with the ratio estimator: every segment traced, its visibility
-    times its point's `point_factor` — value for value `ratio_factors` on the staged path. `threads` is the
-    thread budget."""
+    times its pixel's `pixel_factor`, as `ratio_factors` on the staged path (to rounding: here each sample's sum
+    of unoccluded contributions is scaled, there each segment). `threads` is the thread budget."""
     root2 = root_record(bvh.root)
     spp, n_shadow = batch.spp, batch.shadow_rays
     radiance, counts, n_seg = shaded_arrays(batch)
@@ -95,7 +106,9 @@ def shade_ratio(geom, es, bvh, batch, threads):
             sh_node = np.empty(n_shadow, np.int32)
             sh_tri = np.empty(n_shadow, np.int32)
             work = packet_work(bvh.stack_depth)
+            seen = np.empty((spp, 3))  # each sample's unoccluded contributions, scaled once its pixel's are in
             for px in range(blk * PIXELS_PER_BLOCK, min(n_pix, (blk + 1) * PIXELS_PER_BLOCK)):
+                total = env = light = 0.0
                 for s in range(spp):
                     i = px * spp + s
                     counts[px, CAM_TRI] += batch.cam_tri[i]
@@ -105,32 +118,40 @@ def shade_ratio(geom, es, bvh, batch, threads):
                     for lo in range(0, m, SHADOW_PACKET):
                         occluded_packet(bvh, root2, org, dirs, tmin, tmax, lo, min(SHADOW_PACKET, m - lo), work, occ,
                                         sh_node, sh_tri)
-                    total = env = 0.0
+                    u0 = u1 = u2 = 0.0
                     for k in range(m):
                         w = luminance(contrib[k, 0], contrib[k, 1], contrib[k, 2])
                         total += w
                         if es.kind[s_emit[k]] == EMITTER_ENVIRONMENT:
                             env += w
-                    f = point_factor(total, env, es, geom.triangles, geom.emitter_radiance, batch.position,
-                                     batch.normal, batch.albedo, i) if m > 0 else 1.0
-                    l0, l1, l2 = batch.emitted[i, 0] + a0, batch.emitted[i, 1] + a1, batch.emitted[i, 2] + a2
-                    for k in range(m):
-                        v = (1.0 - np.float64(occ[k])) * f
-                        l0 += contrib[k, 0] * v
-                        l1 += contrib[k, 1] * v
-                        l2 += contrib[k, 2] * v
+                        v = 1.0 - np.float64(occ[k])
+                        u0 += contrib[k, 0] * v
+                        u1 += contrib[k, 1] * v
+                        u2 += contrib[k, 2] * v
                         counts[px, SH_TRI] += sh_tri[k]
                         counts[px, SH_NODE] += sh_node[k]
+                    if batch.material[i] >= 0:
+                        light += analytic_light(es, geom.triangles, geom.emitter_radiance, batch.position,
+                                                batch.normal, batch.albedo, i)
                     n_seg[px] += m
-                    radiance[i, 0], radiance[i, 1], radiance[i, 2] = l0, l1, l2
+                    seen[s, 0], seen[s, 1], seen[s, 2] = u0, u1, u2
+                    radiance[i, 0] = batch.emitted[i, 0] + a0
+                    radiance[i, 1] = batch.emitted[i, 1] + a1
+                    radiance[i, 2] = batch.emitted[i, 2] + a2
+                f = pixel_factor(total, env, light)
+                for s in range(spp):
+                    i = px * spp + s
+                    radiance[i, 0] += seen[s, 0] * f
+                    radiance[i, 1] += seen[s, 1] * f
+                    radiance[i, 2] += seen[s, 2] * f
     return radiance, counts, n_seg
 
 
 class RatioVisibility(VisibilityEstimator):
     name = "ratio"
     summary = ("Heitz et al.'s ratio estimator: analytic unshadowed light times shadowed / unshadowed estimates "
-               "of each shading point (consistent, biased)")
-    phases = (Phase("render_kernel", "batch", "sampling, every segment traced, each point's analytic light and "
+               "of each pixel (consistent, biased)")
+    phases = (Phase("render_kernel", "batch", "sampling, every segment traced, each pixel's analytic light and "
                     "ratio, the samples' radiance, fused"),)
     unbiased = False
 
@@ -148,10 +169,11 @@ class RatioVisibility(VisibilityEstimator):
         return None
 
     def evaluate(self, query):
-        """The staged interface: every segment traced, times its point's factor."""
+        """The staged interface: every segment traced, times its pixel's factor."""
         occluded, n_node, n_tri = occluded_segments(self.bvh, query.origin, query.direction, query.tmax, query.point)
         geom = self.integrator.scene_arrays
-        factor = ratio_factors(packet_starts(query.point, len(query.point) + 1), query.emitter, query.weight,
-                               _Points(self.points.position, self.points.normal, self.points.albedo, query.point),
-                               self.emitters.arrays, geom.triangles, geom.emitter_radiance)
+        factor = ratio_factors(query.point, self.render_settings.spp, query.emitter, query.weight,
+                               _Points(self.points.position, self.points.normal, self.points.albedo),
+                               self.points.triangle >= 0, self.emitters.arrays, geom.triangles,
+                               geom.emitter_radiance)
         return VisibilityResult((1.0 - occluded) * factor, n_node, n_tri)
