@@ -4,7 +4,8 @@
 
 NumPy advises huge pages for its large arrays unless NUMPY_MADVISE_HUGEPAGE=0 (docs/decisions.md); this runs the
 command with 1 (NumPy's default advice) and 0 one after the other in each round and prints each process's wall
-seconds, peak memory and phases (from --stats), then the medians. The shared scenes need ../shared beside the repository.
+seconds, peak memory and phases (from --stats), then the medians. The shared scenes need ../shared beside the
+repository.
 """
 import argparse
 import json
@@ -27,7 +28,8 @@ def run(scene, advice, folder):
     """(wall seconds, peak MiB, phases) of one `probvis render` process."""
     stats = Path(folder) / "s.json"
     env = dict(os.environ, NUMPY_MADVISE_HUGEPAGE=advice)
-    code = ("import resource, subprocess, sys, time; t = time.perf_counter(); subprocess.run(sys.argv[1:], check=True); "
+    code = ("import resource, subprocess, sys, time; t = time.perf_counter(); "
+            "subprocess.run(sys.argv[1:], check=True); "
             "print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)")
     out = subprocess.run([sys.executable, "-c", code, sys.executable, "-m", "probvis", "render", *ARGS[scene], "-q",
                           "-o", str(Path(folder) / "o.exr"), "--stats", str(stats)], env=env, capture_output=True,
