@@ -209,6 +209,25 @@ def test_too_few_open_files_for_a_local_cluster_is_refused_before_it_starts(monk
         runner._open_client(workers, None)
 
 
+def test_a_soft_open_file_limit_below_the_hard_one_is_raised(monkeypatch):
+    """Below the files a cluster needs but with a hard limit above them, the soft limit is raised (as Dask's
+    scheduler command does) and the cluster starts."""
+    import dask.distributed
+
+    from probvis.experiments import runner
+
+    def started(**_):
+        raise RuntimeError("the cluster was started")
+
+    raised = []
+    monkeypatch.setattr(dask.distributed, "LocalCluster", started)
+    monkeypatch.setattr(runner.resource, "getrlimit", lambda which: (16, 100_000))
+    monkeypatch.setattr(runner.resource, "setrlimit", lambda which, limits: raised.append(limits))
+    with pytest.raises(ProbvisError, match="^cannot start a local Dask cluster: the cluster was started"):
+        runner._open_client(2, None)
+    assert raised == [(256, 100_000)]
+
+
 def test_unreachable_scheduler_is_one_clear_error(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -521,12 +540,12 @@ def test_names_whose_report_files_collide_are_refused(kind):
     refused before any render, not one's images and viewer data replaced by the other's."""
     from probvis.experiments.config import file_stem
 
-    one, two = "a\u0c0cb", "a\u1c34b"
-    assert file_stem(one) == file_stem(two)
-    entries = [dict(TINY[kind][0], name=one), dict(TINY[kind][0], name=two)]
-    with pytest.raises(ProbvisError, match=f"{kind[:-1]} names '{one}' and '{two}' give the same file name "
-                                           f"'{file_stem(one)}' in the report: rename one"):
-        parse_experiment(dict(TINY, **{kind: entries}))
+    for one, two in (("a\u0c0cb", "a\u1c34b"), ("City", "city")):  # the second: a file system ignoring case
+        assert file_stem(one).casefold() == file_stem(two).casefold()
+        entries = [dict(TINY[kind][0], name=one), dict(TINY[kind][0], name=two)]
+        with pytest.raises(ProbvisError, match=f"{kind[:-1]} names '{one}' and '{two}' give the same file name "
+                                               f"'{file_stem(two)}' in the report: rename one"):
+            parse_experiment(dict(TINY, **{kind: entries}))
 
 
 def test_an_existing_scheduler_gives_the_same_numbers(tiny_run, tmp_path):

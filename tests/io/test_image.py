@@ -230,6 +230,8 @@ def test_an_image_under_another_extension_is_read_by_its_content(tmp_path, kind)
     write_image(tmp_path / f"a.{kind}", img)
     (tmp_path / "a.texture").write_bytes((tmp_path / f"a.{kind}").read_bytes())
     np.testing.assert_array_equal(read_linear_rgb(tmp_path / "a.texture"), read_linear_rgb(tmp_path / f"a.{kind}"))
+    (tmp_path / "c.png").write_bytes((tmp_path / f"a.{kind}").read_bytes())  # a known extension, another format
+    np.testing.assert_array_equal(read_linear_rgb(tmp_path / "c.png"), read_linear_rgb(tmp_path / f"a.{kind}"))
     (tmp_path / "b.texture").write_bytes(b"not an image at all")
     with pytest.raises(ProbvisError, match=r"b.texture: unsupported image format '.texture' \(supported: .exr"):
         read_linear_rgb(tmp_path / "b.texture")

@@ -608,8 +608,10 @@ def test_a_default_declared_twice_keeps_the_first_as_mitsuba_does(tmp_path):
     ("<shape type='rectangle'><bsdf type='roughplastic'><float name='ext_ior' value='0'/></bsdf></shape>",
      "<float>: ext_ior of a roughplastic bsdf must be positive, got 0"),
     ("<shape type='rectangle'><bsdf type='roughdielectric'><float name='int_ior' value='1.5'/><float name='ext_ior' "
-     "value='1.5'/></bsdf></shape>", "<bsdf>: int_ior and ext_ior of a roughdielectric bsdf must differ (Mitsuba "
-                                     "refuses equal ones"),
+     "value='1.50000001'/></bsdf></shape>", "<bsdf>: int_ior and ext_ior of a roughdielectric bsdf must differ "
+                                            "(Mitsuba refuses equal ones"),
+    ("<shape type='rectangle'><bsdf type='roughplastic'><float name='ext_ior' value='1.49'/></bsdf></shape>",
+     "<bsdf>: int_ior and ext_ior of a roughplastic bsdf must differ (Mitsuba refuses equal ones"),
     ("<shape type='rectangle'><bsdf type='roughplastic'><string name='int_ior' value='kryptonite'/></bsdf></shape>",
      "<string>: unknown material 'kryptonite' for int_ior"),
     ("<shape type='rectangle'><bsdf type='principled'><float name='eta' value='-1'/></bsdf></shape>",

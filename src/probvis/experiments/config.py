@@ -276,8 +276,8 @@ def parse_experiment(data, base=Path("."), source=""):
         if dup:
             _fail(where, f"repeated {kind} name{'s' if len(dup) > 1 else ''} {', '.join(map(repr, dup))}")
         stems = {}
-        for n in names:
-            if (other := stems.setdefault(file_stem(n), n)) != n:
+        for n in names:  # a file system that ignores case (macOS's, Windows') holds 'City' and 'city' as one
+            if (other := stems.setdefault(file_stem(n).casefold(), n)) != n:
                 _fail(where, f"{kind} names {other!r} and {n!r} give the same file name {file_stem(n)!r} in the "
                              "report: rename one")
     baselines = [m["name"] for m in methods if m.get("baseline", False)]

@@ -308,8 +308,14 @@ def _open_client(workers, scheduler):
     # resource tracker ignore both (they inherit the ignored dispositions; a tracker killed by SIGHUP came back
     # without its records and printed tracebacks) and the driver, which defers them to a safe point, shuts the
     # workers down and says so once.
-    files, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+    files, most = resource.getrlimit(resource.RLIMIT_NOFILE)
     need = max(MIN_OPEN_FILES, 64 + FILES_PER_WORKER * workers)
+    if files != resource.RLIM_INFINITY and files < need and (most == resource.RLIM_INFINITY or most >= need):
+        try:  # the soft limit raised as far as needed, as Dask's own scheduler command does
+            resource.setrlimit(resource.RLIMIT_NOFILE, (need, most))
+            files = need
+        except (ValueError, OSError):  # refused below
+            pass
     if files != resource.RLIM_INFINITY and files < need:  # checked first: short of them, Dask's accept loop spins
         raise ProbvisError(f"cannot start a local Dask cluster of {workers} worker{'s' if workers > 1 else ''}: "
                            f"this process may open only {files} files (ulimit -n), fewer than the {need} its "

@@ -1,6 +1,6 @@
 """Textures and environment maps read as linear RGB, as Mitsuba's bitmap loader gives them: EXR, Radiance HDR
-and PFM as stored, PNG, JPEG, BMP, TGA and PPM decoded from sRGB; a file whose extension names no format by its
-first bytes. Sizes are checked from the header before anything is decoded."""
+and PFM as stored, PNG, JPEG, BMP, TGA and PPM decoded from sRGB; a file by its first bytes where they name a
+format (an EXR named .png is an EXR), else by its extension. Sizes are checked from the header before anything is decoded."""
 import re
 import warnings
 from pathlib import Path
@@ -66,9 +66,7 @@ def read_linear_rgb(path, raw=False):
         raise ProbvisError(f"image {path} is {size / 2**30:.1f} GiB, more than any texture or environment map "
                            f"probvis reads (at most {MAX_IMAGE_BYTES >> 30} GiB)")
     check_readable(path, "image")
-    ext = path.suffix.lower()
-    if ext not in READ_FORMATS:  # as Mitsuba's bitmap loader, by the file's first bytes
-        ext = _format_by_content(path) or ext
+    ext = _format_by_content(path) or path.suffix.lower()  # as Mitsuba's bitmap loader: by the file's first bytes
     if ext == ".exr":
         img = read_exr(path)
     elif ext == ".pfm":

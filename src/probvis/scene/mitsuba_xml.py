@@ -872,8 +872,9 @@ class _Reader:
         for key in sorted(_IOR_PARAMETERS & props.keys()):  # unused by the approximation, but nonsense is refused
             if not 0.0 < self.ior(lines[key], props, key, None) < np.inf:
                 self.fail(lines[key], f"{key} of a {kind} bsdf must be positive, got {props[key]:g}")
-        if kind == "roughdielectric" and (self.ior(node, props, "int_ior", "bk7")
-                                          == self.ior(node, props, "ext_ior", "air")):
+        if kind in ("roughdielectric", "roughplastic") and (  # as Mitsuba stores them, in single precision
+                np.float32(self.ior(node, props, "int_ior", "bk7" if kind == "roughdielectric" else "polypropylene"))
+                == np.float32(self.ior(node, props, "ext_ior", "air"))):
             self.fail(node, f"int_ior and ext_ior of a {kind} bsdf must differ (Mitsuba refuses equal ones: the "
                             "interface would not refract)")
         if kind.startswith("principled") and "eta" in props and not np.all(np.asarray(props["eta"]) > 0):
