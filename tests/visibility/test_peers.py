@@ -220,6 +220,24 @@ def test_the_kernel_renders_what_the_staged_path_renders(scene, visibility, opti
             assert np.array_equal(a.aovs[name], b.aovs[name]), name
 
 
+def test_the_ratio_kernel_renders_what_its_staged_path_renders_with_dead_samples(tmp_path):
+    """The ratio's pixel factor on both paths where camera samples are shaded but have no segment (all their
+    emitter samples on the spot aimed away), with an environment among the emitters, over several batches."""
+    path = tmp_path / "s.xml"
+    path.write_text(spot_away_scene(tmp_path / "a.xml").read_text().replace(
+        "</scene>", "<emitter type='constant'><rgb name='radiance' value='0.2'/></emitter></scene>"))
+    cls = estimator_class("ratio")
+    staged = type("StagedRatio", (cls,), {"render_path": lambda self: RenderPath.STAGED})
+    kw = dict(spp=13, shadow_rays=50, resolution=(37, 23), seed=4)
+    from probvis.integrator import TARGET_SLOTS
+
+    assert 37 * 23 * 13 * 50 > 2 * TARGET_SLOTS  # the staged path's batches: three
+    a, b = probvis.render(path, visibility="ratio", **kw), probvis.render(path, visibility=staged, **kw)
+    assert a.stats["render_path"] != b.stats["render_path"]
+    np.testing.assert_allclose(a.image, b.image, rtol=1e-12, atol=0)
+    assert np.array_equal(a.aovs["triangle_tests"], b.aovs["triangle_tests"])
+
+
 def test_the_cache_is_in_the_memory_estimate():
     """A fine grid's rows are counted before they are allocated, and the built cache stays within the estimate."""
     r = probvis.render("quad-shadow", spp=1, shadow_rays=2, resolution=(8, 8), visibility="nee++",
