@@ -80,14 +80,15 @@ def check_scene(scene):
                                f"{getattr(a, 'dtype', '')}".rstrip()
                                + (f": use scene.{name}.astype(np.int32)"
                                   if kinds == "iu" and getattr(a, "dtype", None) == np.uint64 else ""))
+    extent = {}  # each array's min and max: NaN or ±inf reach one of them
     for name in ("triangles", "vertex_normals", "emitter_radiance", "emitter_position", "emitter_axis",
                  "emitter_cone"):
         a = getattr(scene, name)
-        lo, hi = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)  # NaN or ±inf reach one of them
-        if not (np.isfinite(lo) and np.isfinite(hi)):
+        extent[name] = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)
+        if not np.all(np.isfinite(extent[name])):
             raise ProbvisError(f"scene.{name} must be finite (it holds NaN or infinite values)")
-        if name in ("triangles", "emitter_position") and max(-lo, hi) > MAX_COORDINATE:
-            # as the scene reader bounds them: beyond, products overflow
+    for name in ("triangles", "emitter_position"):  # as the scene reader bounds them: beyond, products overflow
+        if max(-extent[name][0], extent[name][1]) > MAX_COORDINATE:
             raise ProbvisError(f"scene.{name} must lie within ±{MAX_COORDINATE:g}: rescale the scene")
     aimed = np.isin(scene.emitter_kind, (EMITTER_SPOT, EMITTER_DIRECTIONAL))
     if not np.all(np.abs(scene.emitter_axis[aimed]).max(axis=-1, initial=0.0) > 0.0):
