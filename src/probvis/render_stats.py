@@ -56,7 +56,7 @@ def render_stats(scene, settings, estimator, result, image, clamp, seconds, memo
         },
         "shadow_rays_per_second": shadow_rays / render_s if render_s > 0 else None,
         "image_mean": [float(x) for x in image.reshape(-1, 3).mean(axis=0)],
-        "noise_relmse": result.film.noise_relmse(),
+        "noise_relmse": result.film.noise_relmse() if estimator.independent_samples else None,
         "bvh": result.bvh.stats(),
         "estimator": estimator.stats(),
     }

@@ -124,8 +124,10 @@ def test_ratio_is_consistent_in_camera_samples_and_shadow_rays(tmp_path):
     for spp, rays in ((256, 1), (4, 64)):
         b, se = bias(spp, rays, range(8))
         assert 0 < se < 0.01 and abs(b) < 4 * se, (spp, rays, b, se)
-    r = probvis.render(path, spp=1, shadow_rays=2, visibility="ratio")
+    r = probvis.render(path, spp=2, shadow_rays=2, visibility="ratio")
     assert r.stats["estimator"]["biased"]
+    # a pixel's samples share its factor: their spread is not the image's noise
+    assert r.stats["noise_relmse"] is None and probvis.render(path, spp=2, shadow_rays=2).stats["noise_relmse"] > 0
     from probvis.io.stats import summary
 
     assert "visibility ratio (biased:" in summary(r.stats)  # the command's summary says so too

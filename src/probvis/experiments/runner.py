@@ -514,7 +514,8 @@ def _run(exp, scenes, files, cache, workers, scheduler, progress, log):
         r = cache.load(t.key)
         out.reference_images[t.scene] = r.image.astype(np.float64)
         out.reference_stats[t.scene] = r.stats
-        out.reference_noise[t.scene] = r.stats.get("noise_relmse") or 0.0  # None: one sample, noise unknown
+        # None: one sample per pixel, or a pixel's samples sharing a factor (the ratio's): the noise is unknown
+        out.reference_noise[t.scene] = r.stats.get("noise_relmse") or 0.0
     for t in cells:
         out.renders[t.key] = cache.load(t.key)
     for name, image in out.reference_images.items():

@@ -260,6 +260,9 @@ class VisibilityEstimator(abc.ABC):
     phases: ClassVar[tuple] = ()
     aovs: ClassVar[tuple] = ()
     unbiased: ClassVar[bool] = True  # False for a consistent estimator: its stats and reports say "biased"
+    # False where a pixel's camera samples share a factor (the ratio's): their spread then says nothing of the
+    # image's noise, and the stats' noise_relmse is None
+    independent_samples: ClassVar[bool] = True
 
     def __init__(self, **options):
         self.params = SimpleNamespace(**self.parse_options(options))

@@ -154,6 +154,7 @@ class RatioVisibility(VisibilityEstimator):
     phases = (Phase("render_kernel", "batch", "sampling, every segment traced, each pixel's analytic light and "
                     "ratio, the samples' radiance, fused"),)
     unbiased = False
+    independent_samples = False  # a pixel's samples share its factor
 
     def render_path(self):
         return RenderPath.OWN_KERNEL
