@@ -1,6 +1,7 @@
 """Textures and environment maps read as linear RGB, as Mitsuba's bitmap loader gives them: EXR, Radiance HDR
 and PFM as stored, PNG, JPEG, BMP, TGA and PPM decoded from sRGB; a file by its first bytes where they name a
-format (an EXR named .png is an EXR), else by its extension. Sizes are checked from the header before anything is decoded."""
+format (an EXR named .png is an EXR), else by its extension. Sizes are checked from the header before anything
+is decoded."""
 import re
 import warnings
 from pathlib import Path
