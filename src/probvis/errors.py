@@ -2,6 +2,7 @@
 import errno
 import os
 import re
+import stat
 
 
 class ProbvisError(Exception):
@@ -89,13 +90,20 @@ def shown(obj, conv=str):
 
 
 def missing_file(path, what):
-    """Why input file `path` cannot be opened, for a one-line error: a symbolic link that loops (on Python before
-    3.13 `Path.resolve` raises a RuntimeError for those) or points to nothing, else "`what` not found"."""
+    """Why input file `path` is not a file to read, for a one-line error: a symbolic link that loops (on Python
+    before 3.13 `Path.resolve` raises a RuntimeError for those) or points to nothing, a folder, a pipe or device
+    (/dev/null, a FIFO: no scene, experiment or module is one), else "`what` not found"."""
     try:
-        os.stat(path)
+        st = os.stat(path)
     except OSError as exc:
         if exc.errno == errno.ELOOP:
             return f"{path}: a symbolic link that loops (it or a folder on its way leads back to itself)"
         if os.path.islink(path):
             return f"{path}: a symbolic link that points to nothing"
+        return f"{what} not found: {path}"
+    a = "an" if what[:1] in "aeiou" else "a"
+    if stat.S_ISDIR(st.st_mode):
+        return f"{path} is a folder, not {a} {what}"
+    if not stat.S_ISREG(st.st_mode):
+        return f"{path} is not a regular file (a pipe, socket or device), not {a} {what}"
     return f"{what} not found: {path}"

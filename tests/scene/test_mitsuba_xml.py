@@ -1,5 +1,6 @@
 """Reading Mitsuba XML: transforms as Mitsuba composes them, defaults, semantics, and clear errors."""
 import importlib.util
+import os
 import re
 import warnings
 
@@ -1576,4 +1577,68 @@ def test_an_include_that_names_a_folder_says_so(tmp_path):
     (tmp_path / "inc.xml").mkdir()
     path = write_scene(tmp_path / "s.xml", sensor() + "<include filename='inc.xml'/>" + LIGHT)
     with pytest.raises(ProbvisError, match=r"s.xml:\d+: <include>: included file 'inc.xml' is a folder"):
+        probvis.load_scene(path)
+
+
+def test_an_include_of_a_device_or_pipe_says_it_is_not_a_regular_file(tmp_path):
+    """/dev/null or a FIFO exists but is no scene file: "not found" misled."""
+    fifo = tmp_path / "pipe.xml"
+    os.mkfifo(fifo)
+    for name in ("/dev/null", "pipe.xml"):
+        path = write_scene(tmp_path / "s.xml", sensor() + f"<include filename='{name}'/>" + LIGHT)
+        with pytest.raises(ProbvisError, match=r"s.xml:\d+: <include>: included file '.*': .* is not a regular file"):
+            probvis.load_scene(path)
+
+
+@pytest.mark.parametrize("root", ["<scene>", "<bsdf type='diffuse' id='m'>"])
+def test_a_file_whose_root_has_no_version_is_refused_as_in_mitsuba(tmp_path, root):
+    """Mitsuba 3.9 refuses a scene file, or an included one, whose root element has no version attribute."""
+    if root == "<scene>":
+        path = tmp_path / "s.xml"
+        path.write_text("<scene>\n" + sensor() + LIGHT + "</scene>\n")
+    else:
+        (tmp_path / "m.xml").write_text(root + "</bsdf>\n")
+        path = write_scene(tmp_path / "s.xml", sensor() + "<include filename='m.xml'/>" + LIGHT)
+    where = "s.xml" if root == "<scene>" else "m.xml"
+    with pytest.raises(ProbvisError, match=rf"{where}:1: <\w+>: missing version attribute"):
+        probvis.load_scene(path)
+    if importlib.util.find_spec("mitsuba") is not None:
+        import mitsuba as mi
+
+        mi.set_variant("scalar_rgb")
+        with pytest.raises(Exception, match="missing version attribute"):
+            mi.load_file(str(path))
+
+
+@pytest.mark.parametrize("encoding, declared", [("utf-8", "bogus-enc"), ("utf-8", "rot13"), ("utf-8", "utf-32"),
+                                                ("utf-32", "utf-32"), ("utf-16", "utf-16"), ("utf-8-sig", None),
+                                                ("latin-1", "latin-1"), ("utf-16-le", None)])
+def test_a_scene_reads_in_the_encoding_its_first_bytes_or_declaration_give(tmp_path, encoding, declared):
+    """UTF-16/32 by their first bytes, a declared encoding Python knows, else UTF-8 (a declaration naming an
+    unknown or non-text codec was a LookupError traceback, UTF-32 'invalid token'): the same scene as UTF-8's."""
+    head = f'<?xml version="1.0" encoding="{declared}"?>\n' if declared else '<?xml version="1.0"?>\n'
+    body = '<scene version="3.0.0">\n<!-- café -->\n' + sensor() + LIGHT + "</scene>\n"
+    plain = tmp_path / "plain.xml"
+    plain.write_text(body, encoding="utf-8")
+    path = tmp_path / "s.xml"
+    path.write_bytes((head + body).encode(encoding))
+    assert np.array_equal(probvis.render(path, spp=1).image, probvis.render(plain, spp=1).image)
+
+
+def test_a_scene_in_no_encoding_that_reads_it_names_its_line(tmp_path):
+    path = tmp_path / "s.xml"
+    path.write_bytes(b'<?xml version="1.0" encoding="bogus"?>\n<scene version="3.0.0">\n<!-- caf\xe9 -->\n</scene>\n')
+    with pytest.raises(ProbvisError, match=r"s.xml:3: not UTF-8 text, and its declared encoding 'bogus' is unknown"):
+        probvis.load_scene(path)
+    path.write_bytes(b'\xff\xfe\x00\x00<\x00\x00\x00\xff\xff\xff\xff')
+    with pytest.raises(ProbvisError, match=r"s.xml: not UTF-32 text as its first bytes say"):
+        probvis.load_scene(path)
+
+
+def test_a_shape_s_reference_to_an_emitter_says_where_a_shape_s_emitter_goes(tmp_path):
+    """"is a <emitter>, not a bsdf" suggested that only a bsdf could stand in a shape."""
+    path = write_scene(tmp_path / "s.xml", sensor() + LIGHT + '<emitter type="point" id="pl"><point name="position" '
+                       'value="0, 0, 2"/></emitter><shape type="sphere"><ref id="pl"/></shape>')
+    with pytest.raises(ProbvisError, match=re.escape("<ref>: id 'pl' is an <emitter>: a shape's emitter is written "
+                                                     'inside the shape (<emitter type="area">)')):
         probvis.load_scene(path)

@@ -93,6 +93,48 @@ def _comments_as_mitsuba_reads_them(data):
     return re.sub(rb"(<!\[CDATA\[.*?\]\]>)|<!--(.*?)-->", fix, data, flags=re.S)
 
 
+_BOMS = ((b"\xef\xbb\xbf", "utf-8-sig"), (b"\xff\xfe\x00\x00", "utf-32"), (b"\x00\x00\xfe\xff", "utf-32"),
+         (b"\xff\xfe", "utf-16"), (b"\xfe\xff", "utf-16"), (b"<\x00\x00\x00", "utf-32-le"),
+         (b"\x00\x00\x00<", "utf-32-be"), (b"<\x00", "utf-16-le"), (b"\x00<", "utf-16-be"))
+_DECLARED = re.compile(rb"^(\s*<\?xml\b[^>]*?)\s+encoding\s*=\s*(['\"])([^'\"]*)\2")
+
+
+def _as_utf8(data, path):
+    """The document's bytes as UTF-8 with no encoding declared, so that the XML reader never meets an encoding
+    it lacks (UTF-32) or a name it does not know: the encoding its first bytes show (a byte-order mark, or '<'
+    in UTF-16/32), else the declared one where Python knows it, it reads '<?xml' as ASCII does and the bytes
+    decode, else UTF-8 — Mitsuba's reader (pugixml) also goes by the first bytes and reads an unknown
+    declaration as UTF-8."""
+    encoding = next((name for bom, name in _BOMS if data.startswith(bom)), None)
+    if encoding is not None:
+        try:
+            data = data.decode(encoding).encode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ProbvisError(f"{path}: not {encoding.split('-sig')[0].upper()} text as its first bytes say "
+                               f"(byte {exc.start}): save it as UTF-8") from None
+    declared = _DECLARED.match(data[:1024])
+    if declared is None:
+        return data
+    name = declared.group(3).decode("ascii", "replace").strip()
+    data = declared.group(1) + data[declared.end():]
+    if encoding is not None:
+        return data
+    known = False
+    try:
+        known = "<?xml".encode(name) == b"<?xml"  # an encoding Python knows that reads ASCII as ASCII
+        if known:
+            return data.decode(name).encode("utf-8")
+    except (LookupError, UnicodeError):
+        pass
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise ProbvisError(f"{path}:{line}: not UTF-8 text, and its declared encoding '{name}' "
+                           f"{'does not read it either' if known else 'is unknown'}: save it as UTF-8") from None
+    return data
+
+
 def parse_tree(path):
     path = Path(path)
     if not path.exists():
@@ -106,6 +148,7 @@ def parse_tree(path):
         data = path.read_bytes()
     except OSError as exc:
         raise ProbvisError(f"cannot read scene file {path}: {exc.strerror}") from None
+    data = _as_utf8(data, path)
     handler = _TreeBuilder()
     try:
         try:
@@ -129,6 +172,9 @@ def parse_tree(path):
         raise ProbvisError(f"{path}:{exc}") from None
     if handler.root is None:
         raise ProbvisError(f"{path}: empty XML document")
+    if "version" not in handler.root.attrs:  # as Mitsuba 3 requires of every file, included ones too
+        raise ProbvisError(f"{path}:{handler.root.line}: <{handler.root.tag}>: missing version attribute (Mitsuba 3 "
+                           f"reads a file whose root element has one, e.g. <{handler.root.tag} version=\"3.0.0\">)")
     return handler.root
 
 
@@ -173,6 +219,8 @@ def with_includes(root, path, fail, filename):
             target = next((f / name for f in (here, scene_folder) if (f / name).is_file()), here / name)
             if target.is_dir():
                 fail(ch, f"included file '{name}' is a folder ({target}): include a scene file")
+            if target.exists() and not target.is_file():  # /dev/null, a FIFO
+                fail(ch, f"included file '{name}': {missing_file(target, 'scene file')}")
             if not target.is_file():
                 fail(ch, f"included file '{name}' not found (looked beside {'this file and ' if file else ''}"
                          f"the scene file{f', {here}' if file else ''})")
@@ -1174,6 +1222,10 @@ class _Reader:
             else:
                 if material is not None:
                     self.fail(ch, "a shape can carry only one bsdf")
+                target = self.id_nodes.get(ch.attrs.get("id")) if ch.tag == "ref" else None
+                if target is not None and target.tag == "emitter":
+                    self.fail(ch, f"id '{ch.attrs['id']}' is an <emitter>: a shape's emitter is written inside the "
+                                  "shape (<emitter type=\"area\">); a <ref> in a shape names its bsdf")
                 refl, two, texture, back = self.bsdf(ch)
                 if kind == "cube" and (texture is not None or (back is not None and back[1] is not None)):
                     self.approximate(ch, "texture on a 'cube'", "rendered as its mean colour (probvis gives a "
