@@ -187,6 +187,9 @@ def test_a_plugin_path_that_is_a_folder_is_named_a_folder(tmp_path):
         estimator_class(f"{tmp_path / 'pdir.py'}:P")
     with pytest.raises(ProbvisError, match=re.escape(f"no file {tmp_path / 'none.py'}")):
         estimator_class(f"{tmp_path / 'none.py'}:P")
+    os.mkfifo(tmp_path / "fifo.py")
+    with pytest.raises(ProbvisError, match=re.escape(f"{tmp_path / 'fifo.py'} is not a regular file")):
+        estimator_class(f"{tmp_path / 'fifo.py'}:P")
 
 
 class _Broken(probvis.visibility.VisibilityEstimator):

@@ -93,6 +93,17 @@ def test_files(tmp_path):
         load_experiment(5)
     with pytest.raises(ProbvisError, match="is a folder, not an experiment file"):
         load_experiment(tmp_path)
+
+
+def test_a_device_or_pipe_is_no_experiment_file_nor_scene_source(tmp_path):
+    """/dev/null or a FIFO exists: "not found" misled."""
+    os.mkfifo(tmp_path / "pipe")
+    for path in ("/dev/null", tmp_path / "pipe"):
+        with pytest.raises(ProbvisError, match=re.escape(f"{path} is not a regular file (a pipe, socket or device), "
+                                                         "not an experiment file")):
+            load_experiment(path)
+    with pytest.raises(ProbvisError, match=r"scenes\[0\]\.source: .*pipe is not a regular file"):
+        parse_experiment(doc(scenes=[{"name": "q", "source": "pipe"}]), base=tmp_path)
     bad = tmp_path / "bad.toml"
     bad.write_text("name = 'x'\n[[scenes]\n")
     with pytest.raises(ProbvisError, match=r"bad.toml: malformed TOML: .*line 2"):

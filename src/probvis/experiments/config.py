@@ -158,7 +158,7 @@ def _scene(where, table, base):
         source = os.path.expanduser(source)  # ~ as a shell (and PROBVIS_CACHE_DIR) reads it
         path = Path(os.path.realpath(base / source))
         if not path.is_file():
-            if not path.exists() and os.path.lexists(base / source):
+            if os.path.lexists(base / source):  # a folder, a FIFO, a broken or looping link
                 _fail(f"{where}.source", missing_file(base / source, "scene file"))
             _fail(f"{where}.source", f"'{source}' is neither a built-in scene ({', '.join(BUILTINS)}) nor a file "
                                      f"(looked for {path})")
@@ -428,7 +428,7 @@ def load_experiment(path):
     if path.is_dir():
         raise ProbvisError(f"{path} is a folder, not an experiment file (.toml)")
     if not path.is_file():
-        raise ProbvisError(f"experiment file not found: {path}")
+        raise ProbvisError(missing_file(path, "experiment file"))
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark is allowed
     except UnicodeDecodeError:

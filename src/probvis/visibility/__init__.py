@@ -53,7 +53,8 @@ def _load_unlocked(spec, what):
                 raise ProbvisError(f"{what}: '{module_name}' names the home of a user this machine does not know")
             if not path.is_file():
                 raise ProbvisError(f"{what}: {path} is a folder, not a Python file" if path.is_dir() else
-                                   f"{what}: no file {path}")
+                                   f"{what}: {path} is not a regular file (a pipe, socket or device)"
+                                   if path.exists() else f"{what}: no file {path}")
             name = "probvis_plugin_" + path.stem
             if str(path.parent) not in sys.path:  # as `python file.py` would: the modules beside it import
                 sys.path.append(str(path.parent))
