@@ -104,6 +104,35 @@ def test_resume_recomputes_nothing_then_only_what_is_missing(tiny_run, tmp_path,
     assert numbers(again) == numbers(results)
 
 
+def test_a_rerun_removes_what_a_killed_run_left_half_written(tiny_run, scheduler):
+    """A study killed (SIGKILL) while it wrote left hidden temporaries in its report; the next run over the same
+    folder removes them."""
+    out, results, _, _ = tiny_run
+    left = [out / ".pv-abcd1234.html", out / "data" / ".pv-efgh5678.json", out / "cache" / ".pv-ijkl9012.npz"]
+    for path in left:
+        path.write_bytes(b"half")
+    again, _, run = experiment(parse_experiment(TINY), out, scheduler=scheduler, progress=False, log=lambda m: None)
+    assert run.computed == 0 and numbers(again) == numbers(results)
+    assert not any(path.exists() for path in left)
+    assert not list(out.rglob(".pv-*"))
+
+
+def test_a_report_folder_another_study_is_writing_is_refused(tmp_path):
+    """Two studies writing one folder at once would interleave their files: the second is refused, whole."""
+    import fcntl
+
+    out = tmp_path / "busy"
+    out.mkdir()
+    fd = os.open(out, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as the other study's process holds it
+        with pytest.raises(ProbvisError, match="report folder '.*busy' is being written by another probvis process"):
+            experiment(parse_experiment(TINY), out, progress=False, log=lambda m: None)
+    finally:
+        os.close(fd)
+    assert list(out.iterdir()) == []
+
+
 @pytest.mark.parametrize("damage", ["nan-image", "empty-json", "other-size", "loop", "other-stats", "no-seconds",
                                     "seconds-text", "seconds-nan"])
 def test_a_damaged_cache_entry_is_rendered_again(tiny_run, tmp_path, damage, scheduler):

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..errors import ProbvisError, checked_call, is_path
 from ..interrupts import deferred_interrupts
+from ..io.atomic import exclusive_folder
 from .config import (Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment,
                      recheck, reference_noise_problem)
 from .report import report_problem, write_report
@@ -46,16 +47,17 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     scenes = load_scenes(exp)
     if (problem := report_problem(exp, out, {name: scene.inputs for name, scene in scenes.items()})) is not None:
         raise ProbvisError(problem)
-    run = run_experiment(exp, Path(cache) if cache else out / "cache", workers, scheduler, progress, log, scenes)
-    results = measure(exp, run)
-    index = None
-    try:
-        with deferred_interrupts():  # seconds: an interrupt waits for a whole report rather than leave half of one
-            index = write_report(exp, run, results, out, command)
-    except KeyboardInterrupt:
-        if index is None:
-            raise
-        # the stop arrived while the report was written: the study is complete, nothing is left to stop
+    with exclusive_folder(out, "report folder"):
+        run = run_experiment(exp, Path(cache) if cache else out / "cache", workers, scheduler, progress, log, scenes)
+        results = measure(exp, run)
+        index = None
+        try:
+            with deferred_interrupts():  # seconds: an interrupt waits for a whole report, not half of one
+                index = write_report(exp, run, results, out, command)
+        except KeyboardInterrupt:
+            if index is None:
+                raise
+            # the stop arrived while the report was written: the study is complete, nothing is left to stop
     return results, index, run
 
 

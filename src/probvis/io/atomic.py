@@ -7,6 +7,11 @@ from pathlib import Path
 
 from ..errors import ProbvisError
 
+try:
+    import fcntl
+except ImportError:  # Windows: no lock, and no cleaning up after another process
+    fcntl = None
+
 _staged = None  # (temporary, destination, name given) of the writes `staged_writes` holds back (None: inactive)
 
 
@@ -61,10 +66,48 @@ def _commit(staged):
             os.unlink(previous)
 
 
+TEMP_PREFIX = ".pv-"
+
+
+@contextmanager
+def exclusive_folder(folder, what):
+    """Hold `folder` (made if missing, removed again if the block fails and leaves it empty) for this process
+    alone during the block: a lock on the folder itself, which the system drops when the process ends however
+    it ends; another process that holds it gets a one-line error naming `what`. Once held, the hidden
+    temporaries a process killed while writing here left (`temp_beside`'s) are removed."""
+    folder = Path(folder)
+    made = [d for d in (folder, *folder.parents) if not d.exists()]
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ProbvisError(f"cannot create {what} '{folder}': {exc.strerror or exc}") from None
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            if fcntl is not None:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    raise ProbvisError(f"{what} '{folder}' is being written by another probvis process: wait for it "
+                                       "to end, or give another folder") from None
+                for root, _, files in os.walk(folder):
+                    for name in files:
+                        if name.startswith(TEMP_PREFIX):
+                            os.unlink(os.path.join(root, name))
+            yield folder
+        finally:
+            os.close(fd)  # the lock goes with it
+    except BaseException:
+        for d in made:
+            if d.exists() and not any(d.iterdir()):
+                d.rmdir()
+        raise
+
+
 def temp_beside(folder, suffix):
     """A new hidden temporary file in `folder`, (fd, path): a short name (.pv- and 8 characters), so that any
     output name the file system takes can be written through it."""
-    return tempfile.mkstemp(prefix=".pv-", suffix=suffix, dir=folder)
+    return tempfile.mkstemp(prefix=TEMP_PREFIX, suffix=suffix, dir=folder)
 
 
 @contextmanager
