@@ -108,13 +108,21 @@ def test_a_rerun_removes_what_a_killed_run_left_half_written(tiny_run, scheduler
     """A study killed (SIGKILL) while it wrote left hidden temporaries in its report; the next run over the same
     folder removes them."""
     out, results, _, _ = tiny_run
-    left = [out / ".pv-abcd1234.html", out / "data" / ".pv-efgh5678.json", out / "cache" / ".pv-ijkl9012.npz"]
-    for path in left:
+    left = [out / ".pv-abcd1234.html", out / "data" / ".pv-efgh5678.js", out / "plots" / ".pv-mnop3456.png",
+            out / "images" / "quad" / ".pv-qrst7890.exr"]
+    # a cache another study may share, and a folder the report does not own (another study's report?), are not
+    # the report's to clean: their temporaries may be another process's, in the middle of a write
+    (out / "other").mkdir(exist_ok=True)
+    others = [out / "cache" / ".pv-ijkl9012.npz", out / "other" / ".pv-uvwx1234.exr"]
+    for path in left + others:
         path.write_bytes(b"half")
     again, _, run = experiment(parse_experiment(TINY), out, scheduler=scheduler, progress=False, log=lambda m: None)
     assert run.computed == 0 and numbers(again) == numbers(results)
     assert not any(path.exists() for path in left)
-    assert not list(out.rglob(".pv-*"))
+    assert all(path.exists() for path in others)
+    for path in others:
+        path.unlink()
+    (out / "other").rmdir()
 
 
 def test_a_report_folder_another_study_is_writing_is_refused(tmp_path):

@@ -1625,6 +1625,31 @@ def test_a_scene_reads_in_the_encoding_its_first_bytes_or_declaration_give(tmp_p
     assert np.array_equal(probvis.render(path, spp=1).image, probvis.render(plain, spp=1).image)
 
 
+@pytest.mark.parametrize("declaration", ['<?xml version="1.0"\n  encoding="latin-1"?>',
+                                         '<?xml version="1.0"\r\n encoding\r\n=\r\n"latin-1"?>',
+                                         '<?xml version="1.0"' + " " * 1100 + 'encoding="bogus"?>',
+                                         '<?xml version="1.0" encoding="utf\x008"?>',
+                                         '<?xml version="1.0" encoding="unicode_escape"?>'])
+def test_an_encoding_declaration_of_any_length_keeps_the_lines_and_reads_no_escapes(tmp_path, declaration):
+    """A declaration over several lines kept the later lines' numbers only if it is blanked, not cut; one longer
+    than 1 KiB or naming an escape codec or a NUL was read by the XML reader itself (a traceback)."""
+    lines = declaration.count("\n")
+    path = tmp_path / "s.xml"
+    path.write_bytes((declaration + '\n<scene version="3.0.0">\n<!-- caf\\x41 -->\n<bogus/>\n</scene>\n')
+                     .encode("latin-1"))
+    with pytest.raises(ProbvisError, match=rf"s.xml:{lines + 4}: <bogus>: unsupported element"):
+        probvis.load_scene(path)
+
+
+def test_an_escape_codec_declared_is_not_applied(tmp_path):
+    """unicode_escape or UTF-7 would read a backslash or '+' in a file name or id as an escape."""
+    body = sensor() + LIGHT + "<shape type='sphere' id='a\\x41+AGE-'/>"
+    for codec in ("unicode_escape", "raw_unicode_escape", "utf-7"):
+        path = write_scene(tmp_path / "s.xml", body)
+        path.write_text(f'<?xml version="1.0" encoding="{codec}"?>' + path.read_text().split("?>", 1)[1])
+        assert "a\\x41+AGE-" in [shape.name for shape in probvis.load_scene(path).shapes]
+
+
 def test_a_scene_in_no_encoding_that_reads_it_names_its_line(tmp_path):
     path = tmp_path / "s.xml"
     path.write_bytes(b'<?xml version="1.0" encoding="bogus"?>\n<scene version="3.0.0">\n<!-- caf\xe9 -->\n</scene>\n')

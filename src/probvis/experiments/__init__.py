@@ -9,7 +9,7 @@ from ..interrupts import deferred_interrupts
 from ..io.atomic import exclusive_folder
 from .config import (Experiment, MethodSpec, SceneSpec, load_experiment, parse_experiment, quick_experiment,
                      recheck, reference_noise_problem)
-from .report import report_problem, write_report
+from .report import report_folders, report_problem, write_report
 from .results import measure
 from .runner import check_run_options, load_scenes, run_experiment
 
@@ -47,7 +47,7 @@ def experiment(exp, out, cache=None, workers=1, scheduler=None, progress=True, c
     scenes = load_scenes(exp)
     if (problem := report_problem(exp, out, {name: scene.inputs for name, scene in scenes.items()})) is not None:
         raise ProbvisError(problem)
-    with exclusive_folder(out, "report folder"):
+    with exclusive_folder(out, "report folder", report_folders(exp)):
         run = run_experiment(exp, Path(cache) if cache else out / "cache", workers, scheduler, progress, log, scenes)
         results = measure(exp, run)
         index = None

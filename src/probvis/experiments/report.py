@@ -529,6 +529,11 @@ def _earlier_files(folder):
     return out
 
 
+def report_folders(exp):
+    """The folders a report of `exp` writes in, relative to its own."""
+    return ["images", "plots", "data"] + [f"images/{file_stem(spec.name)}" for spec in exp.scenes]
+
+
 def report_problem(exp, folder, inputs=None):
     """What would stop the report's writing in `folder` half-way, or make it replace a file a scene reads, as an
     error message (None: nothing): a file where the report makes a folder, a folder where it writes a file, a
@@ -537,7 +542,7 @@ def report_problem(exp, folder, inputs=None):
     if not utf8_path(folder):
         return (f"cannot write the report in '{folder}': OpenEXR's writer (its images and the render cache) takes "
                 "only folder names in UTF-8; give another folder")
-    folders = ["images", "plots", "data"] + [f"images/{file_stem(spec.name)}" for spec in exp.scenes]
+    folders = report_folders(exp)
     files = report_files(exp)
     for name in folders + files:
         part = max(name.split("/"), key=lambda p: len(p.encode()))

@@ -9,7 +9,7 @@ from ..errors import ProbvisError
 
 try:
     import fcntl
-except ImportError:  # Windows: no lock, and no cleaning up after another process
+except ImportError:  # not POSIX: no lock, and no cleaning up after another process
     fcntl = None
 
 _staged = None  # (temporary, destination, name given) of the writes `staged_writes` holds back (None: inactive)
@@ -70,38 +70,71 @@ TEMP_PREFIX = ".pv-"
 
 
 @contextmanager
-def exclusive_folder(folder, what):
-    """Hold `folder` (made if missing, removed again if the block fails and leaves it empty) for this process
-    alone during the block: a lock on the folder itself, which the system drops when the process ends however
-    it ends; another process that holds it gets a one-line error naming `what`. Once held, the hidden
-    temporaries a process killed while writing here left (`temp_beside`'s) are removed."""
+def exclusive_folder(folder, what, own=()):
+    """Hold `folder` (made if missing) for this process alone during the block: a lock on the folder itself,
+    which the system drops when the process ends however it ends; another process that holds it gets a one-line
+    error naming `what`. Once held, the hidden temporaries (`temp_beside`'s) that a process killed while writing
+    left in it and in its subfolders `own` are removed, and folders made here are removed again if the block
+    fails and leaves them empty. Where the file system cannot lock (NFS without locking), the block runs
+    without the lock and removes nothing."""
     folder = Path(folder)
     made = [d for d in (folder, *folder.parents) if not d.exists()]
     try:
         folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ProbvisError(f"cannot create {what} '{folder}': {exc.strerror or exc}") from None
-    try:
         fd = os.open(folder, os.O_RDONLY)
+    except OSError as exc:
+        raise ProbvisError(f"cannot open {what} '{folder}': {exc.strerror or exc}") from None
+    try:
+        held = _lock(fd, f"{what} '{folder}'")
         try:
-            if fcntl is not None:
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except BlockingIOError:
-                    raise ProbvisError(f"{what} '{folder}' is being written by another probvis process: wait for it "
-                                       "to end, or give another folder") from None
-                for root, _, files in os.walk(folder):
-                    for name in files:
-                        if name.startswith(TEMP_PREFIX):
-                            os.unlink(os.path.join(root, name))
+            if held:
+                for sub in ("", *own):
+                    _remove_temporaries(folder / sub)
             yield folder
-        finally:
-            os.close(fd)  # the lock goes with it
-    except BaseException:
-        for d in made:
-            if d.exists() and not any(d.iterdir()):
-                d.rmdir()
-        raise
+        except BaseException:
+            for d in made if held else ():
+                try:
+                    if d.is_dir() and not any(d.iterdir()):
+                        d.rmdir()
+                except OSError:
+                    break
+            raise
+    finally:
+        if fcntl is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_UN)  # a forked child's copy of the descriptor would keep it otherwise
+            except OSError:
+                pass
+        os.close(fd)
+
+
+def _lock(fd, named):
+    """Lock the open folder `fd` for this process; False where the file system cannot lock. Refuses a folder
+    another process holds."""
+    if fcntl is None:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise ProbvisError(f"{named} is being written by another probvis process: wait for it to end, or give "
+                           "another folder") from None
+    except OSError:  # NFS (EBADF on a folder opened to read, ENOLCK without its lock service)
+        return False
+    return True
+
+
+def _remove_temporaries(folder):
+    """Remove `temp_beside`'s files directly in `folder` (not below it: another process's folder may be)."""
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return
+    for entry in entries:
+        if entry.name.startswith(TEMP_PREFIX) and entry.is_file(follow_symlinks=False):
+            try:
+                os.unlink(entry.path)
+            except OSError:
+                pass
 
 
 def temp_beside(folder, suffix):

@@ -96,14 +96,25 @@ def _comments_as_mitsuba_reads_them(data):
 _BOMS = ((b"\xef\xbb\xbf", "utf-8-sig"), (b"\xff\xfe\x00\x00", "utf-32"), (b"\x00\x00\xfe\xff", "utf-32"),
          (b"\xff\xfe", "utf-16"), (b"\xfe\xff", "utf-16"), (b"<\x00\x00\x00", "utf-32-le"),
          (b"\x00\x00\x00<", "utf-32-be"), (b"<\x00", "utf-16-le"), (b"\x00<", "utf-16-be"))
-_DECLARED = re.compile(rb"^(\s*<\?xml\b[^>]*?)\s+encoding\s*=\s*(['\"])([^'\"]*)\2")
+_DECLARED = re.compile(rb"^(\s*<\?xml(?=\s)[^>]*?)\s+encoding\s*=\s*(['\"])([^'\"]*)\2")
+# ASCII, its backslashes only in escapes that Python's escape codecs read (no invalid ones: they warn), and UTF-7's
+_ASCII_PROBE = bytes(b for b in range(128) if b != 0x5C) + rb"\u0041\x41+AGE-"
+
+
+def _ascii_charset(name):
+    """Whether `name` is a character set Python knows that reads ASCII as ASCII (latin-1, windows-1252, ...):
+    not UTF-16 or UTF-32, and no escape codec (unicode_escape, UTF-7) that would read a path's backslashes."""
+    try:
+        return _ASCII_PROBE.decode(name) == _ASCII_PROBE.decode("ascii")
+    except (LookupError, ValueError):  # unknown, not a text encoding, a NUL in the name, ASCII it cannot read
+        return False
 
 
 def _as_utf8(data, path):
     """The document's bytes as UTF-8 with no encoding declared, so that the XML reader never meets an encoding
     it lacks (UTF-32) or a name it does not know: the encoding its first bytes show (a byte-order mark, or '<'
-    in UTF-16/32), else the declared one where Python knows it, it reads '<?xml' as ASCII does and the bytes
-    decode, else UTF-8 — Mitsuba's reader (pugixml) also goes by the first bytes and reads an unknown
+    in UTF-16/32), else the declared one where it is a character set Python knows (`_ascii_charset`) and the
+    bytes decode, else UTF-8 — Mitsuba's reader (pugixml) also goes by the first bytes and reads an unknown
     declaration as UTF-8."""
     encoding = next((name for bom, name in _BOMS if data.startswith(bom)), None)
     if encoding is not None:
@@ -112,20 +123,20 @@ def _as_utf8(data, path):
         except UnicodeDecodeError as exc:
             raise ProbvisError(f"{path}: not {encoding.split('-sig')[0].upper()} text as its first bytes say "
                                f"(byte {exc.start}): save it as UTF-8") from None
-    declared = _DECLARED.match(data[:1024])
+    declared = _DECLARED.match(data)
     if declared is None:
         return data
     name = declared.group(3).decode("ascii", "replace").strip()
-    data = declared.group(1) + data[declared.end():]
+    start, end = declared.end(1), declared.end()  # the declaration blanked: lines and offsets stay where they were
+    data = data[:start] + re.sub(rb"[^\r\n]", b" ", data[start:end]) + data[end:]
     if encoding is not None:
         return data
-    known = False
-    try:
-        known = "<?xml".encode(name) == b"<?xml"  # an encoding Python knows that reads ASCII as ASCII
-        if known:
+    known = _ascii_charset(name)
+    if known:
+        try:
             return data.decode(name).encode("utf-8")
-    except (LookupError, UnicodeError):
-        pass
+        except UnicodeDecodeError:
+            pass
     try:
         data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -1220,12 +1231,12 @@ class _Reader:
                 radiance = self.emitter_radiance(ch)
                 self.emitter_elements.append((node, ch))
             else:
+                key = self.attr(ch, "id", required=False) if ch.tag == "ref" else None
+                if key is not None and getattr(self.id_nodes.get(key), "tag", None) == "emitter":
+                    self.fail(ch, f"id '{key}' is an <emitter>: a shape's emitter is written inside the shape "
+                                  "(<emitter type=\"area\">); a <ref> in a shape names its bsdf")
                 if material is not None:
                     self.fail(ch, "a shape can carry only one bsdf")
-                target = self.id_nodes.get(ch.attrs.get("id")) if ch.tag == "ref" else None
-                if target is not None and target.tag == "emitter":
-                    self.fail(ch, f"id '{ch.attrs['id']}' is an <emitter>: a shape's emitter is written inside the "
-                                  "shape (<emitter type=\"area\">); a <ref> in a shape names its bsdf")
                 refl, two, texture, back = self.bsdf(ch)
                 if kind == "cube" and (texture is not None or (back is not None and back[1] is not None)):
                     self.approximate(ch, "texture on a 'cube'", "rendered as its mean colour (probvis gives a "
