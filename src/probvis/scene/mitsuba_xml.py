@@ -388,6 +388,7 @@ class _Reader:
         self.dark = []  # (element, kind, why) of area emitters on shapes without area (`dark_emitters`)
         self.emitter_elements = []  # (its shape or None, element) of every <emitter>, in order (`zero_power`)
         self.unweighted = []  # elements of the emitters of sampling_weight 0 (`unsampled_emitters`)
+        self.compensated = None  # an envmap with mis_compensation (`compensated_environment`)
         self.sampled = 0  # emitters of a positive (or no) sampling_weight
         self.bsdf_samples = 1  # the integrator's: Mitsuba's path and direct integrators sample the BSDF by default
         self.root = None  # the document's tree, once parsed
@@ -1167,11 +1168,8 @@ class _Reader:
             if 0.0 < image.max() * scale < 1.0 / MAX_EMISSION:
                 self.fail(node, f"scale {scale:g} times the map's largest value {image.max():g} is below "
                                 f"{1.0 / MAX_EMISSION:g}: the environment would vanish in single precision")
-            if props.get("mis_compensation", False):
-                warnings.warn(f"{self.where(node)}: mis_compensation samples the map by its luminance less the mean, "
-                              "leaving the dimmer directions to BSDF sampling, which `direct` without BSDF samples "
-                              "does not do: their light is missing, in Mitsuba as here; leave it out for all of it",
-                              stacklevel=2)
+            if props.get("mis_compensation", False):  # settled once the integrator is read
+                self.compensated = node
         try:
             builder.add_environment(image, m, scale, constant=kind == "constant",
                                     mis_compensation=props.get("mis_compensation", False))
@@ -1375,6 +1373,21 @@ class _Reader:
                               "this emitter and its image lacks the emitter's light on the scene; probvis samples "
                               "emitters by their power and renders that light (give bsdf_samples 1 for Mitsuba's "
                               "image to have it too)", stacklevel=3)
+
+    def compensated_environment(self, builder):
+        """An envmap's mis_compensation, once the integrator is known. With BSDF samples, Mitsuba's multiple
+        importance sampling finds the dimmer directions' light by BSDF sampling, so its image has the whole map's
+        light: probvis, which samples no BSDF, samples the whole map (the same expected image). Without them that
+        light is missing from Mitsuba's image: sampled as Mitsuba does, and said."""
+        if self.compensated is None:
+            return
+        if self.bsdf_samples > 0:
+            builder.environment.mis_compensation = False
+            return
+        warnings.warn(f"{self.where(self.compensated)}: mis_compensation samples the map by its luminance less the "
+                      "mean, leaving the dimmer directions to BSDF sampling, which `direct` with bsdf_samples 0 does "
+                      "not do: their light is missing, in Mitsuba as here; leave it out, or give bsdf_samples 1, for "
+                      "all of it", stacklevel=3)
 
     def cylinder_frame(self, node, props):
         """Object-to-shape transform of Mitsuba's cylinder from p0 to p1 with a radius (the unit cylinder's z
@@ -1803,6 +1816,7 @@ class _Reader:
         self.dark_emitters(builder)
         self.zero_power(builder)
         self.unsampled_emitters()
+        self.compensated_environment(builder)
         deltas = [kind for kind, *_ in builder.deltas.values() if kind != EMITTER_ENVIRONMENT]
         if shadow_rays > 1 and deltas:  # see docs/decisions.md, "Where Mitsuba 3.9 is not followed"
             warnings.warn(f"{self.path}:{integrator_line}: emitter_samples {shadow_rays} with point, spot or "
