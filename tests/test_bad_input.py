@@ -326,6 +326,12 @@ def test_a_texture_too_large_to_read_is_one_line(tmp_path, monkeypatch):
     monkeypatch.setattr(sys, "stderr", err)
     assert main(["render", "quad-shadow", "-o", str(tmp_path / "o.exr")]) == 2
     assert err.getvalue().startswith("probvis: error: out of memory") and err.getvalue().count("\n") == 1
+    assert "--spp" in err.getvalue()
+    monkeypatch.setattr("probvis.scene.open_scene", out_of_memory)  # `info` has no resolution or sample counts
+    err.truncate(0)
+    err.seek(0)
+    assert main(["info", "quad-shadow"]) == 2
+    assert err.getvalue().startswith("probvis: error: out of memory") and "--spp" not in err.getvalue()
 
 
 @pytest.mark.parametrize("mib", [200, 400])

@@ -251,6 +251,17 @@ def test_an_environment_map_s_memory_is_estimated_before_it_is_read_or_built(sce
         probvis.render(scene, spp=1, shadow_rays=1, resolution=(8, 8))
 
 
+def test_an_environment_image_edited_beyond_the_emission_bound_is_refused(scenes):
+    """A texel set to 1e300 after loading rendered an image of mean 4.7e297; the same value in the file, or in
+    an edited emitter_radiance, is refused."""
+    scene = probvis.load_scene(scenes["envmap"])
+    image = scene.environment.image.copy()
+    image[0, 0] = 1e300
+    scene = dataclasses.replace(scene, environment=dataclasses.replace(scene.environment, image=image))
+    with pytest.raises(ProbvisError, match=r"scene.environment must hold a .* image of values from 0 to 1e\+30"):
+        probvis.render(scene, spp=1, shadow_rays=1, resolution=(8, 8))
+
+
 def test_hidden_emitters_are_black_where_seen_as_in_mitsuba(tmp_path):
     """`hide_emitters`: the area light and the sky are not seen directly (the sky black), what they light is
     (probvis refused the option); the image against Mitsuba's, the sky's pixels black, and the `path`

@@ -798,6 +798,7 @@ def main(argv=None):
     previous = {s: signal.signal(s, stop_now) for s in stop_signals()} if main_thread else {}
     if hasattr(sys.stdout, "reconfigure"):  # a scene's non-ASCII name under an ASCII locale: escaped, not a crash
         sys.stdout.reconfigure(errors="backslashreplace")
+    command = None
     try:
         try:
             os.getcwd()
@@ -811,6 +812,7 @@ def main(argv=None):
                 _flush_stdout()
             raise
         args.argv = argv
+        command = args.command
         status = {"render": _cmd_render, "info": _cmd_info, "scenes": _cmd_scenes, "estimators": _cmd_estimators,
                   "tables": _cmd_tables, "experiment": _cmd_experiment}[args.command](args)
         _flush_stdout()
@@ -819,8 +821,9 @@ def main(argv=None):
         print(f"probvis: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except MemoryError:  # an allocation the estimate before the render did not foresee (a texture's, say)
-        print("probvis: error: out of memory (the machine's or the process's limit, ulimit -v): lower the "
-              "resolution, --spp, --shadow-rays or the scene's texture sizes", file=sys.stderr)
+        rendering = "lower the resolution, --spp, --shadow-rays or " if command == "render" else "lower "
+        print("probvis: error: out of memory (the machine's or the process's limit, ulimit -v): "
+              f"{rendering}the scene's texture and environment map sizes", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("probvis: interrupted, nothing written", file=sys.stderr)

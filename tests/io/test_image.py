@@ -1,3 +1,4 @@
+import os
 import re
 
 import numpy as np
@@ -43,6 +44,10 @@ def test_an_hdr_header_too_large_and_a_truncated_pfm_are_named(tmp_path):
     with pytest.raises(ProbvisError, match="truncated: 1,180 bytes of pixels where its 10x10 header needs 1,200"):
         read_linear_rgb(tmp_path / "u.pfm")
     assert read_linear_rgb(tmp_path / "t.pfm").shape == (10, 10, 3)
+    (tmp_path / "v.pfm").write_bytes(b"PF\n20000 10000\n-1\n" + bytes(20))  # as the HDR: the limit and the fix
+    with pytest.raises(ProbvisError, match=r"20000x10000 pixels \(200 Mpixel\), above the 134 Mpixel probvis reads "
+                                           r"\(scale it down\)"):
+        read_linear_rgb(tmp_path / "v.pfm")
 
 
 @pytest.mark.parametrize("kind", ["1-bit.png", "cmyk.jpg", "rgba.exr"])
@@ -295,3 +300,10 @@ def test_an_unreadable_image_says_so(tmp_path, name, reader):
                        timeout=120)
     what = "EXR" if function == "read_exr" else "image"
     assert r.stdout.strip() == f"cannot read {what} {tmp_path / name}: Permission denied", r.stderr
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="no /proc")
+def test_a_folder_that_exists_but_takes_no_file_is_not_called_missing():
+    """/proc exists and answers ENOENT to a new file: "folder '/proc' does not exist" misled."""
+    with pytest.raises(ProbvisError, match=r"cannot write '/proc/r.exr': No such file or directory"):
+        write_image("/proc/r.exr", np.zeros((2, 2, 3)))

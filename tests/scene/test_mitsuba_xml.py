@@ -192,6 +192,18 @@ def test_what_mitsuba_accepts_and_does_not_change_the_image_is_accepted(tmp_path
     assert np.array_equal(plain, changed)
 
 
+def test_sampling_weights_on_many_emitters_are_said_once(tmp_path):
+    """400 lights with a sampling_weight gave 400 identical lines."""
+    lights = "".join(f"<shape type='sphere'><point name='center' value='{x}, 0, 2'/><float name='radius' "
+                     "value='0.01'/><emitter type='area'><float name='sampling_weight' value='2'/></emitter></shape>"
+                     for x in np.linspace(-1, 1, 400))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        probvis.load_scene(write_scene(tmp_path / "s.xml", sensor() + lights))
+    said = [str(w.message) for w in caught if "sampling_weight" in str(w.message)]
+    assert len(said) == 1 and "sampling_weight ignored (and on 399 more emitters)" in said[0], said[:3]
+
+
 @pytest.mark.parametrize("body, message", [
     ("<shape type='rectangle'><emitter type='area'><texture type='bitmap' name='radiance'><string name='filename' "
      "value='x.png'/></texture></emitter></shape>", "<texture>: an emitter's radiance given as a texture is not "
@@ -1092,6 +1104,18 @@ def test_a_view_so_wide_the_scene_shrinks_to_a_dot_is_refused(tmp_path, camera, 
     assert camera in body
     with pytest.raises(ProbvisError, match=re.escape(message)):
         probvis.load_scene(write_scene(tmp_path / "wide.xml", body + LIGHT))
+
+
+def test_a_view_so_tall_the_scene_shrinks_to_a_dot_is_refused(tmp_path):
+    """The refusal read the width alone: a 1 x 4096 film with fov 45 across x is 179.93 degrees tall, and rendered
+    three lit pixels of 4096 without a word (a 4096 x 1 one, as wide, was refused)."""
+    body = sensor(w=1, h=4096).replace("<float name=\"fov\" value=\"40\"/>",
+                                       "<float name='fov' value='45'/><string name='fov_axis' value='x'/>")
+    with pytest.raises(ProbvisError, match=r"fov 45 makes the view 179\.93\d* degrees tall \(at most 179\.5"):
+        probvis.load_scene(write_scene(tmp_path / "tall.xml", body + LIGHT))
+    path = write_scene(tmp_path / "ok.xml", sensor() + LIGHT)  # 40 degrees across x: fine at 16 x 16
+    with pytest.raises(ProbvisError, match=r"1x8192 film is 179\.9\d* degrees tall, more than 179\.5"):
+        probvis.render(path, resolution=(1, 8192))
 
 
 def test_an_emission_spectrum_outside_the_srgb_gamut_is_clamped_with_a_warning(tmp_path):

@@ -257,8 +257,11 @@ def _read_pfm(path):
                              "little-endian)")
         dtype = "<f4" if scale < 0 else ">f4"
         ch = 3 if kind == b"PF" else 1
-        if w <= 0 or h <= 0 or w * h > MAX_IMAGE_PIXELS:
+        if w <= 0 or h <= 0:
             raise ValueError(f"its header gives {w}x{h} pixels")
+        if w * h > MAX_IMAGE_PIXELS:
+            raise ValueError(f"its header gives {w}x{h} pixels ({w * h / 1e6:.0f} Mpixel), above the "
+                             f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel probvis reads (scale it down)")
         body = f.read()
         if len(body) < 4 * w * h * ch:
             raise ValueError(f"truncated: {len(body):,} bytes of pixels where its {w}x{h} header needs "

@@ -389,6 +389,7 @@ class _Reader:
         self.emitter_elements = []  # (its shape or None, element) of every <emitter>, in order (`zero_power`)
         self.unweighted = []  # elements of the emitters of sampling_weight 0 (`unsampled_emitters`)
         self.compensated = None  # an envmap with mis_compensation (`compensated_environment`)
+        self.weighted = []  # emitters with a sampling_weight probvis leaves aside (`unsampled_emitters`)
         self.sampled = 0  # emitters of a positive (or no) sampling_weight
         self.bsdf_samples = 1  # the integrator's: Mitsuba's path and direct integrators sample the BSDF by default
         self.root = None  # the document's tree, once parsed
@@ -739,8 +740,7 @@ class _Reader:
             if zero:  # said once the integrator is read (`unsampled_emitters`)
                 self.unweighted.append(_by_name(node)["sampling_weight"])
                 return
-            warnings.warn(f"{self.where(node)}: sampling_weight ignored: probvis samples emitters by their power "
-                          "(the same expected image)", stacklevel=2)
+            self.weighted.append(node)  # said once for all (`unsampled_emitters`)
 
     # --- plugins -----------------------------------------------------------------------------
     def bsdf(self, node):
@@ -1163,7 +1163,8 @@ class _Reader:
                                 f"{MAX_EMISSION:g} (they range from {np.nanmin(image):g} to {np.nanmax(image):g})")
             m, scale = props.get("to_world"), props.get("scale", 1.0)
             if m is not None and not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-6):
-                self.fail(node, "an envmap's to_world must be a rotation (no scale or shear)")
+                self.fail(node, "an envmap's to_world must be a rotation (no scale or shear; a <rotate> about an "
+                                "axis not of unit length is neither, as in Mitsuba: give its axis unit length)")
             self.emission(node, "scale", scale)
             if 0.0 < image.max() * scale < 1.0 / MAX_EMISSION:
                 self.fail(node, f"scale {scale:g} times the map's largest value {image.max():g} is below "
@@ -1357,7 +1358,12 @@ class _Reader:
     def unsampled_emitters(self):
         """Emitters of sampling_weight 0, which Mitsuba's emitter sampling never picks: refused at the first when
         no emitter has a positive weight (Mitsuba cannot load such a scene), else each left aside with a warning
-        that says whether Mitsuba's image has their light (found by BSDF sampling) or lacks it (bsdf_samples 0)."""
+        that says whether Mitsuba's image has their light (found by BSDF sampling) or lacks it (bsdf_samples 0).
+        Positive weights, left aside too, are said once for all the emitters that have one."""
+        if self.weighted:
+            more = f" (and on {len(self.weighted) - 1} more emitters)" if len(self.weighted) > 1 else ""
+            warnings.warn(f"{self.where(self.weighted[0])}: sampling_weight ignored{more}: probvis samples emitters "
+                          "by their power (the same expected image)", stacklevel=3)
         if not self.unweighted:
             return
         if not self.sampled:
@@ -1518,10 +1524,12 @@ class _Reader:
         if axis not in FOV_AXES:
             self.fail(node, f"unknown fov_axis '{axis}' ({', '.join(FOV_AXES)})")
         fov_x = float(np.degrees(2.0 * np.arctan(np.tan(np.radians(fov) / 2.0) * tan_x_per_axis(axis, aspect))))
-        if fov_x > MAX_FOV:
+        fov_y = float(np.degrees(2.0 * np.arctan(np.tan(np.radians(fov_x) / 2.0) / aspect)))
+        if max(fov_x, fov_y) > MAX_FOV:
             given = f"fov {fov:.10g}" if "fov" in props else f"focal_length {props.get('focal_length')}"
-            self.fail(node, f"{given} makes the view {fov_x:.10g} degrees wide (at most {MAX_FOV:g}: wider, a "
-                            "perspective image shrinks the whole scene to a few pixels at its centre)")
+            across = f"{fov_x:.10g} degrees wide" if fov_x >= fov_y else f"{fov_y:.10g} degrees tall"
+            self.fail(node, f"{given} makes the view {across} (at most {MAX_FOV:g}: wider, a perspective image "
+                            "shrinks the whole scene to a few pixels at its centre)")
         return fov_x, axis
 
     def film(self, node):

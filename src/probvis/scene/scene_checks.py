@@ -46,10 +46,11 @@ def check_scene(scene):
                                "finite (2, 3) to_uv")
     env = scene.environment
     if env is not None and not (_fine(env.image, (None, None, 3)) and env.image.shape[0] >= 2
-                                and env.image.shape[1] >= 1 and np.all(env.image >= 0) and _fine(env.to_world, (3, 3))
+                                and env.image.shape[1] >= 1 and np.all(env.image >= 0)
+                                and np.all(env.image <= MAX_EMISSION) and _fine(env.to_world, (3, 3))
                                 and np.allclose(env.to_world @ env.to_world.T, np.eye(3), atol=1e-6)):
-        raise ProbvisError("scene.environment must hold a finite, non-negative (h >= 2, w >= 1, 3) image and a "
-                           "rotation (3, 3) to_world")
+        raise ProbvisError(f"scene.environment must hold a (h >= 2, w >= 1, 3) image of values from 0 to "
+                           f"{MAX_EMISSION:g} and a rotation (3, 3) to_world")
     if (env is not None) != bool(np.any(np.asarray(scene.emitter_kind) == EMITTER_ENVIRONMENT)):
         raise ProbvisError("scene.environment must be set exactly when an emitter's kind is EMITTER_ENVIRONMENT")
     n, m, e = (len(a) if isinstance(a, np.ndarray) and a.ndim else "n"  # not an array: refused below, first

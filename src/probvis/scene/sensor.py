@@ -138,9 +138,14 @@ def camera_problem(c):
     if not 0.0 < c.fov_x <= MAX_FOV:
         return (f"field of view must be above 0 and at most {MAX_FOV:g} degrees across, got {c.fov_x:.10g} (wider, a "
                 "perspective image shrinks the whole scene to a few pixels at its centre)")
+    fw, fh = c.film_size
+    fov_y = math.degrees(2.0 * math.atan(math.tan(math.radians(c.fov_x) / 2.0) * fh / fw))
+    if fov_y > MAX_FOV:
+        return (f"a field of view {c.fov_x:.10g} degrees across a {fw}x{fh} film is {fov_y:.10g} degrees tall, more "
+                f"than {MAX_FOV:g} (taller, a perspective image shrinks the whole scene to a few pixels at its "
+                "centre)")
     if not 0.0 < c.near_clip < c.far_clip:
         return "near_clip must be positive and smaller than far_clip"
-    fw, fh = c.film_size
     if not (0 <= c.crop_x and c.crop_x + c.width <= fw and 0 <= c.crop_y and c.crop_y + c.height <= fh):
         return f"the crop window {c.width}x{c.height} at ({c.crop_x}, {c.crop_y}) does not fit the {fw}x{fh} film"
     if not (c.aperture_radius >= 0 and (c.aperture_radius == 0 or c.focus_distance > 0)):
