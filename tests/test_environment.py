@@ -98,16 +98,35 @@ def test_environment_sampling_density_is_mitsubas(scenes):
         assert d[3] == pytest.approx(float(emitter.pdf_direction(it, ds)), rel=2e-3)
 
 
+def _compensated(scenes, path, bsdf_samples):
+    """The envmap scene with mis_compensation, at `path`."""
+    text = scenes["envmap"].read_text().replace('value="sky.exr"', f'value="{scenes["envmap"].parent / "sky.exr"}"')
+    text = text.replace('<float name="scale" value="1.5"/>',
+                        '<float name="scale" value="1.5"/><boolean name="mis_compensation" value="true"/>')
+    path.write_text(text.replace('<integer name="bsdf_samples" value="0"/>',
+                                 f'<integer name="bsdf_samples" value="{bsdf_samples}"/>'))
+    return path
+
+
+def _assert_mean_is_mitsubas(path):
+    """The image's mean within 4 standard errors (each from two seeds' pixel differences) and 1% of Mitsuba's."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ours = [probvis.render(path, spp=64, shadow_rays=4, seed=s).image.reshape(-1, 3) for s in (1, 2)]
+    theirs = [mitsuba_image(path, 256, s).reshape(-1, 3) for s in (1, 2)]
+    se2 = sum((x - y).std(0) ** 2 / 4 / len(x) for x, y in (ours, theirs))
+    gap = (ours[0] + ours[1] - theirs[0] - theirs[1]).mean(0) / 2
+    assert np.all(np.abs(gap) < 4 * np.sqrt(se2)), (gap, np.sqrt(se2))
+    assert np.all(np.abs(gap) < 0.01 * theirs[0].mean(0))
+
+
 def test_mis_compensation_samples_and_renders_as_mitsuba_s(scenes, tmp_path):
     """`mis_compensation` samples the map by its luminance less the mean (Mitsuba's density, direction by
     direction); under `direct` without BSDF samples the dimmer directions' light is then missing in both
     renderers alike, and probvis says so."""
     mi = pytest.importorskip("mitsuba")
     mi.set_variant("scalar_rgb")
-    text = scenes["envmap"].read_text().replace('value="sky.exr"', f'value="{scenes["envmap"].parent / "sky.exr"}"')
-    path = tmp_path / "mis.xml"
-    path.write_text(text.replace('<float name="scale" value="1.5"/>',
-                                 '<float name="scale" value="1.5"/><boolean name="mis_compensation" value="true"/>'))
+    path = _compensated(scenes, tmp_path / "mis.xml", 0)
     with pytest.warns(UserWarning, match="mis_compensation samples the map by its luminance less the mean"):
         scene = probvis.load_scene(path)
     es = build_emitter_sampler(scene).arrays
@@ -121,14 +140,7 @@ def test_mis_compensation_samples_and_renders_as_mitsuba_s(scenes, tmp_path):
     plain = build_emitter_sampler(probvis.load_scene(scenes["envmap"])).arrays
     inner = slice(1, -1)  # the poles' rows are zero in both (sin θ)
     assert (es.env_density[inner] == 0).mean() > 0.5 and not (plain.env_density[inner] == 0).any()
-    # the image: its mean within 4 standard errors of Mitsuba's (each from two seeds' pixel differences)
-    warnings.simplefilter("ignore")
-    ours = [probvis.render(path, spp=64, shadow_rays=4, seed=s).image.reshape(-1, 3) for s in (1, 2)]
-    theirs = [mitsuba_image(path, 256, s).reshape(-1, 3) for s in (1, 2)]
-    se2 = sum((x - y).std(0) ** 2 / 4 / len(x) for x, y in (ours, theirs))
-    gap = (ours[0] + ours[1] - theirs[0] - theirs[1]).mean(0) / 2
-    assert np.all(np.abs(gap) < 4 * np.sqrt(se2)), (gap, np.sqrt(se2))
-    assert np.all(np.abs(gap) < 0.01 * theirs[0].mean(0))
+    _assert_mean_is_mitsubas(path)
 
 
 def test_mis_compensation_with_bsdf_samples_has_the_whole_map_s_light_as_in_mitsuba(scenes, tmp_path):
@@ -136,24 +148,13 @@ def test_mis_compensation_with_bsdf_samples_has_the_whole_map_s_light_as_in_mits
     its image has the whole map's light, and probvis's, sampling the whole map, the same mean (it was 15-22%
     darker: sampled as without BSDF samples)."""
     pytest.importorskip("mitsuba")
-    text = scenes["envmap"].read_text().replace('value="sky.exr"', f'value="{scenes["envmap"].parent / "sky.exr"}"')
-    text = text.replace('<float name="scale" value="1.5"/>',
-                        '<float name="scale" value="1.5"/><boolean name="mis_compensation" value="true"/>')
-    path = tmp_path / "mis.xml"
-    path.write_text(text.replace('<integer name="bsdf_samples" value="0"/>', '<integer name="bsdf_samples" '
-                                                                           'value="1"/>'))
+    path = _compensated(scenes, tmp_path / "mis.xml", 1)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         warnings.filterwarnings("ignore", message=".*bsdf_samples")  # probvis samples no BSDF: said as usual
         scene = probvis.load_scene(path)
     assert (build_emitter_sampler(scene).arrays.env_density[1:-1] > 0).all()  # the whole map sampled
-    warnings.simplefilter("ignore")
-    ours = [probvis.render(path, spp=64, shadow_rays=4, seed=s).image.reshape(-1, 3) for s in (1, 2)]
-    theirs = [mitsuba_image(path, 256, s).reshape(-1, 3) for s in (1, 2)]
-    se2 = sum((x - y).std(0) ** 2 / 4 / len(x) for x, y in (ours, theirs))
-    gap = (ours[0] + ours[1] - theirs[0] - theirs[1]).mean(0) / 2
-    assert np.all(np.abs(gap) < 4 * np.sqrt(se2)), (gap, np.sqrt(se2))
-    assert np.all(np.abs(gap) < 0.01 * theirs[0].mean(0))
+    _assert_mean_is_mitsubas(path)
 
 
 @pytest.mark.parametrize("kind", ["envmap", "constant"])
