@@ -821,9 +821,11 @@ def main(argv=None):
         print(f"probvis: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except MemoryError:  # an allocation the estimate before the render did not foresee (a texture's, say)
-        rendering = "lower the resolution, --spp, --shadow-rays or " if command == "render" else "lower "
-        print("probvis: error: out of memory (the machine's or the process's limit, ulimit -v): "
-              f"{rendering}the scene's texture and environment map sizes", file=sys.stderr)
+        advice = {"render": ": lower the resolution, --spp, --shadow-rays or the scene's texture sizes",
+                  "info": ": lower the scene's texture and environment map sizes",
+                  "experiment": ": lower the study's resolution, spp or shadow rays, or its scenes' texture sizes"}
+        print("probvis: error: out of memory (the machine's or the process's limit, ulimit -v)"
+              f"{advice.get(command, '')}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("probvis: interrupted, nothing written", file=sys.stderr)

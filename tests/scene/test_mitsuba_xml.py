@@ -1113,6 +1113,9 @@ def test_a_view_so_tall_the_scene_shrinks_to_a_dot_is_refused(tmp_path):
                                        "<float name='fov' value='45'/><string name='fov_axis' value='x'/>")
     with pytest.raises(ProbvisError, match=r"fov 45 makes the view 179\.93\d* degrees tall \(at most 179\.5"):
         probvis.load_scene(write_scene(tmp_path / "tall.xml", body + LIGHT))
+    at_limit = sensor(w=3, h=5).replace("<float name=\"fov\" value=\"40\"/>",
+                                        "<float name='fov' value='179.5'/><string name='fov_axis' value='y'/>")
+    probvis.load_scene(write_scene(tmp_path / "limit.xml", at_limit + LIGHT))  # at the limit, a few ulps over it
     path = write_scene(tmp_path / "ok.xml", sensor() + LIGHT)  # 40 degrees across x: fine at 16 x 16
     with pytest.raises(ProbvisError, match=r"1x8192 film is 179\.9\d* degrees tall, more than 179\.5"):
         probvis.render(path, resolution=(1, 8192))

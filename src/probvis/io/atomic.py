@@ -154,7 +154,7 @@ def atomic_path(path):
     try:
         fd, tmp = temp_beside(path.parent or ".", path.suffix)
     except OSError as exc:
-        missing = not path.parent.is_dir()  # /proc exists and says ENOENT: its own reason, not "does not exist"
+        missing = not os.path.isdir(path.parent)  # /proc exists and says ENOENT: its own reason
         raise ProbvisError(f"cannot write '{shown}': " + (f"folder '{Path(shown).parent}' does not exist" if missing
                                                           else exc.strerror or str(exc))) from None
     os.close(fd)

@@ -21,8 +21,8 @@ from . import shapes as shp
 from . import transform as tf
 from ..texture import BITMAP, CHECKERBOARD, WRAP_MODES, Texture
 from .scene import EMITTER_ENVIRONMENT, MAX_COORDINATE, MAX_EMISSION, SceneBuilder
-from .sensor import (FILTERS, FOV_AXES, MAX_CUBIC_PARAMETER, MAX_FILM_EXTENT, MAX_FILM_SIDE, MAX_FILTER_RADIUS, MAX_FOV,
-                     MIN_FILTER_REACH, Camera, camera_problem, tan_x_per_axis)
+from .sensor import (FILTERS, FOV_AXES, FOV_ROUNDING, MAX_CUBIC_PARAMETER, MAX_FILM_EXTENT, MAX_FILM_SIDE,
+                     MAX_FILTER_RADIUS, MAX_FOV, MIN_FILTER_REACH, Camera, camera_problem, tan_x_per_axis)
 from .serialized import load_serialized
 from .spectrum import spectrum_to_rgb
 
@@ -1361,7 +1361,8 @@ class _Reader:
         that says whether Mitsuba's image has their light (found by BSDF sampling) or lacks it (bsdf_samples 0).
         Positive weights, left aside too, are said once for all the emitters that have one."""
         if self.weighted:
-            more = f" (and on {len(self.weighted) - 1} more emitters)" if len(self.weighted) > 1 else ""
+            n = len(self.weighted) - 1
+            more = f" (and on {n} more emitter{'s' if n > 1 else ''})" if n else ""
             warnings.warn(f"{self.where(self.weighted[0])}: sampling_weight ignored{more}: probvis samples emitters "
                           "by their power (the same expected image)", stacklevel=3)
         if not self.unweighted:
@@ -1525,10 +1526,11 @@ class _Reader:
             self.fail(node, f"unknown fov_axis '{axis}' ({', '.join(FOV_AXES)})")
         fov_x = float(np.degrees(2.0 * np.arctan(np.tan(np.radians(fov) / 2.0) * tan_x_per_axis(axis, aspect))))
         fov_y = float(np.degrees(2.0 * np.arctan(np.tan(np.radians(fov_x) / 2.0) / aspect)))
-        if max(fov_x, fov_y) > MAX_FOV:
+        if max(fov_x, fov_y) > MAX_FOV + FOV_ROUNDING:
             given = f"fov {fov:.10g}" if "fov" in props else f"focal_length {props.get('focal_length')}"
-            across = f"{fov_x:.10g} degrees wide" if fov_x >= fov_y else f"{fov_y:.10g} degrees tall"
-            self.fail(node, f"{given} makes the view {across} (at most {MAX_FOV:g}: wider, a perspective image "
+            across, more = (f"{fov_x:.10g} degrees wide", "wider") if fov_x >= fov_y else \
+                (f"{fov_y:.10g} degrees tall", "taller")
+            self.fail(node, f"{given} makes the view {across} (at most {MAX_FOV:g}: {more}, a perspective image "
                             "shrinks the whole scene to a few pixels at its centre)")
         return fov_x, axis
 

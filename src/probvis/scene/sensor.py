@@ -16,6 +16,7 @@ FILTERS = ("box", "tent", "gaussian", "mitchell", "catmullrom", "lanczos")  # Mi
 MAX_CUBIC_PARAMETER = 100.0  # |B|, |C| of a mitchell filter: its weights grow with them (1/3 by default)
 MAX_PRINCIPAL_OFFSET = 1e3  # film sizes: beyond, the view's axis is within a thousandth of a radian of the film plane
 MAX_FOV = 179.5  # degrees across the film: wider, a perspective image shrinks the scene to a few pixels at its centre
+FOV_ROUNDING = 1e-9  # degrees: a view declared along y at the limit comes back from x a few ulps above it
 MAX_APERTURE_RATIO = 1e3  # lens radius per focus distance: beyond, every ray leaves the lens nearly along its plane
 FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")  # what a field of view may span (Mitsuba's fov_axis)
 MAX_CAMERA_SCALE = 1e-3  # Mitsuba refuses a camera whose to_world's M M^T is further than this from the identity
@@ -135,12 +136,12 @@ def camera_problem(c):
     for what, val in (("width", c.width), ("height", c.height)):
         if int(val) != val or not 1 <= val <= MAX_FILM_SIDE:
             return f"{what} must be a whole number from 1 to {MAX_FILM_SIDE}, got {val}"
-    if not 0.0 < c.fov_x <= MAX_FOV:
+    if not 0.0 < c.fov_x <= MAX_FOV + FOV_ROUNDING:
         return (f"field of view must be above 0 and at most {MAX_FOV:g} degrees across, got {c.fov_x:.10g} (wider, a "
                 "perspective image shrinks the whole scene to a few pixels at its centre)")
     fw, fh = c.film_size
     fov_y = math.degrees(2.0 * math.atan(math.tan(math.radians(c.fov_x) / 2.0) * fh / fw))
-    if fov_y > MAX_FOV:
+    if fov_y > MAX_FOV + FOV_ROUNDING:
         return (f"a field of view {c.fov_x:.10g} degrees across a {fw}x{fh} film is {fov_y:.10g} degrees tall, more "
                 f"than {MAX_FOV:g} (taller, a perspective image shrinks the whole scene to a few pixels at its "
                 "centre)")
