@@ -76,7 +76,7 @@ def exclusive_folder(folder, what, own=()):
     error naming `what`. Once held, the hidden temporaries (`temp_beside`'s) that a process killed while writing
     left in it and in its subfolders `own` are removed, and folders made here are removed again if the block
     fails and leaves them empty. Where the file system cannot lock (NFS without locking), the block runs
-    without the lock and removes nothing."""
+    without the lock and removes no temporaries (another process's may be live)."""
     folder = Path(folder)
     made = [d for d in (folder, *folder.parents) if not d.exists()]
     try:
@@ -92,7 +92,7 @@ def exclusive_folder(folder, what, own=()):
                     _remove_temporaries(folder / sub)
             yield folder
         except BaseException:
-            for d in made if held else ():
+            for d in made:  # a process refused the lock raised above, before touching what the holder made
                 try:
                     if d.is_dir() and not any(d.iterdir()):
                         d.rmdir()
